@@ -1,0 +1,5 @@
+"""Run the CLI with ``python -m skinloc``."""
+
+from skinloc.cli import main
+
+main()

@@ -85,7 +85,9 @@ class Recording:
         n_sensors = self.n_tx * self.n_rx
         self.frames = np.asarray(self.frames, dtype=np.float32)
         if self.frames.size == 0:
-            self.frames = self.frames.reshape(0, self.frames.shape[1] if self.frames.ndim == 3 else 0, n_sensors)
+            self.frames = self.frames.reshape(
+                0, self.frames.shape[1] if self.frames.ndim == 3 else 0, n_sensors
+            )
         self.validate()
 
     @property
@@ -149,24 +151,33 @@ class Recording:
             raise RecordingError(
                 f"{len(self.frames)} point logs of frames but {len(self.targets)} targets"
             )
-        for name, arr in (("baseline", self.baseline_frames), ("frames", self.frames),
-                          ("targets", self.targets)):
+        for name, arr in (
+            ("baseline", self.baseline_frames),
+            ("frames", self.frames),
+            ("targets", self.targets),
+        ):
             if not np.all(np.isfinite(arr)):
                 raise RecordingError(f"recording has NaN or infinite values in its {name}")
         if self.frame_times is not None:
             self.frame_times = np.asarray(self.frame_times, dtype=np.float64)
             if self.frame_times.shape != self.frames.shape[:2]:
                 raise RecordingError(
-                    f"frame times must have shape {self.frames.shape[:2]}, got {self.frame_times.shape}"
+                    f"frame times must have shape {self.frames.shape[:2]}, "
+                    f"got {self.frame_times.shape}"
                 )
 
     def subset(self, index: np.ndarray | list[int] | slice) -> Recording:
         """A copy with only the chosen point logs."""
         idx = np.arange(self.n_point_logs)[index]
         return Recording(
-            n_tx=self.n_tx, n_rx=self.n_rx, vertices=self.vertices, faces=self.faces,
-            baseline_frames=self.baseline_frames, targets=self.targets[idx],
-            frames=self.frames[idx], surface_points=self.surface_points,
+            n_tx=self.n_tx,
+            n_rx=self.n_rx,
+            vertices=self.vertices,
+            faces=self.faces,
+            baseline_frames=self.baseline_frames,
+            targets=self.targets[idx],
+            frames=self.frames[idx],
+            surface_points=self.surface_points,
             planned_targets=None,
             frame_times=None if self.frame_times is None else self.frame_times[idx],
             meta=dict(self.meta),
@@ -184,7 +195,11 @@ class Recording:
         self.targets = np.concatenate([self.targets, target])
         if times is not None or self.frame_times is not None:
             t = np.full(frames.shape[:2], np.nan) if times is None else np.asarray(times)[None]
-            self.frame_times = t if self.frame_times is None or len(self.frames) == 1 else np.concatenate([self.frame_times, t])
+            self.frame_times = (
+                t
+                if self.frame_times is None or len(self.frames) == 1
+                else np.concatenate([self.frame_times, t])
+            )
         self.meta["modified"] = _now()
         self.validate()
 
@@ -231,11 +246,14 @@ def _read_h5(path: Path) -> Recording:
             g = f["point_logs"]
             opt = lambda grp, key: grp[key][()] if key in grp else None  # noqa: E731
             return Recording(
-                n_tx=int(f.attrs["n_tx"]), n_rx=int(f.attrs["n_rx"]),
-                vertices=f["mesh/vertices"][()], faces=f["mesh/faces"][()],
+                n_tx=int(f.attrs["n_tx"]),
+                n_rx=int(f.attrs["n_rx"]),
+                vertices=f["mesh/vertices"][()],
+                faces=f["mesh/faces"][()],
                 surface_points=opt(f["mesh"], "surface_points"),
                 baseline_frames=f["baseline/frames"][()],
-                targets=g["targets"][()], frames=g["frames"][()],
+                targets=g["targets"][()],
+                frames=g["frames"][()],
                 frame_times=opt(g, "frame_times"),
                 planned_targets=opt(f, "planned_targets"),
                 meta=json.loads(f.attrs.get("meta", "{}")),
@@ -270,12 +288,24 @@ def _read_mat(path: Path) -> Recording:
         faces = np.asarray(td.obj.f, dtype=np.int64) - 1
         points = np.asarray(td.obj.Points, dtype=np.float64) if hasattr(td.obj, "Points") else None
     except (AttributeError, ValueError, TypeError) as exc:
-        raise RecordingError(f"{path}: touchData is missing a field or has a bad shape ({exc})") from exc
+        raise RecordingError(
+            f"{path}: touchData is missing a field or has a bad shape ({exc})"
+        ) from exc
     return Recording(
-        n_tx=n_tx, n_rx=n_rx, vertices=vertices, faces=faces, surface_points=points,
-        baseline_frames=baseline_frames, targets=targets, frames=frames,
-        meta={"source": f"matlab:{path.name}", "sampling_mode": "edge",
-              "samples_per_touch": int(frames.shape[1]), "description": path.stem},
+        n_tx=n_tx,
+        n_rx=n_rx,
+        vertices=vertices,
+        faces=faces,
+        surface_points=points,
+        baseline_frames=baseline_frames,
+        targets=targets,
+        frames=frames,
+        meta={
+            "source": f"matlab:{path.name}",
+            "sampling_mode": "edge",
+            "samples_per_touch": int(frames.shape[1]),
+            "description": path.stem,
+        },
     )
 
 
@@ -331,14 +361,16 @@ def write_recording(rec: Recording, path: str | Path) -> None:
 
 
 def write_mat(rec: Recording, path: str | Path) -> None:
-    """Write ``rec`` in the paper's MATLAB ``touchData`` layout (point-log frames baseline-subtracted)."""
+    """Write ``rec`` in the paper's MATLAB ``touchData`` layout (point-log frames minus baseline)."""
     import scipy.io
 
     rec.validate()
     baseline = rec.baseline
     deltas = rec.frames.astype(np.float64) - baseline
-    pl = np.empty((1, rec.n_point_logs), dtype=[("sensorStateRaw", "O"), ("sensorStateAvg", "O"),
-                                                ("touchPos", "O")])
+    pl = np.empty(
+        (1, rec.n_point_logs),
+        dtype=[("sensorStateRaw", "O"), ("sensorStateAvg", "O"), ("touchPos", "O")],
+    )
     for i in range(rec.n_point_logs):
         pl[0, i] = (deltas[i], deltas[i].mean(axis=0), rec.targets[i])
     s = rec.samples_per_touch
@@ -346,8 +378,13 @@ def write_mat(rec: Recording, path: str | Path) -> None:
     if rec.surface_points is not None:
         obj["Points"] = rec.surface_points
     touch = {
-        "numTX": float(rec.n_tx), "numRX": float(rec.n_rx), "numSensors": float(rec.n_sensors),
-        "CPL": {"sensorStateRaw": rec.baseline_frames.astype(np.float64), "sensorStateAvg": baseline},
+        "numTX": float(rec.n_tx),
+        "numRX": float(rec.n_rx),
+        "numSensors": float(rec.n_sensors),
+        "CPL": {
+            "sensorStateRaw": rec.baseline_frames.astype(np.float64),
+            "sensorStateAvg": baseline,
+        },
         "PL": pl,
         "LIN": {
             "sensorStateAvg": deltas.mean(axis=1),
@@ -357,4 +394,6 @@ def write_mat(rec: Recording, path: str | Path) -> None:
         },
         "obj": obj,
     }
-    _atomic_write(Path(path), lambda tmp: scipy.io.savemat(tmp, {"touchData": touch}, do_compression=True))
+    _atomic_write(
+        Path(path), lambda tmp: scipy.io.savemat(tmp, {"touchData": touch}, do_compression=True)
+    )

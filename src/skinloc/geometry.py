@@ -126,7 +126,9 @@ def cone_skin(
     if min(r_small, r_large) <= 0 or y_small == y_large:
         raise ValueError("cone_skin needs positive radii and two distinct end positions")
     if n_segments < 2 or n_rings < 1:
-        raise ValueError(f"cone_skin needs n_segments >= 2 and n_rings >= 1, got {n_segments}, {n_rings}")
+        raise ValueError(
+            f"cone_skin needs n_segments >= 2 and n_rings >= 1, got {n_segments}, {n_rings}"
+        )
     theta = np.linspace(0.0, np.pi, n_segments + 1)
     s = np.linspace(0.0, 1.0, n_rings + 1)
     radius = r_small + (r_large - r_small) * s
@@ -318,7 +320,9 @@ def surface_points(mesh: trimesh.Trimesh, n: int = 14400, random_state: int = 0)
     return sample_surface(mesh, n, random_state)[0]
 
 
-def nearest_on_surface(mesh: trimesh.Trimesh, points: Points) -> tuple[Points, np.ndarray, np.ndarray]:
+def nearest_on_surface(
+    mesh: trimesh.Trimesh, points: Points
+) -> tuple[Points, np.ndarray, np.ndarray]:
     """Exact closest points on the mesh.
 
     Returns
@@ -357,7 +361,9 @@ class SurfaceConstraint:
     ) -> None:
         self.mesh = mesh
         self.mode = ConstraintMode(mode)
-        self.points = surface_points(mesh) if points is None else _as_points(points, "surface points")
+        self.points = (
+            surface_points(mesh) if points is None else _as_points(points, "surface points")
+        )
         self._tree = cKDTree(self.points) if self.mode is ConstraintMode.SNAP else None
 
     def __call__(self, points: Points) -> Points:

@@ -50,7 +50,9 @@ def localisation_errors_mm(predicted: np.ndarray, true: np.ndarray) -> np.ndarra
     """Euclidean distances between ``predicted (n, 3)`` and ``true (n, 3)`` metres, in mm."""
     predicted, true = np.asarray(predicted, float), np.asarray(true, float)
     if predicted.shape != true.shape or predicted.ndim != 2 or predicted.shape[1] != 3:
-        raise ValueError(f"points must both have shape (n, 3), got {predicted.shape} and {true.shape}")
+        raise ValueError(
+            f"points must both have shape (n, 3), got {predicted.shape} and {true.shape}"
+        )
     return 1e3 * np.linalg.norm(predicted - true, axis=1)
 
 
@@ -70,8 +72,10 @@ class ErrorStats:
         return asdict(self)
 
     def __str__(self) -> str:
-        return (f"{self.mean_mm:.1f} +- {self.std_mm:.1f} mm (median {self.median_mm:.1f}, "
-                f"p95 {self.p95_mm:.1f}, n={self.n})")
+        return (
+            f"{self.mean_mm:.1f} +- {self.std_mm:.1f} mm (median {self.median_mm:.1f}, "
+            f"p95 {self.p95_mm:.1f}, n={self.n})"
+        )
 
 
 def error_stats(errors_mm: np.ndarray) -> ErrorStats:
@@ -86,6 +90,10 @@ def error_stats(errors_mm: np.ndarray) -> ErrorStats:
     if e.size == 0:
         raise ValueError("no errors to summarise")
     return ErrorStats(
-        n=int(e.size), mean_mm=float(e.mean()), std_mm=float(e.std()),
-        median_mm=float(np.median(e)), p95_mm=float(np.percentile(e, 95)), max_mm=float(e.max()),
+        n=int(e.size),
+        mean_mm=float(e.mean()),
+        std_mm=float(e.std()),
+        median_mm=float(np.median(e)),
+        p95_mm=float(np.percentile(e, 95)),
+        max_mm=float(e.max()),
     )

@@ -1,0 +1,327 @@
+"""The calibration session: baseline, targets, touches, point logs; free of any UI.
+
+The session reads frames from any ``FrameSource`` and talks to the person (or a scripted
+finger) through a ``Prober``. The recording is written atomically after the baseline and after
+every point log, so a crash loses at most the touch in progress, and ``resume`` carries on.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+
+from skinloc._typing import Points
+from skinloc.dataset import Recording, read_recording, write_recording
+from skinloc.errors import FrameTimeoutError, RecordingError
+from skinloc.geometry import SamplingMode, sample_targets, surface_points
+from skinloc.sources.base import FrameSource
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "CalibrationSession",
+    "Prober",
+    "ScriptedFinger",
+    "SessionConfig",
+    "TouchDetector",
+    "simulate_session",
+]
+
+
+@dataclass
+class SessionConfig:
+    """Settings of a calibration session.
+
+    Attributes
+    ----------
+    n_points : int
+        Point logs to record.
+    mode : str
+        Target sampling: ``even``, ``random`` or ``edge``.
+    samples_per_touch : int
+        Frames captured at each target (the paper: 50).
+    n_baseline_frames : int
+        No-touch frames captured first.
+    threshold_sigma : float
+        A sensor is touched when its delta exceeds this many baseline standard deviations.
+    min_active : int
+        Touched sensors needed for a frame to count as a touch.
+    settle_frames : int
+        Consecutive touch frames required before capture starts (lets the finger settle).
+    touch_timeout_s : float
+        Longest wait for a touch or a release, s.
+    random_state : int
+        Seed for the targets.
+    description : str
+        Free text stored with the recording.
+    """
+
+    n_points: int = 80
+    mode: str = "even"
+    samples_per_touch: int = 50
+    n_baseline_frames: int = 50
+    threshold_sigma: float = 5.0
+    min_active: int = 2
+    settle_frames: int = 5
+    touch_timeout_s: float = 60.0
+    random_state: int = 0
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        self.mode = SamplingMode(self.mode).value
+        for name in ("n_points", "samples_per_touch", "min_active", "settle_frames"):
+            if getattr(self, name) < 1:
+                raise ValueError(
+                    f"SessionConfig.{name} must be at least 1, got {getattr(self, name)}"
+                )
+        if self.n_baseline_frames < 2:
+            raise ValueError(
+                f"SessionConfig.n_baseline_frames must be at least 2, got {self.n_baseline_frames}"
+            )
+        if self.threshold_sigma <= 0 or self.touch_timeout_s <= 0:
+            raise ValueError("SessionConfig.threshold_sigma and touch_timeout_s must be positive")
+
+
+class TouchDetector:
+    """Decide from one frame whether the skin is touched.
+
+    Parameters
+    ----------
+    baseline : (n_sensors,) float
+        No-touch mean, counts.
+    noise : (n_sensors,) float
+        No-touch standard deviation, counts.
+    threshold_sigma, min_active :
+        See ``SessionConfig``.
+    """
+
+    def __init__(
+        self,
+        baseline: np.ndarray,
+        noise: np.ndarray,
+        threshold_sigma: float = 5.0,
+        min_active: int = 2,
+    ) -> None:
+        self.baseline = np.asarray(baseline, dtype=np.float64)
+        # A floor of 1 count keeps a perfectly quiet sensor from triggering on quantisation.
+        self.threshold = threshold_sigma * np.maximum(np.asarray(noise, dtype=np.float64), 1.0)
+        self.min_active = min_active
+
+    def n_active(self, values: np.ndarray) -> int:
+        """Sensors above threshold in ``values (n_sensors,)`` raw counts."""
+        return int(np.count_nonzero(np.asarray(values) - self.baseline > self.threshold))
+
+    def is_touched(self, values: np.ndarray) -> bool:
+        """Whether ``values (n_sensors,)`` raw counts look like a touch."""
+        return self.n_active(values) >= self.min_active
+
+
+class Prober(Protocol):
+    """Who touches the skin: a person prompted by a UI, or a scripted finger."""
+
+    def prompt(self, index: int, target: np.ndarray) -> None:
+        """Ask for a touch at ``target (3,)`` m (point log ``index``)."""
+
+    def captured(self, index: int) -> None:
+        """The frames of point log ``index`` are stored: the finger may lift."""
+
+
+class ScriptedFinger:
+    """A prober for the simulated skin: touches near each target, lifts after capture.
+
+    The contacts actually made (target plus probing error) are kept in ``contacts``.
+    """
+
+    def __init__(self, skin, random_state: int | None = None) -> None:
+        self.skin = skin
+        self.rng = np.random.default_rng(random_state)
+        self.contacts: list[np.ndarray] = []
+
+    def prompt(self, index: int, target: np.ndarray) -> None:
+        """Press the simulated finger near ``target``."""
+        self.contacts.append(np.asarray(self.skin.touch_near(target, rng=self.rng)))
+
+    def captured(self, index: int) -> None:
+        """Lift the simulated finger."""
+        self.skin.release()
+
+
+class CalibrationSession:
+    """Record a calibration session to ``path``.
+
+    Parameters
+    ----------
+    source : FrameSource
+        Where frames come from (connected by the caller).
+    mesh : trimesh.Trimesh
+        The skin surface the targets lie on, m.
+    path : str or Path
+        Recording to write (HDF5), rewritten atomically after every point log.
+    config : SessionConfig
+        Session settings.
+    targets : (n, 3) float, optional
+        Targets to use instead of sampling them (e.g. a loaded list).
+    """
+
+    def __init__(
+        self,
+        source: FrameSource,
+        mesh,
+        path: str | Path,
+        config: SessionConfig | None = None,
+        targets: Points | None = None,
+        source_name: str | None = None,
+    ) -> None:
+        self.source = source
+        self.mesh = mesh
+        self.path = Path(path)
+        self.config = config or SessionConfig()
+        if targets is None:
+            targets = sample_targets(
+                mesh, self.config.n_points, self.config.mode, random_state=self.config.random_state
+            )
+        self.targets = np.asarray(targets, dtype=np.float64).reshape(-1, 3)
+        self.source_name = source_name or source.name
+        self.recording: Recording | None = None
+        self.detector: TouchDetector | None = None
+
+    # ------------------------------------------------------------ resuming
+    @classmethod
+    def resume(cls, source: FrameSource, path: str | Path) -> CalibrationSession:
+        """Continue the unfinished session stored in ``path``."""
+        rec = read_recording(path)
+        if rec.planned_targets is None:
+            raise RecordingError(f"{path} holds no planned targets: it cannot be resumed")
+        if rec.n_sensors != source.n_sensors:
+            raise RecordingError(
+                f"{path} was recorded with {rec.n_sensors} sensors but the source has "
+                f"{source.n_sensors}"
+            )
+        cfg_fields = SessionConfig.__dataclass_fields__
+        cfg = SessionConfig(
+            **{k: v for k, v in rec.meta.get("session", {}).items() if k in cfg_fields}
+        )
+        session = cls(source, rec.mesh, path, cfg, targets=rec.planned_targets)
+        session.recording = rec
+        session.detector = TouchDetector(
+            rec.baseline, rec.noise, cfg.threshold_sigma, cfg.min_active
+        )
+        return session
+
+    @property
+    def n_done(self) -> int:
+        """Point logs recorded so far."""
+        return 0 if self.recording is None else self.recording.n_point_logs
+
+    @property
+    def finished(self) -> bool:
+        """Whether every target has its point log."""
+        return self.n_done >= len(self.targets)
+
+    # ------------------------------------------------------------ steps
+    def capture_baseline(self) -> Recording:
+        """Capture the no-touch frames and start the recording (written at once)."""
+        cfg = self.config
+        frames, _ = self.source.read_many(cfg.n_baseline_frames)
+        n = self.source.n_sensors
+        now = datetime.now(timezone.utc).isoformat(timespec="seconds")
+        self.recording = Recording(
+            n_tx=self.source.n_tx,
+            n_rx=self.source.n_rx,
+            vertices=self.mesh.vertices,
+            faces=self.mesh.faces,
+            surface_points=surface_points(self.mesh),
+            baseline_frames=frames,
+            targets=np.zeros((0, 3)),
+            frames=np.zeros((0, cfg.samples_per_touch, n), dtype=np.float32),
+            planned_targets=self.targets,
+            meta={
+                "sampling_mode": cfg.mode,
+                "samples_per_touch": cfg.samples_per_touch,
+                "description": cfg.description,
+                "source": self.source_name,
+                "created": now,
+                "session": asdict(cfg),
+            },
+        )
+        self.detector = TouchDetector(
+            self.recording.baseline, self.recording.noise, cfg.threshold_sigma, cfg.min_active
+        )
+        write_recording(self.recording, self.path)
+        return self.recording
+
+    def _wait(self, touched: bool, n_consecutive: int) -> None:
+        """Read frames until ``n_consecutive`` in a row are (or are not) touches.
+
+        The timeout runs on the source's clock, so a simulated skin times out in simulated time.
+        """
+        assert self.detector is not None
+        run, start = 0, None
+        while run < n_consecutive:
+            frame = self.source.read(timeout_s=self.config.touch_timeout_s)
+            start = frame.timestamp_s if start is None else start
+            run = run + 1 if self.detector.is_touched(frame.values) == touched else 0
+            if run < n_consecutive and frame.timestamp_s - start > self.config.touch_timeout_s:
+                what = "touch" if touched else "release"
+                raise FrameTimeoutError(
+                    f"no {what} detected on {self.source_name} within "
+                    f"{self.config.touch_timeout_s:g} s"
+                )
+
+    def record_point(self, index: int, prober: Prober) -> None:
+        """Prompt target ``index``, wait for a steady touch, capture and store its frames."""
+        if self.recording is None:
+            raise RecordingError("capture the baseline before recording point logs")
+        target = self.targets[index]
+        prober.prompt(index, target)
+        self._wait(touched=True, n_consecutive=self.config.settle_frames)
+        frames, times = self.source.read_many(self.config.samples_per_touch)
+        self.recording.append(target, frames, times)
+        write_recording(self.recording, self.path)
+        prober.captured(index)
+        self._wait(touched=False, n_consecutive=2)
+
+    def run(self, prober: Prober, progress: Callable[[int, int], None] | None = None) -> Recording:
+        """Record every remaining point log; returns the finished recording."""
+        if self.recording is None:
+            self.capture_baseline()
+        while not self.finished:
+            self.record_point(self.n_done, prober)
+            if progress is not None:
+                progress(self.n_done, len(self.targets))
+        assert self.recording is not None
+        return self.recording
+
+
+def simulate_session(
+    skin,
+    mesh,
+    path: str | Path,
+    config: SessionConfig,
+    targets: Points | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> Recording:
+    """Record a whole session from a simulated skin with a scripted finger.
+
+    ``skin`` is a ``SimulatedSkin`` (connected or not); the true contacts (targets plus probing
+    error) are kept in ``meta["true_contacts"]`` for diagnosis; models never see them.
+    """
+    finger = ScriptedFinger(skin, random_state=config.random_state + 1)
+    was_connected = skin.is_connected
+    if not was_connected:
+        skin.connect()
+    try:
+        session = CalibrationSession(skin, mesh, path, config, targets=targets, source_name="sim")
+        rec = session.run(finger, progress)
+    finally:
+        if not was_connected:
+            skin.disconnect()
+    rec.meta["true_contacts"] = np.asarray(finger.contacts).tolist()
+    write_recording(rec, path)
+    return rec

@@ -1,0 +1,553 @@
+"""The ``skinloc`` command line: simulate, train, evaluate, inspect, convert, benchmark, demo."""
+
+from __future__ import annotations
+
+import functools
+import json
+import logging
+import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from enum import Enum
+from pathlib import Path
+from typing import Annotated, Any, TypeVar
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from skinloc.errors import SkinlocError
+
+app = typer.Typer(
+    name="skinloc",
+    help="Contact localisation on 3D tactile skin: calibrate, simulate, train, evaluate.",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    add_completion=False,
+)
+console = Console()
+err_console = Console(stderr=True)
+log = logging.getLogger("skinloc")
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+class Arch(str, Enum):
+    """Localiser configurations."""
+
+    default = "default"
+    paper = "paper"
+
+
+class Constraint(str, Enum):
+    """Output constraints."""
+
+    snap = "snap"
+    project = "project"
+    none = "none"
+
+
+class Mode(str, Enum):
+    """Target sampling modes."""
+
+    even = "even"
+    random = "random"
+    edge = "edge"
+
+
+class Units(str, Enum):
+    """Mesh file units."""
+
+    auto = "auto"
+    m = "m"
+    mm = "mm"
+
+
+def friendly_errors(fn: F) -> F:
+    """Turn expected failures (bad files, bad values) into one line on stderr and exit 1."""
+
+    @functools.wraps(fn)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return fn(*args, **kwargs)
+        except (SkinlocError, ValueError, OSError) as exc:
+            err_console.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
+            raise typer.Exit(1) from None
+        except KeyboardInterrupt:
+            err_console.print("interrupted")
+            raise typer.Exit(130) from None
+
+    return wrapper  # type: ignore[return-value]
+
+
+@contextmanager
+def progress_steps() -> Iterator[Callable[[str, int, int], None]]:
+    """A ``step(label, done, total)`` callback drawing one rich progress bar per label."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    with Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        console=err_console,
+        transient=False,
+        disable=not err_console.is_terminal and not _force_progress(),
+    ) as bar:
+        tasks: dict[str, Any] = {}
+
+        def step(label: str, done: int, total: int) -> None:
+            if label not in tasks:
+                tasks[label] = bar.add_task(label, total=total)
+            bar.update(tasks[label], completed=done, total=total)
+
+        yield step
+
+
+def _force_progress() -> bool:
+    import os
+
+    return os.environ.get("SKINLOC_PROGRESS") == "1"
+
+
+@app.callback()
+def _main(
+    verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Log what happens.")] = False,
+) -> None:
+    logging.basicConfig(
+        level=logging.INFO if verbose else logging.WARNING,
+        format="%(levelname)s %(name)s: %(message)s",
+    )
+
+
+def _read_all(paths: list[Path]) -> list:
+    from skinloc.dataset import read_recording
+
+    return [read_recording(p) for p in paths]
+
+
+def _print_json(obj: Any) -> None:
+    sys.stdout.write(json.dumps(obj, indent=2, default=float) + "\n")
+
+
+# ------------------------------------------------------------------------------------ demo
+@app.command()
+@friendly_errors
+def demo(
+    out: Annotated[Path, typer.Option(help="Report folder to write.")] = Path("skinloc-demo"),
+    points: Annotated[int, typer.Option(min=2, help="Calibration point logs.")] = 80,
+    validation: Annotated[int, typer.Option(min=1, help="Fresh validation touches.")] = 20,
+    seed: Annotated[int, typer.Option(help="Seed of the simulated skin and session.")] = 0,
+    arch: Annotated[Arch, typer.Option(help="Localiser configuration.")] = Arch.default,
+) -> None:
+    """Simulate the paper's skin, calibrate with 80 touches, train, validate on 20, report.
+
+    Example: skinloc demo --out skinloc-demo
+    """
+    from skinloc.demo import DemoConfig, run_demo
+
+    cfg = DemoConfig(
+        out_dir=out,
+        n_points=points,
+        n_validation=validation,
+        random_state=seed,
+        arch=arch.value,
+        curve_sizes=tuple(n for n in (10, 20, 40, 80) if n < points) + (points,),
+    )
+    with progress_steps() as step:
+        res = run_demo(cfg, step)
+    console.print(
+        f"Simulated paper skin, {points} calibration touches, {validation} validation touches"
+    )
+    console.print(
+        f"Localisation error: [bold]{res.stats.mean_mm:.1f} +- {res.stats.std_mm:.1f} mm[/] "
+        f"(median {res.stats.median_mm:.1f} mm, p95 {res.stats.p95_mm:.1f} mm)"
+    )
+    console.print(f"Mean SNR (paper Eq. 1): {res.mean_snr_db:.1f} dB")
+    console.print(f"Model trained in {res.fit_time_s:.1f} s")
+    console.print(f"Report: {res.report}")
+
+
+# ------------------------------------------------------------------------------------ simulate
+@app.command()
+@friendly_errors
+def simulate(
+    out: Annotated[Path, typer.Option(help="Recording to write (.h5, or .mat for MATLAB).")],
+    points: Annotated[int, typer.Option(min=1, help="Point logs to record.")] = 80,
+    mode: Annotated[Mode, typer.Option(help="Target sampling.")] = Mode.even,
+    samples: Annotated[int, typer.Option(min=1, help="Frames per touch.")] = 50,
+    seed: Annotated[int, typer.Option(help="Seed of the session (targets, touches).")] = 0,
+    skin_seed: Annotated[int, typer.Option(help="Seed of the skin (wiring, gains).")] = 0,
+    mesh: Annotated[
+        Path | None, typer.Option(help="Skin mesh (OBJ/STL/PLY); default: the paper's cone.")
+    ] = None,
+    units: Annotated[Units, typer.Option(help="Units of --mesh.")] = Units.auto,
+    tx: Annotated[int, typer.Option(min=1, max=21, help="TX lines.")] = 8,
+    rx: Annotated[int, typer.Option(min=1, max=12, help="RX lines.")] = 8,
+) -> None:
+    """Record a whole calibration session from the simulated skin.
+
+    Example: skinloc simulate --points 80 --mode even --samples 50 --seed 0 --out cal.h5
+    """
+    import tempfile
+
+    from skinloc.calibrate import SessionConfig, simulate_session
+    from skinloc.dataset import read_recording, write_mat
+    from skinloc.geometry import cone_skin, load_mesh
+    from skinloc.sources.sim import SimulatedSkin
+
+    surface = cone_skin() if mesh is None else load_mesh(mesh, units.value)
+    skin = SimulatedSkin(surface, n_tx=tx, n_rx=rx, random_state=skin_seed)
+    skin.reseed(seed)
+    cfg = SessionConfig(
+        n_points=points,
+        mode=mode.value,
+        samples_per_touch=samples,
+        random_state=seed,
+        description=f"simulated skin (skin seed {skin_seed})",
+    )
+    as_mat = out.suffix.lower() == ".mat"
+    with progress_steps() as step, tempfile.TemporaryDirectory() as tmp:
+        target = Path(tmp) / "session.h5" if as_mat else out
+        rec = simulate_session(
+            skin, surface, target, cfg, progress=lambda d, t: step("simulating touches", d, t)
+        )
+        if as_mat:
+            write_mat(read_recording(target), out)
+    console.print(
+        f"Wrote {out}: {rec.n_point_logs} point logs x {rec.samples_per_touch} frames, "
+        f"{rec.n_tx} TX x {rec.n_rx} RX"
+    )
+
+
+# ------------------------------------------------------------------------------------ train
+@app.command()
+@friendly_errors
+def train(
+    data: Annotated[list[Path], typer.Argument(help="Recordings (.h5 or the paper's .mat).")],
+    out: Annotated[Path, typer.Option(help="Model file to write.")],
+    arch: Annotated[
+        Arch, typer.Option(help="'paper' is the paper's 64-32-3 network.")
+    ] = Arch.default,
+    constraint: Annotated[Constraint, typer.Option(help="Output constraint.")] = Constraint.snap,
+    seed: Annotated[int, typer.Option(help="Training seed.")] = 0,
+    mesh: Annotated[Path | None, typer.Option(help="Skin mesh; default: the recording's.")] = None,
+    units: Annotated[Units, typer.Option(help="Units of --mesh.")] = Units.auto,
+    epochs: Annotated[int | None, typer.Option(min=1, help="Override the training epochs.")] = None,
+) -> None:
+    """Train a localiser on one or more calibration recordings.
+
+    Example: skinloc train cal.h5 --out model.h5
+    """
+    from skinloc.evaluation import train_localizer
+    from skinloc.geometry import load_mesh
+
+    recs = _read_all(data)
+    surface = load_mesh(mesh, units.value) if mesh is not None else None
+    overrides = {"epochs": epochs} if epochs is not None else {}
+    with progress_steps() as step:
+        model = train_localizer(
+            recs,
+            arch=arch.value,
+            constraint=constraint.value,
+            random_state=seed,
+            mesh=surface,
+            progress=lambda d, t: step("training", d, t),
+            **overrides,
+        )
+    model.save(out)
+    n = sum(r.n_point_logs for r in recs)
+    console.print(
+        f"Trained '{arch.value}' on {n} point logs from {len(recs)} recording(s) "
+        f"in {model.fit_time_s_:.1f} s; wrote {out}"
+    )
+
+
+# ------------------------------------------------------------------------------------ evaluate
+@app.command()
+@friendly_errors
+def evaluate(
+    model: Annotated[Path, typer.Argument(help="Model file from 'skinloc train'.")],
+    data: Annotated[list[Path], typer.Argument(help="Recordings to score.")],
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    per_frame: Annotated[
+        bool, typer.Option("--per-frame", help="Score every frame, not touch means.")
+    ] = False,
+) -> None:
+    """Score a model on recordings: mean, std, median and p95 error in mm.
+
+    Example: skinloc evaluate model.h5 validation.h5 --json
+    """
+    from skinloc.evaluation import evaluate as run
+    from skinloc.model import ContactLocalizer
+
+    loc = ContactLocalizer.load(model)
+    ev = run(loc, _read_all(data), per_frame=per_frame)
+    result = {
+        **ev.as_dict(),
+        "per": "frame" if per_frame else "touch",
+        "model": str(model),
+        "data": [str(d) for d in data],
+    }
+    if as_json:
+        _print_json(result)
+        return
+    table = Table(title=f"{model.name} on {len(data)} recording(s), per {result['per']}")
+    for k in ("n", "mean_mm", "std_mm", "median_mm", "p95_mm", "max_mm", "uncertainty_spearman"):
+        v = result[k]
+        table.add_row(k, f"{v}" if isinstance(v, int) else f"{v:.2f}")
+    console.print(table)
+
+
+# ------------------------------------------------------------------------------------ snr
+@app.command()
+@friendly_errors
+def snr(
+    data: Annotated[list[Path], typer.Argument(help="Recordings.")],
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
+) -> None:
+    """Per-sensor SNR (the paper's Eq. 1) and its mean, for each recording.
+
+    Example: skinloc snr cal.h5 --json
+    """
+    import numpy as np
+
+    from skinloc.metrics import snr_db
+
+    results = []
+    for path, rec in zip(data, _read_all(data), strict=True):
+        s = snr_db(rec.touch_means, rec.baseline_frames)
+        results.append(
+            {
+                "file": str(path),
+                "mean_snr_db": float(np.nanmean(s)),
+                "min_snr_db": float(np.nanmin(s)),
+                "max_snr_db": float(np.nanmax(s)),
+                "per_sensor_db": [None if not np.isfinite(v) else round(float(v), 2) for v in s],
+                "tx": rec.n_tx,
+                "rx": rec.n_rx,
+            }
+        )
+    if as_json:
+        _print_json(results[0] if len(results) == 1 else results)
+        return
+    for r in results:
+        console.print(
+            f"[bold]{r['file']}[/]: mean SNR {r['mean_snr_db']:.1f} dB "
+            f"(range {r['min_snr_db']:.1f} to {r['max_snr_db']:.1f})"
+        )
+        grid = Table("TX \\ RX", *[str(j) for j in range(r["rx"])], title="SNR per sensor (dB)")
+        for i in range(r["tx"]):
+            vals = r["per_sensor_db"][i * r["rx"] : (i + 1) * r["rx"]]
+            grid.add_row(str(i), *["-" if v is None else f"{v:.0f}" for v in vals])
+        console.print(grid)
+
+
+# ------------------------------------------------------------------------------------ info
+@app.command()
+@friendly_errors
+def info(
+    data: Annotated[Path, typer.Argument(help="A recording.")],
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
+) -> None:
+    """Describe a recording: grid, point logs, frames, baseline, noise, SNR.
+
+    Example: skinloc info cal.h5 --json
+    """
+    import numpy as np
+
+    from skinloc.metrics import mean_snr_db
+
+    (rec,) = _read_all([data])
+    summary = {
+        "file": str(data),
+        "tx": rec.n_tx,
+        "rx": rec.n_rx,
+        "n_sensors": rec.n_sensors,
+        "n_point_logs": rec.n_point_logs,
+        "samples_per_touch": rec.samples_per_touch,
+        "n_frames": int(rec.n_point_logs * rec.samples_per_touch),
+        "n_baseline_frames": len(rec.baseline_frames),
+        "n_planned": None if rec.planned_targets is None else len(rec.planned_targets),
+        "baseline_counts_min": float(rec.baseline.min()),
+        "baseline_counts_max": float(rec.baseline.max()),
+        "noise_counts_median": float(np.median(rec.noise)),
+        "mean_snr_db": mean_snr_db(rec.touch_means, rec.baseline_frames)
+        if rec.n_point_logs
+        else None,
+        "mesh_vertices": len(rec.vertices),
+        "mesh_faces": len(rec.faces),
+        "meta": {k: v for k, v in rec.meta.items() if k not in ("true_contacts",)},
+    }
+    if as_json:
+        _print_json(summary)
+        return
+    table = Table(title=str(data), show_header=False)
+    for k, v in summary.items():
+        if k != "meta":
+            table.add_row(k, f"{v:.1f}" if isinstance(v, float) else str(v))
+    for k, v in summary["meta"].items():
+        table.add_row(f"meta.{k}", str(v))
+    console.print(table)
+
+
+# ------------------------------------------------------------------------------------ convert
+@app.command()
+@friendly_errors
+def convert(
+    src: Annotated[Path, typer.Argument(help="Recording to read (.h5 or .mat).")],
+    dst: Annotated[Path, typer.Argument(help="File to write: .mat (MATLAB touchData) or .h5.")],
+) -> None:
+    """Convert between skinloc HDF5 and the paper's MATLAB touchData layout.
+
+    Example: skinloc convert cal.h5 cal.mat
+    """
+    from skinloc.dataset import write_mat, write_recording
+
+    (rec,) = _read_all([src])
+    suffix = dst.suffix.lower()
+    if suffix == ".mat":
+        write_mat(rec, dst)
+    elif suffix in (".h5", ".hdf5"):
+        write_recording(rec, dst)
+    else:
+        raise ValueError(f"cannot tell the format of {dst}: name it .mat or .h5")
+    console.print(f"Wrote {dst} ({rec.n_point_logs} point logs)")
+
+
+# ------------------------------------------------------------------------------------ bench
+@app.command()
+@friendly_errors
+def bench(
+    sim: Annotated[
+        bool, typer.Option("--sim/--no-sim", help="The paper's experiment on simulated skins.")
+    ] = True,
+    real: Annotated[
+        Path | None,
+        typer.Option(help="Folder of the real recordings: run the cross-recording splits."),
+    ] = None,
+    timing: Annotated[
+        bool, typer.Option("--timing", help="Training time and prediction latency.")
+    ] = False,
+    seeds: Annotated[int, typer.Option(min=1, help="Simulated skins (seeds) per size.")] = 3,
+    sizes: Annotated[str, typer.Option(help="Comma-separated point-log counts.")] = "20,50,80,100",
+    out: Annotated[Path, typer.Option(help="Folder for figures and JSON results.")] = Path(
+        "skinloc-bench"
+    ),
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON results.")] = False,
+) -> None:
+    """The paper's experiment: train on 20, 50, 80, 100 point logs, validate on 20 touches.
+
+    Example: skinloc bench --seeds 3 --real ../shared/data/hiro-cone-skin --timing
+    """
+    import numpy as np
+
+    from skinloc import bench as B
+    from skinloc.report import plot_paper_fig3
+
+    try:
+        size_list = [int(s) for s in sizes.split(",") if s.strip()]
+    except ValueError:
+        raise ValueError(f"--sizes must be comma-separated integers, got {sizes!r}") from None
+    if not size_list or min(size_list) < 2:
+        raise ValueError(f"--sizes must list point-log counts of at least 2, got {sizes!r}")
+    if real is not None and not real.is_dir():
+        raise ValueError(f"--real {real} is not a folder of recordings")
+    out.mkdir(parents=True, exist_ok=True)
+    results: dict[str, Any] = {}
+    with progress_steps() as step:
+        if sim:
+            rows = B.paper_experiment(sizes=size_list, seeds=range(seeds), step=step)
+            results["sim"] = rows
+        if real is not None:
+            results["real"] = [r.__dict__ for r in B.real_splits(real, step=step)]
+        if timing:
+            results["timing"] = B.timing(step=step)
+    (out / "results.json").write_text(json.dumps(results, indent=2, default=float))
+
+    if "sim" in results:
+        rows = results["sim"]
+        table = Table(title=f"Simulated paper skin: validation on 20 random touches, {seeds} skins")
+        table.add_column("point logs")
+        table.add_column("mean SNR (dB)")
+        archs = sorted({r["arch"] for r in rows})
+        for a in archs:
+            table.add_column(f"{a}: error (mm)")
+        for n in size_list:
+            sel = [r for r in rows if r["n_points"] == n]
+            snrs = [r["snr_db"] for r in sel if r["arch"] == archs[0]]
+            cells = []
+            for a in archs:
+                m = [r["mean_mm"] for r in sel if r["arch"] == a]
+                s = [r["std_mm"] for r in sel if r["arch"] == a]
+                cells.append(f"{np.mean(m):.1f} +- {np.mean(s):.1f}")
+            table.add_row(str(n), f"{np.mean(snrs):.1f}", *cells)
+        if not as_json:
+            console.print(table)
+        for a in archs:
+            sel = [[r for r in rows if r["n_points"] == n and r["arch"] == a] for n in size_list]
+            plot_paper_fig3(
+                size_list,
+                [np.mean([r["snr_db"] for r in s]) for s in sel],
+                [np.std([r["snr_db"] for r in s]) for s in sel],
+                [np.mean([r["mean_mm"] for r in s]) for s in sel],
+                [np.mean([r["std_mm"] for r in s]) for s in sel],
+                out / f"fig3_{a}.png",
+                title=f"Simulated paper skin, '{a}' model",
+            )
+    if "real" in results and not as_json:
+        table = Table(title="Real recordings (2023-12-10)")
+        for c in (
+            "protocol",
+            "arch",
+            "train",
+            "test",
+            "per",
+            "n",
+            "mean_mm",
+            "std_mm",
+            "median_mm",
+        ):
+            table.add_column(c)
+        for r in results["real"]:
+            table.add_row(
+                *[
+                    f"{r[c]:.1f}" if isinstance(r[c], float) else str(r[c])
+                    for c in (
+                        "protocol",
+                        "arch",
+                        "train",
+                        "test",
+                        "per",
+                        "n",
+                        "mean_mm",
+                        "std_mm",
+                        "median_mm",
+                    )
+                ]
+            )
+        console.print(table)
+    if "timing" in results and not as_json:
+        t = results["timing"]
+        console.print(
+            f"Training on {t['n_points']} point logs x {t['samples_per_touch']} frames: "
+            f"{t['fit_s']:.2f} s"
+        )
+        console.print(
+            f"Single-frame latency: median {t['latency_median_us']:.0f} us, p99 "
+            f"{t['latency_p99_us']:.0f} us (baseline {t['baseline_latency_median_us']:.0f} "
+            f"/ {t['baseline_latency_p99_us']:.0f} us, x{t['latency_speedup']:.1f})"
+        )
+        console.print(
+            f"Batch throughput: {t['batch_frames_per_s']:.0f} frames/s (baseline "
+            f"{t['baseline_batch_frames_per_s']:.0f}, x{t['batch_speedup']:.1f})"
+        )
+    if as_json:
+        _print_json(results)
+    else:
+        console.print(f"Results and figures in {out}/")
+
+
+def main() -> None:
+    """Console-script entry point."""
+    app()

@@ -1,0 +1,515 @@
+"""The contact localiser: sensor image (n_sensors,) counts -> contact point (3,) m on the skin.
+
+``ContactLocalizer`` follows the scikit-learn conventions: ``__init__`` stores
+hyperparameters, ``fit`` learns (attributes with a trailing ``_``) and returns ``self``.
+Training runs in PyTorch; prediction is a plain NumPy forward pass over the whole ensemble,
+which is faster than torch for one frame and is the path exported to other runtimes.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from skinloc._typing import Frames, Points
+from skinloc.errors import ModelFileError, NotFittedError
+
+log = logging.getLogger(__name__)
+
+__all__ = ["ARCHITECTURES", "ContactLocalizer", "MODEL_FORMAT_VERSION", "Prediction"]
+
+MODEL_FORMAT_VERSION = 1
+
+#: Named configurations. ``paper`` is the paper's network exactly (64-32-3, one hidden layer);
+#: ``default`` is the most accurate on the real recordings (see docs/benchmarks.md).
+ARCHITECTURES: dict[str, dict[str, Any]] = {
+    "paper": dict(
+        hidden=(32,),
+        activation="tanh",
+        n_members=1,
+        normalise="none",
+        clip_negative=False,
+        train_on="means",
+        epochs=2000,
+        lr=1e-2,
+        weight_decay=0.0,
+        noise_std=0.0,
+    ),
+    "default": dict(
+        hidden=(128, 128),
+        activation="relu",
+        n_members=5,
+        normalise="l2",
+        clip_negative=True,
+        train_on="frames",
+        epochs=300,
+        lr=3e-3,
+        weight_decay=1e-4,
+        noise_std=0.0,
+    ),
+}
+
+_ACTIVATIONS = ("relu", "tanh", "gelu")
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """Localiser output for a batch.
+
+    Attributes
+    ----------
+    points : (n, 3) float
+        Contact points on the skin, m.
+    raw : (n, 3) float
+        Ensemble mean before the surface constraint, m.
+    uncertainty_mm : (n,) float
+        Spread of the ensemble members, mm (nan for a single network).
+    """
+
+    points: Points
+    raw: Points
+    uncertainty_mm: np.ndarray
+
+
+def _activation_np(name: str) -> Callable[[np.ndarray], np.ndarray]:
+    if name == "relu":
+        return lambda x: np.maximum(x, 0.0, out=x)
+    if name == "tanh":
+        return lambda x: np.tanh(x, out=x)
+    from scipy.special import erf
+
+    return lambda x: 0.5 * x * (1.0 + erf(x / np.sqrt(2.0)))
+
+
+def group_means(X: np.ndarray, y: np.ndarray, groups: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Average rows of ``X (n, k)`` and ``y (n, 3)`` that share a group label.
+
+    Returns ``(X_mean (g, k), y_mean (g, 3))`` in order of the sorted group labels.
+    """
+    uniq, inv = np.unique(np.asarray(groups), return_inverse=True)
+    counts = np.bincount(inv).astype(np.float64)[:, None]
+    Xm = np.zeros((len(uniq), X.shape[1]))
+    ym = np.zeros((len(uniq), y.shape[1]))
+    np.add.at(Xm, inv, X)
+    np.add.at(ym, inv, y)
+    return Xm / counts, ym / counts
+
+
+class ContactLocalizer:
+    """Fully connected network (or ensemble of them) from sensor images to contact points.
+
+    Parameters
+    ----------
+    arch : {"default", "paper"}, default="default"
+        Named configuration; keyword arguments given explicitly override its values.
+    hidden : tuple of int, optional
+        Hidden layer widths.
+    activation : {"relu", "tanh", "gelu"}, optional
+        Hidden activation.
+    n_members : int, optional
+        Networks in the ensemble; their spread is the uncertainty.
+    normalise : {"none", "l1", "l2"}, optional
+        Divide each image by its norm (after clipping) so that touch pressure cancels.
+    clip_negative : bool, optional
+        Set negative deltas to zero before normalising.
+    train_on : {"frames", "means"}, optional
+        Train on every frame of a touch, or on its mean image (the paper).
+    epochs, lr, weight_decay : optional
+        Adam full-batch training schedule (cosine-decayed learning rate).
+    noise_std : float, optional
+        Gaussian noise added to standardised inputs during training (augmentation).
+    constraint : {"snap", "project", "none"}, default="snap"
+        How predictions are put on the surface (needs a mesh at ``fit``).
+    random_state : int, default=0
+        Seed; training is deterministic under it.
+    """
+
+    def __init__(
+        self,
+        *,
+        arch: str = "default",
+        hidden: tuple[int, ...] | None = None,
+        activation: str | None = None,
+        n_members: int | None = None,
+        normalise: str | None = None,
+        clip_negative: bool | None = None,
+        train_on: str | None = None,
+        epochs: int | None = None,
+        lr: float | None = None,
+        weight_decay: float | None = None,
+        noise_std: float | None = None,
+        constraint: str = "snap",
+        random_state: int = 0,
+    ) -> None:
+        self.arch = arch
+        self.hidden = hidden
+        self.activation = activation
+        self.n_members = n_members
+        self.normalise = normalise
+        self.clip_negative = clip_negative
+        self.train_on = train_on
+        self.epochs = epochs
+        self.lr = lr
+        self.weight_decay = weight_decay
+        self.noise_std = noise_std
+        self.constraint = constraint
+        self.random_state = random_state
+
+    # ---------------------------------------------------------------- configuration
+    def get_config(self) -> dict[str, Any]:
+        """Resolved hyperparameters: the named architecture with explicit overrides applied."""
+        if self.arch not in ARCHITECTURES:
+            raise ValueError(
+                f"unknown arch {self.arch!r} of ContactLocalizer; choose one of: "
+                f"{', '.join(ARCHITECTURES)}"
+            )
+        cfg = dict(ARCHITECTURES[self.arch])
+        for key in cfg:
+            value = getattr(self, key)
+            if value is not None:
+                cfg[key] = value
+        cfg["hidden"] = tuple(int(h) for h in cfg["hidden"])
+        cfg.update(arch=self.arch, constraint=self.constraint, random_state=self.random_state)
+        self._validate(cfg)
+        return cfg
+
+    @staticmethod
+    def _validate(cfg: dict[str, Any]) -> None:
+        def bad(name: str, allowed: str) -> ValueError:
+            return ValueError(
+                f"the {name!r} parameter of ContactLocalizer must be {allowed}; got {cfg[name]!r}"
+            )
+
+        if not cfg["hidden"] or any(h < 1 for h in cfg["hidden"]):
+            raise bad("hidden", "a non-empty tuple of positive ints")
+        if cfg["activation"] not in _ACTIVATIONS:
+            raise bad("activation", f"one of {', '.join(_ACTIVATIONS)}")
+        if not (isinstance(cfg["n_members"], int) and cfg["n_members"] >= 1):
+            raise bad("n_members", "an int >= 1")
+        if cfg["normalise"] not in ("none", "l1", "l2"):
+            raise bad("normalise", "one of none, l1, l2")
+        if cfg["train_on"] not in ("frames", "means"):
+            raise bad("train_on", "one of frames, means")
+        if not (isinstance(cfg["epochs"], int) and cfg["epochs"] >= 1):
+            raise bad("epochs", "an int >= 1")
+        if not cfg["lr"] > 0:
+            raise bad("lr", "a float > 0")
+        if not cfg["weight_decay"] >= 0:
+            raise bad("weight_decay", "a float >= 0")
+        if not cfg["noise_std"] >= 0:
+            raise bad("noise_std", "a float >= 0")
+        if cfg["constraint"] not in ("snap", "project", "none"):
+            raise bad("constraint", "one of snap, project, none")
+
+    # ---------------------------------------------------------------- preprocessing
+    def _features(self, X: np.ndarray, cfg: dict[str, Any]) -> np.ndarray:
+        """Pressure-invariant image features, before standardisation. ``(n, n_sensors)``."""
+        Z = np.asarray(X, dtype=np.float64)
+        if cfg["clip_negative"]:
+            Z = np.maximum(Z, 0.0)
+        if cfg["normalise"] != "none":
+            order = 1 if cfg["normalise"] == "l1" else 2
+            norm = np.linalg.norm(Z, ord=order, axis=1, keepdims=True)
+            # A floor keeps near-empty images (no touch) from being blown up into noise.
+            Z = Z / np.maximum(norm, 1.0)
+        return Z
+
+    def _check_X(self, X: Frames) -> np.ndarray:
+        X = np.asarray(X, dtype=np.float64)
+        if X.ndim == 1:
+            X = X[None, :]
+        n_expected = getattr(self, "n_features_in_", None)
+        if X.ndim != 2 or (n_expected is not None and X.shape[1] != n_expected):
+            want = f"(n, {n_expected})" if n_expected is not None else "(n, n_sensors)"
+            raise ValueError(
+                f"sensor images must have shape {want} ({n_expected} sensors), got {X.shape}"
+            )
+        if not np.all(np.isfinite(X)):
+            raise ValueError("sensor images contain NaN or infinite values")
+        return X
+
+    # ---------------------------------------------------------------- training
+    def fit(
+        self,
+        X: Frames,
+        y: Points,
+        *,
+        groups: np.ndarray | None = None,
+        mesh: Any = None,
+        surface_points: Points | None = None,
+        progress: Callable[[int, int], None] | None = None,
+    ) -> ContactLocalizer:
+        """Train on baseline-subtracted images.
+
+        Parameters
+        ----------
+        X : (n, n_sensors) float
+            Baseline-subtracted sensor images, counts (single frames or touch means).
+        y : (n, 3) float
+            Touch positions, m.
+        groups : (n,) int, optional
+            Touch each row belongs to; with ``train_on="means"`` rows are averaged per touch.
+        mesh : trimesh.Trimesh, optional
+            Skin surface for the output constraint.
+        surface_points : (P, 3) float, optional
+            Discretised surface for ``constraint="snap"``.
+        progress : callable(done, total), optional
+            Called during training.
+
+        Returns
+        -------
+        self
+        """
+        import torch
+
+        cfg = self.get_config()
+        X = self._check_X(X)
+        y = np.asarray(y, dtype=np.float64)
+        if y.shape != (len(X), 3):
+            raise ValueError(f"touch positions must have shape ({len(X)}, 3), got {y.shape}")
+        if len(X) < 2:
+            raise ValueError("need at least 2 sensor images to train")
+        if cfg["train_on"] == "means" and groups is not None:
+            X, y = group_means(X, y, groups)
+        t0 = time.perf_counter()
+        self.n_features_in_ = X.shape[1]
+        F = self._features(X, cfg)
+        self.feature_mean_ = F.mean(axis=0)
+        self.feature_scale_ = np.maximum(F.std(axis=0), 1e-6 * max(F.std(), 1e-12))
+        self.target_mean_ = y.mean(axis=0)
+        self.target_scale_ = float(np.maximum(y.std(axis=0).max(), 1e-6))
+        Z = (F - self.feature_mean_) / self.feature_scale_
+        T = (y - self.target_mean_) / self.target_scale_
+
+        g = torch.Generator().manual_seed(int(self.random_state))
+        E = cfg["n_members"]
+        sizes = [Z.shape[1], *cfg["hidden"], 3]
+        params: list[torch.Tensor] = []
+        for fan_in, fan_out in zip(sizes[:-1], sizes[1:], strict=True):
+            bound = 1.0 / np.sqrt(fan_in)  # the default init of torch.nn.Linear
+            W = (torch.rand(E, fan_in, fan_out, generator=g, dtype=torch.float64) * 2 - 1) * bound
+            b = (torch.rand(E, 1, fan_out, generator=g, dtype=torch.float64) * 2 - 1) * bound
+            params += [W.requires_grad_(), b.requires_grad_()]
+        act = {"relu": torch.relu, "tanh": torch.tanh, "gelu": torch.nn.functional.gelu}[
+            cfg["activation"]
+        ]
+        Zt = torch.as_tensor(Z).expand(E, -1, -1)
+        Tt = torch.as_tensor(T).expand(E, -1, -1)
+        opt = torch.optim.AdamW(params, lr=cfg["lr"], weight_decay=cfg["weight_decay"])
+        sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=cfg["epochs"])
+        n_layers = len(sizes) - 1
+        self.loss_curve_ = []
+        for epoch in range(cfg["epochs"]):
+            h = Zt
+            if cfg["noise_std"] > 0:
+                h = h + cfg["noise_std"] * torch.randn(h.shape, generator=g, dtype=h.dtype)
+            for i in range(n_layers):
+                h = torch.baddbmm(params[2 * i + 1], h, params[2 * i])
+                if i < n_layers - 1:
+                    h = act(h)
+            loss = ((h - Tt) ** 2).mean(dim=(1, 2)).sum()
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            sched.step()
+            self.loss_curve_.append(loss.item() / E)
+            if progress is not None and (epoch % 25 == 0 or epoch == cfg["epochs"] - 1):
+                progress(epoch + 1, cfg["epochs"])
+        self.coefs_ = [params[2 * i].detach().numpy().copy() for i in range(n_layers)]
+        self.intercepts_ = [params[2 * i + 1].detach().numpy().copy() for i in range(n_layers)]
+        if not all(np.all(np.isfinite(w)) for w in self.coefs_ + self.intercepts_):
+            raise ValueError(
+                "training diverged (non-finite weights); lower lr or check the input images"
+            )
+        self.config_ = cfg
+        self._set_surface(mesh, surface_points)
+        self.fit_time_s_ = time.perf_counter() - t0
+        log.info(
+            "trained %s in %.2f s, final loss %.4g",
+            cfg["arch"],
+            self.fit_time_s_,
+            self.loss_curve_[-1],
+        )
+        return self
+
+    # ---------------------------------------------------------------- surface
+    def _set_surface(self, mesh: Any, surface_points: Points | None) -> None:
+        self.mesh_vertices_ = None if mesh is None else np.asarray(mesh.vertices, dtype=np.float64)
+        self.mesh_faces_ = None if mesh is None else np.asarray(mesh.faces, dtype=np.int64)
+        self.surface_points_ = surface_points
+        if mesh is not None and surface_points is None and self.constraint == "snap":
+            from skinloc.geometry import surface_points as make_points
+
+            self.surface_points_ = make_points(mesh)
+        self._constraint = None
+
+    def _surface_constraint(self) -> Callable[[Points], Points]:
+        if getattr(self, "_constraint", None) is None:
+            if self.mesh_vertices_ is None or self.config_["constraint"] == "none":
+                self._constraint = lambda p: p
+            else:
+                from skinloc.geometry import SurfaceConstraint, mesh_from_arrays
+
+                mesh = mesh_from_arrays(self.mesh_vertices_, self.mesh_faces_)
+                self._constraint = SurfaceConstraint(
+                    mesh, self.config_["constraint"], self.surface_points_
+                )
+        return self._constraint
+
+    @property
+    def mesh(self):  # -> trimesh.Trimesh | None
+        """The skin surface the model constrains its output to, if any."""
+        self._check_fitted()
+        if self.mesh_vertices_ is None:
+            return None
+        from skinloc.geometry import mesh_from_arrays
+
+        return mesh_from_arrays(self.mesh_vertices_, self.mesh_faces_)
+
+    # ---------------------------------------------------------------- prediction
+    def _check_fitted(self) -> None:
+        if not hasattr(self, "coefs_"):
+            raise NotFittedError(
+                "this ContactLocalizer is not fitted yet: call fit() or load a trained model"
+            )
+
+    def _forward(self, X: np.ndarray) -> np.ndarray:
+        """Member outputs, ``(n_members, n, 3)`` m, before the constraint."""
+        cfg = self.config_
+        h = (self._features(X, cfg) - self.feature_mean_) / self.feature_scale_
+        act = _activation_np(cfg["activation"])
+        n_layers = len(self.coefs_)
+        h = np.broadcast_to(h, (len(self.coefs_[0]), *h.shape))
+        for i in range(n_layers):
+            h = np.matmul(h, self.coefs_[i]) + self.intercepts_[i]
+            if i < n_layers - 1:
+                h = act(h)
+        return h * self.target_scale_ + self.target_mean_
+
+    def predict_full(self, X: Frames) -> Prediction:
+        """Predict points, raw outputs and the ensemble spread for ``X (n, n_sensors)``."""
+        self._check_fitted()
+        X = self._check_X(X)
+        members = self._forward(X)
+        raw = members.mean(axis=0)
+        if len(members) > 1:
+            spread = 1e3 * np.sqrt(((members - raw) ** 2).sum(axis=2).mean(axis=0))
+        else:
+            spread = np.full(len(X), np.nan)
+        return Prediction(points=self._surface_constraint()(raw), raw=raw, uncertainty_mm=spread)
+
+    def predict(self, X: Frames) -> Points:
+        """Contact points ``(n, 3)`` m for baseline-subtracted images ``X (n, n_sensors)``.
+
+        A single image ``(n_sensors,)`` gives ``(1, 3)``.
+        """
+        return self.predict_full(X).points
+
+    # ---------------------------------------------------------------- persistence
+    def save(self, path: str | Path, extra_meta: dict[str, Any] | None = None) -> None:
+        """Write the model to one self-describing HDF5 file, atomically.
+
+        The file holds the configuration (JSON), the preprocessing arrays, every layer's
+        weights as ``(n_members, in, out)`` datasets, the skin mesh and the snap points.
+        """
+        import h5py
+
+        from skinloc import __version__
+        from skinloc.dataset import _atomic_write
+
+        self._check_fitted()
+        meta = {
+            "skinloc_version": __version__,
+            "numpy_version": np.__version__,
+            "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+            "fit_time_s": getattr(self, "fit_time_s_", None),
+            **(extra_meta or {}),
+        }
+        if hasattr(self, "training_meta_"):
+            meta.setdefault("training", self.training_meta_)
+
+        def write(tmp: Path) -> None:
+            with h5py.File(tmp, "w") as f:
+                f.attrs["format"] = "skinloc-model"
+                f.attrs["format_version"] = MODEL_FORMAT_VERSION
+                f.attrs["config"] = json.dumps(self.config_)
+                f.attrs["meta"] = json.dumps(meta, default=str)
+                f.attrs["n_features_in"] = self.n_features_in_
+                f.attrs["description"] = (
+                    "x: baseline-subtracted counts (n_features_in,). features: clip/normalise per "
+                    "config, then (x - feature_mean) / feature_scale. layers: h = act(h @ W + b) "
+                    "per member; output * target_scale + target_mean is metres; ensemble mean."
+                )
+                p = f.create_group("preprocessing")
+                p["feature_mean"], p["feature_scale"] = self.feature_mean_, self.feature_scale_
+                p["target_mean"] = self.target_mean_
+                p.attrs["target_scale"] = self.target_scale_
+                net = f.create_group("network")
+                for i, (W, b) in enumerate(zip(self.coefs_, self.intercepts_, strict=True)):
+                    net[f"layer{i}/weight"], net[f"layer{i}/bias"] = W, b
+                if self.mesh_vertices_ is not None:
+                    f["surface/vertices"], f["surface/faces"] = (
+                        self.mesh_vertices_,
+                        self.mesh_faces_,
+                    )
+                if self.surface_points_ is not None:
+                    f["surface/points"] = self.surface_points_
+
+        _atomic_write(Path(path), write)
+
+    @classmethod
+    def load(cls, path: str | Path) -> ContactLocalizer:
+        """Read a model written by ``save``; raises ``ModelFileError`` when it cannot."""
+        import h5py
+
+        path = Path(path)
+        if not path.is_file():
+            raise ModelFileError(f"model not found: {path}")
+        try:
+            with h5py.File(path, "r") as f:
+                if f.attrs.get("format") != "skinloc-model":
+                    raise ModelFileError(f"{path} is not a skinloc model")
+                version = int(f.attrs["format_version"])
+                if version > MODEL_FORMAT_VERSION:
+                    raise ModelFileError(
+                        f"{path} uses model format {version}; this skinloc reads up to "
+                        f"{MODEL_FORMAT_VERSION}: upgrade skinloc"
+                    )
+                cfg = json.loads(f.attrs["config"])
+                cfg["hidden"] = tuple(cfg["hidden"])
+                keys = [k for k in ARCHITECTURES["default"] if k in cfg]
+                model = cls(
+                    **{k: cfg[k] for k in keys},
+                    arch=cfg["arch"],
+                    constraint=cfg["constraint"],
+                    random_state=cfg["random_state"],
+                )
+                model.config_ = cfg
+                model.meta_ = json.loads(f.attrs.get("meta", "{}"))
+                model.n_features_in_ = int(f.attrs["n_features_in"])
+                p = f["preprocessing"]
+                model.feature_mean_ = p["feature_mean"][()]
+                model.feature_scale_ = p["feature_scale"][()]
+                model.target_mean_ = p["target_mean"][()]
+                model.target_scale_ = float(p.attrs["target_scale"])
+                net = f["network"]
+                n_layers = len(net)
+                model.coefs_ = [net[f"layer{i}/weight"][()] for i in range(n_layers)]
+                model.intercepts_ = [net[f"layer{i}/bias"][()] for i in range(n_layers)]
+                surf = f.get("surface")
+                model.mesh_vertices_ = surf["vertices"][()] if surf and "vertices" in surf else None
+                model.mesh_faces_ = surf["faces"][()] if surf and "faces" in surf else None
+                model.surface_points_ = surf["points"][()] if surf and "points" in surf else None
+                model._constraint = None
+        except ModelFileError:
+            raise
+        except (OSError, KeyError, ValueError, TypeError) as exc:
+            raise ModelFileError(f"cannot read model {path}: {exc}") from exc
+        return model

@@ -1,0 +1,182 @@
+"""Figures and HTML reports: sensor images, predictions on the 3D skin, error curves."""
+
+from __future__ import annotations
+
+import html
+import logging
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "plot_error_curve",
+    "plot_paper_fig3",
+    "plot_predictions_3d",
+    "plot_sensor_image",
+    "write_html",
+]
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")  # files only; never needs a display
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_sensor_image(
+    image: np.ndarray, n_tx: int, n_rx: int, path: str | Path, title: str = "Sensor image"
+) -> Path:
+    """Heat map of one baseline-subtracted image ``(n_tx * n_rx,)`` counts, TX rows x RX columns."""
+    plt = _pyplot()
+    grid = np.asarray(image, dtype=float).reshape(n_tx, n_rx)
+    fig, ax = plt.subplots(figsize=(4.6, 4))
+    lim = max(abs(grid).max(), 1.0)
+    im = ax.imshow(grid, cmap="RdBu_r", vmin=-lim, vmax=lim)
+    ax.set_xlabel("RX line")
+    ax.set_ylabel("TX line")
+    ax.set_xticks(range(n_rx))
+    ax.set_yticks(range(n_tx))
+    ax.set_title(title)
+    fig.colorbar(im, ax=ax, label="counts above baseline")
+    fig.tight_layout()
+    fig.savefig(path, dpi=150)
+    plt.close(fig)
+    return Path(path)
+
+
+def plot_predictions_3d(
+    mesh,
+    true: np.ndarray,
+    predicted: np.ndarray,
+    path: str | Path,
+    title: str = "Predicted (x) against true (o) contacts",
+) -> Path:
+    """The skin in 3D with true and predicted points joined by error lines (axes in mm)."""
+    plt = _pyplot()
+    v = np.asarray(mesh.vertices) * 1e3
+    t, p = np.asarray(true) * 1e3, np.asarray(predicted) * 1e3
+    fig = plt.figure(figsize=(7, 5.5))
+    ax = fig.add_subplot(projection="3d")
+    ax.plot_trisurf(
+        v[:, 0],
+        v[:, 1],
+        v[:, 2],
+        triangles=mesh.faces,
+        color="0.85",
+        alpha=0.35,
+        edgecolor="0.6",
+        linewidth=0.2,
+    )
+    ax.scatter(*t.T, c="tab:blue", s=18, label="true", depthshade=False)
+    ax.scatter(*p.T, c="tab:red", marker="x", s=22, label="predicted", depthshade=False)
+    for a, b in zip(t, p, strict=True):
+        ax.plot(*np.stack([a, b]).T, c="k", lw=0.7)
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+    ax.set_zlabel("z (mm)")
+    ax.set_box_aspect(np.ptp(v, axis=0))
+    ax.view_init(elev=35, azim=-60)
+    ax.legend(loc="upper left")
+    ax.set_title(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=150)
+    plt.close(fig)
+    return Path(path)
+
+
+def plot_error_curve(
+    n_points: Sequence[int],
+    mean_mm: Sequence[float],
+    std_mm: Sequence[float],
+    path: str | Path,
+    label: str = "skinloc",
+    extra: dict[str, tuple[Sequence[int], Sequence[float]]] | None = None,
+) -> Path:
+    """Mean +- std localisation error against the number of calibration point logs."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(5.5, 4))
+    ax.errorbar(n_points, mean_mm, yerr=std_mm, marker="o", capsize=3, label=label)
+    for name, (xs, ys) in (extra or {}).items():
+        ax.plot(xs, ys, marker="s", ls="--", label=name)
+    ax.set_xlabel("calibration point logs")
+    ax.set_ylabel("localisation error (mm)")
+    ax.set_ylim(bottom=0)
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=150)
+    plt.close(fig)
+    return Path(path)
+
+
+def plot_paper_fig3(
+    n_points: Sequence[int],
+    snr_mean: Sequence[float],
+    snr_std: Sequence[float],
+    err_mean: Sequence[float],
+    err_std: Sequence[float],
+    path: str | Path,
+    title: str = "",
+) -> Path:
+    """The paper's Fig. 3: (a) mean SNR and (b) error against point logs."""
+    plt = _pyplot()
+    fig, (a, b) = plt.subplots(1, 2, figsize=(9, 3.6))
+    a.errorbar(n_points, snr_mean, yerr=snr_std, marker="o", capsize=3)
+    a.set_xlabel("calibration point logs")
+    a.set_ylabel("mean SNR (dB)")
+    a.set_title("(a) SNR")
+    b.errorbar(n_points, err_mean, yerr=err_std, marker="o", capsize=3, color="tab:red")
+    b.set_xlabel("calibration point logs")
+    b.set_ylabel("localisation error (mm)")
+    b.set_ylim(bottom=0)
+    b.set_title("(b) validation error")
+    for ax in (a, b):
+        ax.grid(alpha=0.3)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=150)
+    plt.close(fig)
+    return Path(path)
+
+
+def write_html(
+    path: str | Path,
+    title: str,
+    summary: dict[str, str],
+    figures: Sequence[tuple[str, str]],
+    notes: str = "",
+) -> Path:
+    """A self-contained page: a summary table and the figures (paths relative to the page)."""
+    rows = "\n".join(
+        f"<tr><th>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>" for k, v in summary.items()
+    )
+    figs = "\n".join(
+        f'<figure><img src="{html.escape(src)}" alt="{html.escape(cap)}">'
+        f"<figcaption>{html.escape(cap)}</figcaption></figure>"
+        for src, cap in figures
+    )
+    page = f"""<!doctype html>
+<html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>
+<style>
+body {{ font-family: system-ui, sans-serif; max-width: 1000px; margin: 2em auto; color: #222; }}
+table {{ border-collapse: collapse; margin: 1em 0; }}
+th, td {{ border: 1px solid #ccc; padding: 4px 10px; text-align: left; }}
+figure {{ display: inline-block; margin: 0.5em; vertical-align: top; }}
+img {{ max-width: 460px; }} figcaption {{ font-size: 0.9em; color: #555; }}
+</style></head><body>
+<h1>{html.escape(title)}</h1>
+<table>{rows}</table>
+{figs}
+<p>{html.escape(notes)}</p>
+</body></html>
+"""
+    path = Path(path)
+    path.write_text(page, encoding="utf-8")
+    return path

@@ -1,0 +1,168 @@
+import numpy as np
+import pytest
+
+from skinloc.errors import ModelFileError, NotFittedError
+from skinloc.geometry import cone_skin, sample_targets
+from skinloc.model import ContactLocalizer, group_means
+
+
+def bump_images(targets, sensors, width=0.02, gain=150.0, rng=None):
+    """Images of Gaussian bumps: a smooth, learnable map from contact point to 64 values."""
+    d2 = ((targets[:, None, :] - sensors[None]) ** 2).sum(-1)
+    img = gain * np.exp(-d2 / (2 * width**2))
+    if rng is not None:
+        img = img * rng.uniform(0.6, 1.6, (len(img), 1)) + rng.normal(0, 3, img.shape)
+    return img
+
+
+@pytest.fixture(scope="module")
+def toy():
+    mesh = cone_skin()
+    sensors = sample_targets(mesh, 64, "even", random_state=1)
+    rng = np.random.default_rng(0)
+    Xtr_t = sample_targets(mesh, 150, "random", random_state=2)
+    Xte_t = sample_targets(mesh, 40, "random", random_state=3)
+    return (
+        mesh,
+        bump_images(Xtr_t, sensors, rng=rng),
+        Xtr_t,
+        bump_images(Xte_t, sensors, rng=rng),
+        Xte_t,
+    )
+
+
+FAST = dict(epochs=150, n_members=2, hidden=(64,))
+
+
+def test_learns_toy_skin(toy):
+    mesh, X, y, Xt, yt = toy
+    m = ContactLocalizer(**FAST, random_state=0).fit(X, y, mesh=mesh)
+    err = 1e3 * np.linalg.norm(m.predict(Xt) - yt, axis=1)
+    assert np.mean(err) < 12.0
+    base = 1e3 * np.linalg.norm(yt - y.mean(0), axis=1).mean()
+    assert np.mean(err) < base / 3
+
+
+def test_paper_arch_is_64_32_3(toy):
+    mesh, X, y, *_ = toy
+    m = ContactLocalizer(arch="paper", epochs=20).fit(X, y)
+    assert [w.shape for w in m.coefs_] == [(1, 64, 32), (1, 32, 3)]
+    assert m.config_["activation"] == "tanh"
+
+
+def test_deterministic_under_seed(toy):
+    mesh, X, y, Xt, _ = toy
+    a = ContactLocalizer(**FAST, random_state=3).fit(X, y).predict(Xt)
+    b = ContactLocalizer(**FAST, random_state=3).fit(X, y).predict(Xt)
+    c = ContactLocalizer(**FAST, random_state=4).fit(X, y).predict(Xt)
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
+
+
+def test_single_frame_and_batch_agree(toy):
+    mesh, X, y, Xt, _ = toy
+    m = ContactLocalizer(**FAST).fit(X, y, mesh=mesh)
+    batch = m.predict(Xt)
+    single = np.concatenate([m.predict(x) for x in Xt])
+    np.testing.assert_allclose(single, batch, atol=1e-12)
+
+
+@pytest.mark.parametrize("constraint", ["snap", "project"])
+def test_outputs_lie_on_surface(toy, constraint):
+    from skinloc.geometry import nearest_on_surface
+
+    mesh, X, y, Xt, _ = toy
+    m = ContactLocalizer(**FAST, constraint=constraint).fit(X, y, mesh=mesh)
+    _, d, _ = nearest_on_surface(mesh, m.predict(Xt))
+    assert d.max() < 1e-9
+
+
+def test_uncertainty_from_ensemble(toy):
+    mesh, X, y, Xt, _ = toy
+    p = ContactLocalizer(**FAST).fit(X, y, mesh=mesh).predict_full(Xt)
+    assert p.uncertainty_mm.shape == (len(Xt),) and np.all(p.uncertainty_mm >= 0)
+    single = ContactLocalizer(epochs=20, n_members=1, hidden=(8,)).fit(X, y).predict_full(Xt)
+    assert np.all(np.isnan(single.uncertainty_mm))
+
+
+def test_save_load_roundtrip(toy, tmp_path):
+    mesh, X, y, Xt, _ = toy
+    m = ContactLocalizer(**FAST).fit(X, y, mesh=mesh)
+    m.save(tmp_path / "m.h5")
+    back = ContactLocalizer.load(tmp_path / "m.h5")
+    np.testing.assert_array_equal(back.predict(Xt), m.predict(Xt))
+    assert back.config_ == m.config_
+    assert back.meta_["skinloc_version"]
+
+
+def test_model_file_is_self_describing(toy, tmp_path):
+    import json
+
+    import h5py
+
+    mesh, X, y, *_ = toy
+    ContactLocalizer(**FAST).fit(X, y, mesh=mesh).save(tmp_path / "m.h5")
+    with h5py.File(tmp_path / "m.h5") as f:
+        assert f.attrs["format"] == "skinloc-model" and f.attrs["format_version"] == 1
+        assert json.loads(f.attrs["config"])["hidden"] == [64]
+        assert f["network/layer0/weight"].shape == (2, 64, 64)
+        assert f["surface/points"].shape == (14400, 3)
+
+
+def test_not_fitted():
+    with pytest.raises(NotFittedError, match="fit"):
+        ContactLocalizer().predict(np.zeros(64))
+
+
+def test_wrong_width_names_64(toy):
+    mesh, X, y, *_ = toy
+    m = ContactLocalizer(**FAST).fit(X, y)
+    with pytest.raises(ValueError, match="64"):
+        m.predict(np.zeros((2, 63)))
+    with pytest.raises(ValueError, match="NaN"):
+        m.predict(np.full(64, np.nan))
+
+
+@pytest.mark.parametrize(
+    "param,value,match",
+    [
+        ("arch", "huge", "arch"),
+        ("activation", "sigmoid", "activation"),
+        ("n_members", 0, "n_members"),
+        ("normalise", "max", "normalise"),
+        ("constraint", "nearest", "constraint"),
+        ("epochs", 0, "epochs"),
+    ],
+)
+def test_bad_hyperparameters_named(toy, param, value, match):
+    mesh, X, y, *_ = toy
+    with pytest.raises(ValueError, match=match):
+        ContactLocalizer(**{param: value}).fit(X, y)
+
+
+def test_bad_training_shapes(toy):
+    mesh, X, y, *_ = toy
+    with pytest.raises(ValueError, match="shape"):
+        ContactLocalizer(**FAST).fit(X, y[:-1])
+
+
+def test_divergence_raises(toy):
+    mesh, X, y, *_ = toy
+    with pytest.raises(ValueError, match="diverged"):
+        ContactLocalizer(epochs=5, n_members=1, hidden=(8,), lr=1e30).fit(X * 1e30, y)
+
+
+def test_load_errors(tmp_path):
+    with pytest.raises(ModelFileError, match="not found"):
+        ContactLocalizer.load(tmp_path / "none.h5")
+    (tmp_path / "junk.h5").write_bytes(b"junk")
+    with pytest.raises(ModelFileError):
+        ContactLocalizer.load(tmp_path / "junk.h5")
+
+
+def test_group_means():
+    X = np.array([[1.0, 2.0], [3.0, 4.0], [10.0, 10.0]])
+    y = np.array([[0, 0, 0], [0, 0, 2.0], [1, 1, 1.0]])
+    Xm, ym = group_means(X, y, np.array([5, 5, 7]))
+    np.testing.assert_array_equal(Xm, [[2, 3], [10, 10]])
+    np.testing.assert_array_equal(ym, [[0, 0, 1], [1, 1, 1]])

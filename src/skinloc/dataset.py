@@ -361,7 +361,7 @@ def write_recording(rec: Recording, path: str | Path) -> None:
 
 
 def write_mat(rec: Recording, path: str | Path) -> None:
-    """Write ``rec`` in the paper's MATLAB ``touchData`` layout (point-log frames minus baseline)."""
+    """Write ``rec`` in the paper's MATLAB ``touchData`` layout (frames minus baseline)."""
     import scipy.io
 
     rec.validate()

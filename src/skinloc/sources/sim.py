@@ -316,9 +316,10 @@ def _check_grid(n_tx: int, n_rx: int) -> None:
 
 def _is_y_cone(mesh: trimesh.Trimesh) -> bool:
     """Whether the mesh is a (part of a) cone or cylinder about the y axis."""
-    v = mesh.vertices
+    # Vertices and face centres must both lie on r = a y + b (a box's corners alone could).
+    v = np.concatenate([mesh.vertices, mesh.triangles_center])
     r = np.hypot(v[:, 0], v[:, 2])
-    if np.ptp(v[:, 1]) <= 1e-9 or r.mean() <= 1e-9:
+    if len(mesh.vertices) < 12 or np.ptp(v[:, 1]) <= 1e-9 or r.mean() <= 1e-9:
         return False
     a = np.polyfit(v[:, 1], r, 1)
     return bool(np.abs(np.polyval(a, v[:, 1]) - r).max() < 0.02 * r.mean())
@@ -351,8 +352,24 @@ def _surface_chart(mesh: trimesh.Trimesh, kind: str):
     height = float(np.ptp(v, axis=0).max())
 
     def lift(uv: np.ndarray) -> np.ndarray:
-        pts = centre + uv @ axes[:2] + height * normal
-        return project(pts)
+        # Drop each point onto the skin from above along -normal (closest points would pile up
+        # on the vertices of a coarse convex mesh). Points outside the silhouette are pulled
+        # towards the centre until they land.
+        out = np.empty((len(uv), 3))
+        todo = np.arange(len(uv))
+        scale = 1.0
+        for _ in range(80):
+            origins = centre + scale * uv[todo] @ axes[:2] + height * normal
+            hits, ray, _ = mesh.ray.intersects_location(
+                origins, np.broadcast_to(-normal, origins.shape), multiple_hits=False)
+            out[todo[ray]] = hits
+            todo = np.setdiff1d(todo, todo[ray])
+            if todo.size == 0:
+                break
+            scale *= 0.97
+        if todo.size:
+            out[todo] = project(centre + uv[todo] @ axes[:2] + height * normal)
+        return project(out)  # exactly on the triangles
 
     return lift, (uv_v[:, 0].min(), uv_v[:, 0].max()), (uv_v[:, 1].min(), uv_v[:, 1].max())
 

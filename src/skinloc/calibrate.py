@@ -138,13 +138,16 @@ class ScriptedFinger:
     The contacts actually made (target plus probing error) are kept in ``contacts``.
     """
 
-    def __init__(self, skin, random_state: int | None = None) -> None:
+    def __init__(self, skin, random_state: int | None = None, move_time_s: float = 4.5) -> None:
         self.skin = skin
         self.rng = np.random.default_rng(random_state)
+        self.move_time_s = move_time_s
         self.contacts: list[np.ndarray] = []
 
     def prompt(self, index: int, target: np.ndarray) -> None:
-        """Press the simulated finger near ``target``."""
+        """Move to ``target`` (the baselines drift meanwhile) and press near it."""
+        # A person needs seconds per touch (the paper: 1-2 min per 20); the skin drifts meanwhile.
+        self.skin.advance(self.move_time_s)
         self.contacts.append(np.asarray(self.skin.touch_near(target, rng=self.rng)))
 
     def captured(self, index: int) -> None:

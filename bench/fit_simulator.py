@@ -78,8 +78,14 @@ def simulate_session(
             frames[i] = skin.read_many(n_frames)[0]
             skin.release()
     means = (frames - baseline).mean(axis=1)
-    return {"baseline_frames": baseline_frames, "means": means, "targets": targets,
-            "contacts": contacts, "n_train": n_train, "skin": skin}
+    return {
+        "baseline_frames": baseline_frames,
+        "means": means,
+        "targets": targets,
+        "contacts": contacts,
+        "n_train": n_train,
+        "skin": skin,
+    }
 
 
 # --------------------------------------------------------------------------------------------
@@ -87,8 +93,14 @@ def simulate_session(
 
 
 def paper_net_errors_mm(
-    X_train: np.ndarray, y_train: np.ndarray, X_test: np.ndarray, y_test: np.ndarray,
-    snap_points: np.ndarray, seed: int, epochs: int = 2000, lr: float = 1e-2,
+    X_train: np.ndarray,
+    y_train: np.ndarray,
+    X_test: np.ndarray,
+    y_test: np.ndarray,
+    snap_points: np.ndarray,
+    seed: int,
+    epochs: int = 2000,
+    lr: float = 1e-2,
 ) -> np.ndarray:
     """Train the paper's 64-32-3 tanh MLP (MSE, Adam, full batch) and return test errors, mm."""
     torch.manual_seed(seed)
@@ -97,7 +109,8 @@ def paper_net_errors_mm(
     X = torch.tensor((X_train - x_mean) / x_std, dtype=torch.float32)
     Y = torch.tensor((y_train - y_mean) / y_std, dtype=torch.float32)
     net = torch.nn.Sequential(
-        torch.nn.Linear(X.shape[1], 32), torch.nn.Tanh(), torch.nn.Linear(32, 3))
+        torch.nn.Linear(X.shape[1], 32), torch.nn.Tanh(), torch.nn.Linear(32, 3)
+    )
     opt = torch.optim.Adam(net.parameters(), lr=lr)
     for _ in range(epochs):
         opt.zero_grad()
@@ -123,11 +136,14 @@ def real_side(n_net_seeds: int) -> dict[str, object]:
     errors = {}
     for name in TEST_REAL:
         test = read_recording(DATA / name)
-        errors[name] = np.array([
-            paper_net_errors_mm(train.touch_means, train.targets, test.touch_means,
-                                test.targets, snap, seed).mean()
-            for seed in range(n_net_seeds)
-        ])
+        errors[name] = np.array(
+            [
+                paper_net_errors_mm(
+                    train.touch_means, train.targets, test.touch_means, test.targets, snap, seed
+                ).mean()
+                for seed in range(n_net_seeds)
+            ]
+        )
     return {"stats": stats, "net": errors}
 
 
@@ -142,9 +158,12 @@ def sim_side(params: SkinParams, seeds: list[int], n_net_seeds: int) -> dict[str
         n = s["n_train"]
         per_seed.append(session_stats(s["means"][:n], s["baseline_frames"]))
         probe.append(1e3 * np.linalg.norm(s["contacts"] - s["targets"], axis=1).mean())
-        errs = [paper_net_errors_mm(s["means"][:n], s["targets"][:n], s["means"][n:],
-                                    s["targets"][n:], snap, net_seed).mean()
-                for net_seed in range(n_net_seeds)]
+        errs = [
+            paper_net_errors_mm(
+                s["means"][:n], s["targets"][:n], s["means"][n:], s["targets"][n:], snap, net_seed
+            ).mean()
+            for net_seed in range(n_net_seeds)
+        ]
         net.append(float(np.mean(errs)))
     return {"stats": per_seed, "net": np.array(net), "probe_mm": float(np.mean(probe))}
 
@@ -175,23 +194,32 @@ def table(real: dict[str, object], sim: dict[str, object]) -> str:
         return f"{fn(v):.1f} ({v.min():.0f}-{v.max():.0f})"
 
     rows = [
-        ("no-touch noise std, median (min-max) counts",
-         f"{np.median(rs['noise']):.2f} ({rs['noise'].min():.1f}-{rs['noise'].max():.1f})",
-         f"{np.median(noise_sim):.2f} ({noise_sim.min():.1f}-{noise_sim.max():.1f})"),
+        (
+            "no-touch noise std, median (min-max) counts",
+            f"{np.median(rs['noise']):.2f} ({rs['noise'].min():.1f}-{rs['noise'].max():.1f})",
+            f"{np.median(noise_sim):.2f} ({noise_sim.min():.1f}-{noise_sim.max():.1f})",
+        ),
         ("sensors > 5 sigma per touch, median (range)", real_med("above5"), sim_med("above5")),
         ("peak signal per touch, median (range) counts", real_med("peak"), sim_med("peak")),
-        ("array offset per touch (median of image), counts", real_med("offset"),
-         sim_med("offset")),
+        ("array offset per touch (median of image), counts", real_med("offset"), sim_med("offset")),
         ("Eq. 1 SNR, mean (range) dB", real_med("snr", np.nanmean), sim_med("snr", np.nanmean)),
     ]
     net_real = np.concatenate(list(real["net"].values()))
-    per_file = ", ".join(f"{k.split('_')[0].replace('ConeSkinData', '')}: {v.mean():.1f}"
-                         for k, v in real["net"].items())
-    rows.append(("paper 64-32-3 net, mean error mm",
-                 f"{net_real.mean():.1f} ({per_file})",
-                 f"{sim['net'].mean():.1f} [seeds {sim['net'].min():.1f}-{sim['net'].max():.1f}]"))
-    lines = ["| statistic | real (80 PL) | simulated (80 touches; median over seeds) |",
-             "|---|---|---|"]
+    per_file = ", ".join(
+        f"{k.split('_')[0].replace('ConeSkinData', '')}: {v.mean():.1f}"
+        for k, v in real["net"].items()
+    )
+    rows.append(
+        (
+            "paper 64-32-3 net, mean error mm",
+            f"{net_real.mean():.1f} ({per_file})",
+            f"{sim['net'].mean():.1f} [seeds {sim['net'].min():.1f}-{sim['net'].max():.1f}]",
+        )
+    )
+    lines = [
+        "| statistic | real (80 PL) | simulated (80 touches; median over seeds) |",
+        "|---|---|---|",
+    ]
     lines += [f"| {a} | {b} | {c} |" for a, b, c in rows]
     return "\n".join(lines)
 
@@ -271,8 +299,7 @@ def make_figures(params: SkinParams) -> None:
     mesh = skin.mesh
     fig = plt.figure(figsize=(7, 5))
     ax = fig.add_subplot(projection="3d")
-    ax.plot_trisurf(*mesh.vertices.T, triangles=mesh.faces, color="0.85", alpha=0.3,
-                    linewidth=0)
+    ax.plot_trisurf(*mesh.vertices.T, triangles=mesh.faces, color="0.85", alpha=0.3, linewidth=0)
     for i, w in enumerate(lay.tx_wires):
         ax.plot(*w.T, color="tab:red", lw=1.2, label="TX (along the cone)" if i == 0 else None)
     for j, w in enumerate(lay.rx_wires):

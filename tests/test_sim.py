@@ -54,8 +54,11 @@ def _normal_sensor(skin: SimulatedSkin) -> int:
     p = skin.params
     for k in range(skin.n_sensors):
         tx, rx = divmod(k, skin.n_rx)
-        if (tx not in p.weak_tx_lines and rx not in p.weak_rx_lines
-                and skin.layout.noise_std_counts[k] < 10):
+        if (
+            tx not in p.weak_tx_lines
+            and rx not in p.weak_rx_lines
+            and skin.layout.noise_std_counts[k] < 10
+        ):
             return k
     raise AssertionError("no ordinary sensor")
 
@@ -99,8 +102,9 @@ def test_frames_shape_dtype_integer_counts_and_clock(skin: SimulatedSkin) -> Non
 
 
 def test_counts_clip_to_16_bits(cone: trimesh.Trimesh, params: SkinParams) -> None:
-    strong = dataclasses.replace(params, peak_signal_counts=1e6, baseline_max_counts=60000.0,
-                                 baseline_mean_counts=30000.0)
+    strong = dataclasses.replace(
+        params, peak_signal_counts=1e6, baseline_max_counts=60000.0, baseline_mean_counts=30000.0
+    )
     skin = SimulatedSkin(cone, params=strong, random_state=SEED)
     skin.press(skin.sensor_positions[_normal_sensor(skin)], pressure=1.0)
     with skin:
@@ -192,9 +196,15 @@ def test_touch_near_lands_a_few_mm_from_the_target_on_the_surface(
 
 
 def test_drift_moves_the_baseline_slowly(cone: trimesh.Trimesh, params: SkinParams) -> None:
-    drifty = dataclasses.replace(params, drift_std_counts=50.0, drift_time_constant_s=60.0,
-                                 noise_std_counts=0.0, noise_std_spread_counts=0.0,
-                                 noise_std_min_counts=0.0, noisy_sensors=())
+    drifty = dataclasses.replace(
+        params,
+        drift_std_counts=50.0,
+        drift_time_constant_s=60.0,
+        noise_std_counts=0.0,
+        noise_std_spread_counts=0.0,
+        noise_std_min_counts=0.0,
+        noisy_sensors=(),
+    )
     skin = SimulatedSkin(cone, params=drifty, random_state=SEED)
     with skin:
         a = skin.read_many(2)[0].astype(float)
@@ -230,8 +240,10 @@ def test_grid_bounds(cone: trimesh.Trimesh) -> None:
 
 @pytest.mark.parametrize(
     "mesh",
-    [trimesh.creation.icosphere(subdivisions=2, radius=0.05),
-     trimesh.creation.box(extents=(0.12, 0.08, 0.01))],
+    [
+        trimesh.creation.icosphere(subdivisions=2, radius=0.05),
+        trimesh.creation.box(extents=(0.12, 0.08, 0.01)),
+    ],
     ids=["icosphere", "flat-box"],
 )
 def test_works_on_other_meshes(mesh: trimesh.Trimesh) -> None:
@@ -243,8 +255,9 @@ def test_works_on_other_meshes(mesh: trimesh.Trimesh) -> None:
     gaps = np.linalg.norm(pos[:, None] - pos[None], axis=-1) + np.eye(len(pos))
     assert gaps.min() > 1e-3
     k = _normal_sensor(skin)
-    img = sensor_image(skin.layout, dataclasses.replace(skin.params, gain_std=0.0),
-                       pos[k], 1.0, 0.006)
+    img = sensor_image(
+        skin.layout, dataclasses.replace(skin.params, gain_std=0.0), pos[k], 1.0, 0.006
+    )
     assert int(np.argmax(img)) == k
 
 
@@ -255,8 +268,9 @@ def test_layout_is_uneven_and_seeded(cone: trimesh.Trimesh, params: SkinParams) 
     np.testing.assert_array_equal(a.sensor_positions, b.sensor_positions)
     assert not np.allclose(a.sensor_positions, c.sensor_positions)
     assert a.parameterisation == "cylindrical"
-    nn = np.sort(np.linalg.norm(a.sensor_positions[:, None] - a.sensor_positions[None], axis=-1),
-                 axis=1)[:, 1]
+    nn = np.sort(
+        np.linalg.norm(a.sensor_positions[:, None] - a.sensor_positions[None], axis=-1), axis=1
+    )[:, 1]
     assert nn.max() > 1.5 * nn.min()  # sensor density varies across the skin
 
 
@@ -269,8 +283,13 @@ def test_params_default_file_matches_dataclass(params: SkinParams) -> None:
 
 @pytest.mark.parametrize(
     ("field", "value"),
-    [("finger_radius_m", -0.01), ("spacing_jitter", 0.7), ("noise_std_counts", float("nan")),
-     ("line_coupling", 2.0), ("weak_rx_lines", (-1,))],
+    [
+        ("finger_radius_m", -0.01),
+        ("spacing_jitter", 0.7),
+        ("noise_std_counts", float("nan")),
+        ("line_coupling", 2.0),
+        ("weak_rx_lines", (-1,)),
+    ],
 )
 def test_params_validation_names_field_and_value(field: str, value: object) -> None:
     with pytest.raises(ValueError, match=field):

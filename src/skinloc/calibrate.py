@@ -10,7 +10,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Protocol
 
@@ -233,7 +233,7 @@ class CalibrationSession:
         cfg = self.config
         frames, _ = self.source.read_many(cfg.n_baseline_frames)
         n = self.source.n_sensors
-        now = datetime.now(timezone.utc).isoformat(timespec="seconds")
+        now = datetime.now(UTC).isoformat(timespec="seconds")
         self.recording = Recording(
             n_tx=self.source.n_tx,
             n_rx=self.source.n_rx,

@@ -8,7 +8,7 @@ import logging
 import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from enum import Enum
+from enum import StrEnum
 from pathlib import Path
 from typing import Annotated, Any, TypeVar
 
@@ -32,14 +32,14 @@ log = logging.getLogger("skinloc")
 F = TypeVar("F", bound=Callable[..., Any])
 
 
-class Arch(str, Enum):
+class Arch(StrEnum):
     """Localiser configurations."""
 
     default = "default"
     paper = "paper"
 
 
-class Constraint(str, Enum):
+class Constraint(StrEnum):
     """Output constraints."""
 
     snap = "snap"
@@ -47,7 +47,7 @@ class Constraint(str, Enum):
     none = "none"
 
 
-class Mode(str, Enum):
+class Mode(StrEnum):
     """Target sampling modes."""
 
     even = "even"
@@ -55,7 +55,7 @@ class Mode(str, Enum):
     edge = "edge"
 
 
-class Units(str, Enum):
+class Units(StrEnum):
     """Mesh file units."""
 
     auto = "auto"

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from enum import Enum
+from enum import StrEnum
 from pathlib import Path
 
 import numpy as np
@@ -52,7 +52,7 @@ class Tolerances:
 tol = Tolerances()
 
 
-class SamplingMode(str, Enum):
+class SamplingMode(StrEnum):
     """How calibration targets are drawn on the surface."""
 
     RANDOM = "random"  # area-uniform on the surface
@@ -65,7 +65,7 @@ class SamplingMode(str, Enum):
         raise ValueError(f"unknown sampling mode {value!r}; choose one of: {valid}")
 
 
-class ConstraintMode(str, Enum):
+class ConstraintMode(StrEnum):
     """How a predicted point is put back on the skin."""
 
     SNAP = "snap"  # nearest of a discretised set of surface points (the paper's)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import abc
 import logging
 from dataclasses import dataclass
-from enum import Enum
+from enum import StrEnum
 from typing import Any
 
 import numpy as np
@@ -36,7 +36,7 @@ class Frame:
     index: int
 
 
-class SourceKind(str, Enum):
+class SourceKind(StrEnum):
     """Kinds of frame source ``make_source`` can build."""
 
     SIM = "sim"

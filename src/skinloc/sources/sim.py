@@ -131,7 +131,9 @@ class SkinParams:
             ),
             "weak_line_gain": (0.0 <= self.weak_line_gain <= 1.0, "in [0, 1]"),
             "noisy_sensor_noise_std_counts": (
-                self.noisy_sensor_noise_std_counts >= 0.0, ">= 0 counts"),
+                self.noisy_sensor_noise_std_counts >= 0.0,
+                ">= 0 counts",
+            ),
             "drift_std_counts": (self.drift_std_counts >= 0.0, ">= 0 counts"),
             "drift_time_constant_s": (self.drift_time_constant_s > 0.0, "> 0 s"),
         }
@@ -142,10 +144,12 @@ class SkinParams:
         for name in ("weak_rx_lines", "weak_tx_lines"):
             if any(i < 0 for i in getattr(self, name)):
                 raise ValueError(
-                    f"SkinParams.{name} must hold indices >= 0, got {getattr(self, name)!r}")
+                    f"SkinParams.{name} must hold indices >= 0, got {getattr(self, name)!r}"
+                )
         if any(t < 0 or r < 0 for t, r in self.noisy_sensors):
             raise ValueError(
-                f"SkinParams.noisy_sensors must hold [tx, rx] >= 0, got {self.noisy_sensors!r}")
+                f"SkinParams.noisy_sensors must hold [tx, rx] >= 0, got {self.noisy_sensors!r}"
+            )
 
     @classmethod
     def from_toml(cls, path: str | Path) -> SkinParams:
@@ -288,23 +292,40 @@ class SkinLayout:
 
         n = n_tx * n_rx
         gains = np.exp(params.gain_std * rng.standard_normal(n))
-        line_level = (params.baseline_mean_counts
-                      + params.baseline_line_std_counts * rng.standard_normal(n_rx))
-        baselines = (np.tile(line_level, n_tx)
-                     + params.baseline_sensor_std_counts * rng.standard_normal(n))
+        line_level = (
+            params.baseline_mean_counts
+            + params.baseline_line_std_counts * rng.standard_normal(n_rx)
+        )
+        baselines = np.tile(
+            line_level, n_tx
+        ) + params.baseline_sensor_std_counts * rng.standard_normal(n)
         baselines = np.clip(baselines, params.baseline_min_counts, params.baseline_max_counts)
         noise = np.clip(
             params.noise_std_counts + params.noise_std_spread_counts * rng.standard_normal(n),
-            params.noise_std_min_counts, params.noise_std_max_counts,
+            params.noise_std_min_counts,
+            params.noise_std_max_counts,
         )
         for tx, rx in params.noisy_sensors:
             if tx < n_tx and rx < n_rx:
                 noise[tx * n_rx + rx] = params.noisy_sensor_noise_std_counts
-        log.debug("laid out %d x %d wires (%s) on a mesh of %d faces",
-                  n_tx, n_rx, parameterisation, len(mesh.faces))
-        return cls(n_tx=n_tx, n_rx=n_rx, sensor_positions=sensors, tx_wires=tx_wires,
-                   rx_wires=rx_wires, gains=gains, baselines_counts=baselines,
-                   noise_std_counts=noise, parameterisation=parameterisation)
+        log.debug(
+            "laid out %d x %d wires (%s) on a mesh of %d faces",
+            n_tx,
+            n_rx,
+            parameterisation,
+            len(mesh.faces),
+        )
+        return cls(
+            n_tx=n_tx,
+            n_rx=n_rx,
+            sensor_positions=sensors,
+            tx_wires=tx_wires,
+            rx_wires=rx_wires,
+            gains=gains,
+            baselines_counts=baselines,
+            noise_std_counts=noise,
+            parameterisation=parameterisation,
+        )
 
 
 def _check_grid(n_tx: int, n_rx: int) -> None:
@@ -361,7 +382,8 @@ def _surface_chart(mesh: trimesh.Trimesh, kind: str):
         for _ in range(80):
             origins = centre + scale * uv[todo] @ axes[:2] + height * normal
             hits, ray, _ = mesh.ray.intersects_location(
-                origins, np.broadcast_to(-normal, origins.shape), multiple_hits=False)
+                origins, np.broadcast_to(-normal, origins.shape), multiple_hits=False
+            )
             out[todo[ray]] = hits
             todo = np.setdiff1d(todo, todo[ray])
             if todo.size == 0:
@@ -411,8 +433,12 @@ def _polyline_distance2(point: np.ndarray, wires: np.ndarray) -> np.ndarray:
     """Squared distance from ``point (3,)`` to each polyline of ``wires (w, m, 3)``, m^2."""
     a, b = wires[:, :-1], wires[:, 1:]
     ab = b - a
-    t = np.clip(np.einsum("wsk,wsk->ws", point - a, ab) / np.maximum(
-        np.einsum("wsk,wsk->ws", ab, ab), 1e-18), 0.0, 1.0)
+    t = np.clip(
+        np.einsum("wsk,wsk->ws", point - a, ab)
+        / np.maximum(np.einsum("wsk,wsk->ws", ab, ab), 1e-18),
+        0.0,
+        1.0,
+    )
     closest = a + t[..., None] * ab
     return ((closest - point) ** 2).sum(axis=-1).min(axis=1)
 
@@ -542,8 +568,9 @@ class SimulatedSkin(FrameSource):
         self.rate_hz = float(rate_hz)
         self.realtime = realtime
         layout_seed, self._noise_seed = np.random.SeedSequence(random_state).spawn(2)
-        self.layout = SkinLayout.generate(mesh, self.n_tx, self.n_rx, self.params,
-                                          np.random.default_rng(layout_seed))
+        self.layout = SkinLayout.generate(
+            mesh, self.n_tx, self.n_rx, self.params, np.random.default_rng(layout_seed)
+        )
         self._rng = np.random.default_rng(self._noise_seed)
         self._connected = False
         self._index = 0
@@ -622,8 +649,12 @@ class SimulatedSkin(FrameSource):
         rng = self._rng if rng is None else rng
         p = self.params
         pressure = float(np.exp(p.pressure_std * rng.standard_normal() - 0.5 * p.pressure_std**2))
-        radius = float(max(p.finger_radius_m + p.finger_radius_std_m * rng.standard_normal(),
-                           0.25 * p.finger_radius_m))
+        radius = float(
+            max(
+                p.finger_radius_m + p.finger_radius_std_m * rng.standard_normal(),
+                0.25 * p.finger_radius_m,
+            )
+        )
         return pressure, radius
 
     def press(
@@ -646,8 +677,12 @@ class SimulatedSkin(FrameSource):
         radius = drawn_r if finger_radius_m is None else float(finger_radius_m)
         self._signal = sensor_image(self.layout, self.params, point, pressure, radius)
         self.contact = point
-        log.debug("press at %s mm, pressure %.2f, radius %.1f mm",
-                  np.round(point * 1e3, 1), pressure, radius * 1e3)
+        log.debug(
+            "press at %s mm, pressure %.2f, radius %.1f mm",
+            np.round(point * 1e3, 1),
+            pressure,
+            radius * 1e3,
+        )
 
     def release(self) -> None:
         """Lift the finger."""

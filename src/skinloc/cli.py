@@ -550,3 +550,13 @@ def bench(
 def main() -> None:
     """Console-script entry point."""
     app()
+
+
+def _register_plugins() -> None:
+    # Hardware commands live in their own module to keep this one about the data path.
+    from skinloc.cli_hardware import register
+
+    register(app)
+
+
+_register_plugins()

@@ -1,0 +1,9 @@
+"""Commands that talk to a skin over a serial port: ports, monitor, record, collect, virtual-skin."""
+
+from __future__ import annotations
+
+import typer
+
+
+def register(app: typer.Typer) -> None:
+    """Add the hardware commands to the main ``skinloc`` app."""

@@ -1,4 +1,4 @@
-"""Commands that talk to a skin over a serial port: ports, monitor, record, collect, virtual-skin."""
+"""Commands for a skin on a serial port: ports, monitor, record, collect, virtual-skin."""
 
 from __future__ import annotations
 

@@ -198,6 +198,7 @@ def simulate(
 
     surface = cone_skin() if mesh is None else load_mesh(mesh, units.value)
     skin = SimulatedSkin(surface, n_tx=tx, n_rx=rx, random_state=skin_seed)
+    skin.reseed(seed)
     cfg = SessionConfig(
         n_points=points,
         mode=mode.value,

@@ -644,6 +644,15 @@ class SimulatedSkin(FrameSource):
         self._advance_drift(float(dt_s))
         self._index += int(round(dt_s * self.rate_hz))
 
+    def reseed(self, seed: int | None) -> None:
+        """Restart the noise, drift and touch randomness from ``seed``, keeping the wiring.
+
+        Two sessions on the same skin (same ``random_state``) then see different noise.
+        """
+        self._rng = np.random.default_rng(
+            np.random.SeedSequence([self._noise_seed.entropy, seed or 0])
+        )
+
     def draw_touch(self, rng: np.random.Generator | None = None) -> tuple[float, float]:
         """Pressure and finger radius (m) of one touch, drawn from the touch-to-touch spread."""
         rng = self._rng if rng is None else rng

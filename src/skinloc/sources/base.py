@@ -129,10 +129,18 @@ def make_source(kind: SourceKind | str, **config: Any) -> FrameSource:
     >>> src = make_source("sim", random_state=0)
     >>> src.n_sensors
     64
+    >>> make_source("serial", port="loop://", n_tx=21, n_rx=12).n_sensors
+    252
     """
     kind = SourceKind(kind)
     if kind is SourceKind.SIM:
         from skinloc.sources.sim import SimulatedSkin
 
         return SimulatedSkin(**config)
-    raise NotImplementedError(f"the {kind.value} source is not available in this version")
+    if kind is SourceKind.SERIAL:
+        from skinloc.sources.serial import SerialSource, SerialSourceConfig
+
+        return SerialSource(SerialSourceConfig(**config))
+    from skinloc.sources.replay import ReplaySource
+
+    return ReplaySource(**config)

@@ -1,0 +1,179 @@
+"""Replay recorded frames as a frame source, and the raw-stream part of a recording.
+
+``skinloc record`` writes a normal recording (mesh, baseline) plus a group ``stream`` holding
+the raw frames in arrival order: ``frames (n, n_sensors) float32``, ``times_s (n,)`` and
+``index (n,)`` (the device's frame counter). ``ReplaySource`` plays that stream back, or, for a
+recording without one, the baseline followed by every point log.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from skinloc.errors import FrameTimeoutError, RecordingError
+from skinloc.sources.base import Frame, FrameSource
+
+log = logging.getLogger(__name__)
+
+__all__ = ["ReplaySource", "read_stream", "write_stream_recording"]
+
+
+def write_stream_recording(
+    path: str | Path,
+    *,
+    n_tx: int,
+    n_rx: int,
+    mesh,
+    baseline_frames: np.ndarray,
+    frames: np.ndarray,
+    times_s: np.ndarray,
+    index: np.ndarray,
+    meta: dict[str, Any] | None = None,
+) -> None:
+    """Write a recording with no point logs and the raw stream, atomically.
+
+    Parameters
+    ----------
+    path : str or Path
+        HDF5 file to write.
+    n_tx, n_rx : int
+        Grid.
+    mesh : trimesh.Trimesh
+        Skin surface, m.
+    baseline_frames : (m, n_tx * n_rx) float
+        No-touch capture, raw counts.
+    frames : (n, n_tx * n_rx) float
+        The stream, raw counts.
+    times_s : (n,) float
+        Arrival time of each frame since the first, s.
+    index : (n,) int
+        Frame counter of each frame (gaps are lost frames).
+    meta : dict, optional
+        Stored with the recording.
+    """
+    import h5py
+
+    from skinloc.dataset import Recording, write_recording
+    from skinloc.geometry import surface_points
+
+    n = n_tx * n_rx
+    frames = np.asarray(frames, dtype=np.float32).reshape(-1, n)
+    times_s = np.asarray(times_s, dtype=np.float64).reshape(-1)
+    index = np.asarray(index, dtype=np.int64).reshape(-1)
+    if not len(frames) == len(times_s) == len(index):
+        raise ValueError(
+            f"stream lengths differ: {len(frames)} frames, {len(times_s)} times, "
+            f"{len(index)} indices"
+        )
+    rec = Recording(
+        n_tx=n_tx,
+        n_rx=n_rx,
+        vertices=mesh.vertices,
+        faces=mesh.faces,
+        surface_points=surface_points(mesh),
+        baseline_frames=baseline_frames,
+        targets=np.zeros((0, 3)),
+        frames=np.zeros((0, 1, n), dtype=np.float32),
+        meta={"sampling_mode": "none", "samples_per_touch": 0, **(meta or {})},
+    )
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    try:
+        write_recording(rec, tmp)
+        with h5py.File(tmp, "a") as f:
+            g = f.create_group("stream")
+            g.create_dataset("frames", data=frames, compression="gzip", compression_opts=4)
+            g["times_s"] = times_s
+            g["index"] = index
+            g.attrs["units"] = "frames in raw counts, times in s since the first frame"
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def read_stream(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The raw stream of a recording as ``(frames, times_s, index)``, or None if it has none."""
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            if "stream" not in f:
+                return None
+            g = f["stream"]
+            return g["frames"][()], g["times_s"][()], g["index"][()]
+    except OSError as exc:
+        raise RecordingError(f"cannot read the stream of {path}: {exc}") from exc
+
+
+class ReplaySource(FrameSource):
+    """Play back the frames of a recording.
+
+    Parameters
+    ----------
+    path : str or Path
+        A recording (``skinloc record`` stream, or any calibration recording).
+    loop : bool, default=False
+        Start again at the end instead of timing out.
+
+    Examples
+    --------
+    >>> src = ReplaySource("stream.h5")  # doctest: +SKIP
+    """
+
+    def __init__(self, path: str | Path, *, loop: bool = False) -> None:
+        from skinloc.dataset import read_recording
+
+        self.path = Path(path)
+        rec = read_recording(self.path)
+        self.n_tx, self.n_rx = rec.n_tx, rec.n_rx
+        stream = read_stream(self.path) if self.path.suffix.lower() in (".h5", ".hdf5") else None
+        if stream is not None:
+            self._frames, self._times, self._index = stream
+        else:
+            frames = np.concatenate(
+                [rec.baseline_frames, rec.frames.reshape(-1, rec.n_sensors)]
+            ).astype(np.float32)
+            self._frames = frames
+            self._times = np.arange(len(frames)) / 100.0
+            self._index = np.arange(len(frames))
+        self.loop = loop
+        self._pos = 0
+        self._connected = False
+
+    @property
+    def name(self) -> str:
+        """The file."""
+        return str(self.path)
+
+    @property
+    def is_connected(self) -> bool:
+        """Whether ``read`` may be called."""
+        return self._connected
+
+    def _connect(self) -> None:
+        self._connected = True
+
+    def _disconnect(self) -> None:
+        self._connected = False
+
+    def _read(self, timeout_s: float) -> Frame:
+        if self._pos >= len(self._frames):
+            if not self.loop or not len(self._frames):
+                raise FrameTimeoutError(f"{self.name}: the recording has no more frames")
+            self._pos = 0
+        k = self._pos
+        self._pos += 1
+        return Frame(
+            values=self._frames[k].astype(np.float32),
+            timestamp_s=float(self._times[k]),
+            index=int(self._index[k]),
+        )

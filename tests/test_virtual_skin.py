@@ -1,0 +1,113 @@
+"""Tests of the virtual skin device (a pty) read through SerialSource, faults included."""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+import zlib
+
+import numpy as np
+import pytest
+
+from skinloc.errors import FrameTimeoutError
+from skinloc.sources.serial import SerialSource, SerialSourceConfig, list_ports
+from skinloc.sources.sim import SimulatedSkin
+from skinloc.virtual_skin import Fate, FaultConfig, VirtualSkin
+
+pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="needs a POSIX pty")
+
+
+def crc(values: np.ndarray) -> int:
+    return zlib.crc32(np.asarray(values).astype("<u2").tobytes())
+
+
+def read_n(src, n: int) -> list:
+    return [src.read(timeout_s=10.0) for _ in range(n)]
+
+
+@pytest.mark.parametrize("fmt", ["binary", "text"])
+def test_streams_the_simulated_skin(fmt):
+    with VirtualSkin(fmt=fmt, rate_hz=200, keep_truth=True) as dev:
+        assert os.path.islink(dev.path)
+        with SerialSource(SerialSourceConfig(dev.path)) as src:
+            frames = read_n(src, 20)
+            assert src.stats().format == fmt
+        truth = dev.truth()
+    sent = dict(zip(truth["crc"].tolist(), truth["fate"].tolist(), strict=True))
+    assert all(sent.get(crc(f.values)) == Fate.SENT for f in frames)
+    assert np.all(np.diff([f.index for f in frames]) == 1)
+
+
+def test_listed_by_ports():
+    with VirtualSkin(rate_hz=50) as dev:
+        assert dev.path in [p.device for p in list_ports() if p.virtual]
+
+
+def test_commands_and_scripted_finger():
+    skin = SimulatedSkin(random_state=0)
+    with VirtualSkin(skin, fmt="binary", rate_hz=200) as dev:
+        with SerialSource(SerialSourceConfig(dev.path)) as src:
+            base = np.mean([f.values for f in read_n(src, 10)], axis=0)
+            x, y, z = skin.sensor_positions[9]
+            src.write(f"touch {x} {y} {z}\n".encode())
+            while dev.counts["touches"] == 0:
+                time.sleep(0.01)
+            src.clear()
+            touched = src.read(10.0).values - base
+            assert touched[9] > 50
+            src.write(b"lift\nf text\n")
+            while dev.fmt.value != "text":
+                time.sleep(0.01)
+            src.clear()
+            after = read_n(src, 5)[-1]
+            assert abs(after.values[9] - base[9]) < 40
+    assert dev.handle_command("v").startswith("skinloc_muca 1.0.0 grid 8x8 format text")
+    assert dev.handle_command("g 300").startswith("error")
+    assert dev.handle_command("g 20") == "ok gain 20"
+    assert dev.handle_command("bogus").startswith("error unknown command")
+
+
+def test_reconnects_after_unplug_and_never_delivers_a_wrong_frame():
+    faults = FaultConfig(
+        p_garbage=0.1,
+        p_drop=0.1,
+        p_split=0.1,
+        p_merge=0.05,
+        disconnect_every_s=0.4,
+        downtime_s=0.1,
+        random_state=3,
+    )
+    with VirtualSkin(fmt="binary", rate_hz=200, faults=faults, keep_truth=True) as dev:
+        src = SerialSource(SerialSourceConfig(dev.path, reconnect_interval_s=0.02))
+        src.connect()
+        got = []
+        while dev.counts["disconnects"] < 3 or src.stats().n_reconnects < 3:
+            try:
+                got.append(src.read(timeout_s=10.0))
+            except FrameTimeoutError:
+                pytest.fail(f"the source did not recover: {src.stats()}")
+        got += read_n(src, 5)  # frames flow again after the last reconnect
+        dev.stop()
+        while True:
+            try:
+                got.append(src.read(timeout_s=1.0))
+            except FrameTimeoutError:
+                break
+        stats = src.stats()
+        src.disconnect()
+    truth = dev.truth()
+    intact = set(truth["crc"][truth["fate"] == Fate.SENT].tolist())
+    delivered = [crc(f.values) for f in got]
+    assert all(c in intact for c in delivered)  # no wrong frame
+    assert len(delivered) == len(intact)  # every intact frame arrived
+    assert stats.n_reconnects >= 3 and stats.n_corrupted > 0
+
+
+def test_config_checks():
+    with pytest.raises(ValueError, match="rate_hz"):
+        VirtualSkin(rate_hz=0)
+    with pytest.raises(ValueError, match="'text' or 'binary'"):
+        VirtualSkin(fmt="auto")
+    with pytest.raises(ValueError, match="probabilities"):
+        FaultConfig(p_drop=1.5)

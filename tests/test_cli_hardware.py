@@ -1,0 +1,206 @@
+"""Tests of the hardware commands: ports, monitor, record, collect, virtual-skin."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from skinloc.cli import app
+from skinloc.dataset import read_recording
+from skinloc.errors import RecordingError
+from skinloc.sources.replay import ReplaySource, read_stream
+from skinloc.virtual_skin import VirtualSkin
+
+runner = CliRunner()
+posix_only = pytest.mark.skipif(sys.platform == "win32", reason="needs a POSIX pty")
+
+
+def run(*args):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+def assert_one_line_error(res, *needles):
+    assert res.exit_code != 0
+    assert "Traceback" not in res.output
+    err = res.output.strip()
+    assert err.startswith("error:") and err.count("\n") == 0, err
+    for n in needles:
+        assert n in err
+
+
+def test_help_lists_the_hardware_commands():
+    res = run("--help")
+    for cmd in ("ports", "monitor", "record", "collect", "virtual-skin"):
+        assert cmd in res.output
+        sub = run(cmd, "--help")
+        assert sub.exit_code == 0 and "Example" in sub.output
+
+
+def test_ports():
+    assert run("ports").exit_code == 0
+    res = run("ports", "--json")
+    assert res.exit_code == 0 and isinstance(json.loads(res.output), list)
+
+
+def test_monitor_sim():
+    res = run("monitor", "--source", "sim", "--seconds", "0.3")
+    assert res.exit_code == 0, res.output
+    assert "TX" in res.output and "frame" in res.output
+
+
+@pytest.mark.parametrize(
+    "args, needles",
+    [
+        (["monitor"], ["--port", "--source sim"]),
+        (["monitor", "--port", "/dev/skinloc-nope"], ["/dev/skinloc-nope"]),
+        (["monitor", "--port", "loop://", "--source", "sim"], ["not both"]),
+        (["monitor", "--port", "loop://", "--tx-mask", "12"], ["tx_mask"]),
+        (["monitor", "--port", "loop://", "--timeout", "0.05"], ["loop://", "no frame"]),
+        (["record", "--source", "sim", "--out", "x.csv"], [".h5"]),
+        (["collect", "--port", "/dev/skinloc-nope", "--out", "x.h5"], ["/dev/skinloc-nope"]),
+    ],
+)
+def test_bad_input_is_one_line(args, needles, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert_one_line_error(run(*args), *needles)
+
+
+def test_record_sim_and_replay(tmp_path):
+    out = tmp_path / "stream.h5"
+    res = run(
+        "record", "--source", "sim", "--seconds", "1", "--baseline-frames", "10", "--out", out
+    )
+    assert res.exit_code == 0, res.output
+    rec = read_recording(out)
+    assert rec.n_point_logs == 0 and len(rec.baseline_frames) == 10
+    frames, times, index = read_stream(out)
+    assert frames.shape == (100, 64) and times[-1] <= 1.0 and (np.diff(index) == 1).all()
+    assert run("info", out).exit_code == 0
+    with ReplaySource(out) as src:
+        assert src.read().values.tolist() == frames[0].tolist()
+
+
+def test_collect_sim_resumes(tmp_path):
+    out = tmp_path / "cal.h5"
+    common = [
+        "collect",
+        "--source",
+        "sim",
+        "--points",
+        "3",
+        "--samples",
+        "5",
+        "--baseline-frames",
+        "10",
+        "--out",
+        out,
+    ]
+    res = run(*common, "--max-touches", "2")
+    assert res.exit_code == 0, res.output
+    assert "2/3" in res.output and read_recording(out).n_point_logs == 2
+    res = run(*common)
+    assert res.exit_code == 0, res.output
+    assert "Resuming" in res.output and "3/3" in res.output
+    assert read_recording(out).n_point_logs == 3
+    assert_one_line_error(run(*common), "already complete")
+    res = run(*common, "--new", "--points", "2")
+    assert res.exit_code == 0 and read_recording(out).n_point_logs == 2
+
+
+@posix_only
+def test_collect_on_virtual_skin_survives_a_crash(tmp_path):
+    """Kill collect (SIGKILL) after its first saved touch; the rerun resumes and finishes."""
+    out = tmp_path / "cal.h5"
+    with VirtualSkin(fmt="binary", rate_hz=200) as dev:
+        args = [
+            "collect",
+            "--port",
+            dev.path,
+            "--scripted-finger",
+            "--points",
+            "3",
+            "--samples",
+            "5",
+            "--baseline-frames",
+            "10",
+            "--touch-timeout",
+            "20",
+            "--out",
+            str(out),
+        ]
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "skinloc", *args],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+        )
+        try:
+            deadline = time.monotonic() + 60
+            n_done = 0
+            while n_done < 1 and proc.poll() is None and time.monotonic() < deadline:
+                time.sleep(0.05)
+                try:
+                    n_done = read_recording(out).n_point_logs if out.exists() else 0
+                except RecordingError:
+                    pass
+        finally:
+            proc.send_signal(signal.SIGKILL)
+            proc.wait()
+        assert n_done >= 1, proc.stderr.read().decode()
+        res = run(*args)
+        assert res.exit_code == 0, res.output
+        assert "Resuming" in res.output and "3/3" in res.output
+    rec = read_recording(out)
+    assert rec.n_point_logs == 3 and rec.frames.shape == (3, 5, 64)
+    assert not list(tmp_path.glob(".cal.h5.*"))  # no temporary files left behind
+
+
+@posix_only
+def test_virtual_skin_command_prints_the_port_first(tmp_path):
+    truth = tmp_path / "truth.npz"
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "skinloc",
+            "virtual-skin",
+            "--format",
+            "text",
+            "--rate",
+            "50",
+            "--faults",
+            "--truth",
+            str(truth),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        port = proc.stdout.readline().strip()
+        assert os.path.islink(port)
+        res = run(
+            "record",
+            "--port",
+            port,
+            "--seconds",
+            "0.5",
+            "--baseline-frames",
+            "5",
+            "--out",
+            tmp_path / "s.h5",
+        )
+        assert res.exit_code == 0, res.output
+    finally:
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 0, err
+    assert "frames sent intact" in err and truth.exists()
+    assert not os.path.exists(port)

@@ -88,7 +88,7 @@ def main() -> int:
         if now >= next_sample:
             rss.append((now - t0, rss_mb()))
             next_sample += 10.0
-    dev.send_signal(2)  # SIGINT: the device drains, saves its ground truth and exits
+    dev.terminate()  # SIGTERM: the device drains, saves its ground truth and exits
     while True:  # read what is still in flight
         try:
             f = src.read(timeout_s=1.0)

@@ -182,6 +182,8 @@ def test_virtual_skin_command_prints_the_port_first(tmp_path):
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        # As when started in the background by a shell: SIGINT ignored, and it must still stop.
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),
     )
     try:
         port = proc.stdout.readline().strip()

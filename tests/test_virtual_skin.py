@@ -3,9 +3,13 @@
 from __future__ import annotations
 
 import os
+import shutil
+import subprocess
 import sys
+import tempfile
 import time
 import zlib
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -42,6 +46,22 @@ def test_streams_the_simulated_skin(fmt):
 def test_listed_by_ports():
     with VirtualSkin(rate_hz=50) as dev:
         assert dev.path in [p.device for p in list_ports() if p.virtual]
+
+
+def test_ports_skip_links_of_dead_devices():
+    """A device killed hard leaves its link; its pty may since belong to another terminal."""
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    stale = Path(tempfile.mkdtemp(prefix="skinloc-virtual-"))
+    try:
+        (stale / "ttySKIN0").symlink_to(os.devnull)
+        assert str(stale / "ttySKIN0") not in [p.device for p in list_ports()]  # no pid file
+        (stale / "pid").write_text(f"{dead.pid}\n")
+        assert str(stale / "ttySKIN0") not in [p.device for p in list_ports()]
+        (stale / "pid").write_text(f"{os.getpid()}\n")
+        assert str(stale / "ttySKIN0") in [p.device for p in list_ports()]
+    finally:
+        shutil.rmtree(stale)
 
 
 def test_commands_and_scripted_finger():

@@ -539,7 +539,9 @@ def register(app: typer.Typer) -> None:
         def on_signal(signum, _frame) -> None:
             stopping.append(signum)
 
-        old = signal.signal(signal.SIGTERM, on_signal)
+        # Handle SIGINT too: a device started in the background inherits it ignored, and
+        # scripts (bench/soak.py) stop it with either signal.
+        old = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
         try:
             path = dev.start()
             sys.stdout.write(path + "\n")
@@ -551,14 +553,12 @@ def register(app: typer.Typer) -> None:
                 highlight=False,
             )
             start = time.monotonic()
-            try:
-                while not stopping and (seconds is None or time.monotonic() - start < seconds):
-                    time.sleep(0.05)
-            except KeyboardInterrupt:
-                pass
+            while not stopping and (seconds is None or time.monotonic() - start < seconds):
+                time.sleep(0.05)
         finally:
             dev.stop()
-            signal.signal(signal.SIGTERM, old)
+            for sig, handler in old.items():
+                signal.signal(sig, handler)
         if truth is not None:
             np.savez_compressed(truth, **dev.truth())
         c = dev.counts

@@ -183,6 +183,9 @@ class VirtualSkin:
         if self._thread is not None:
             raise RuntimeError("the virtual skin is already running")
         self.link_dir.mkdir(parents=True, exist_ok=True)
+        # Who owns the link: `skinloc ports` skips links whose process has gone (killed hard,
+        # its pty number since reused by someone else's terminal).
+        (self.link_dir / "pid").write_text(f"{os.getpid()}\n")
         if not self.skin.is_connected:
             self.skin.connect()
         self._plug()
@@ -202,6 +205,7 @@ class VirtualSkin:
         self._drain_then_lose_unread()
         self._unplug()
         Path(self.path).unlink(missing_ok=True)
+        (self.link_dir / "pid").unlink(missing_ok=True)
         if self._own_dir:
             shutil.rmtree(self.link_dir, ignore_errors=True)
 

@@ -512,6 +512,19 @@ def list_ports() -> list[PortInfo]:
         found.append(PortInfo(p.device, desc, p.hwid or "", arduino))
     found.sort(key=lambda p: (not p.likely_arduino, p.device))
     for link in sorted(glob.glob(VIRTUAL_GLOB)):
-        if os.path.exists(link):  # a dangling link belongs to a device that has stopped
+        if os.path.exists(link) and _owner_alive(os.path.join(os.path.dirname(link), "pid")):
             found.append(PortInfo(link, "skinloc virtual skin", "pty", False, virtual=True))
     return found
+
+
+def _owner_alive(pid_file: str) -> bool:
+    """Whether the process named in a virtual skin's pid file still runs."""
+    try:
+        with open(pid_file) as fh:
+            pid = int(fh.read().strip())
+        os.kill(pid, 0)
+    except PermissionError:
+        return True  # it runs, as another user
+    except (OSError, ValueError):
+        return False
+    return True

@@ -31,7 +31,7 @@ def toy():
     )
 
 
-FAST = dict(epochs=150, n_members=2, hidden=(64,))
+FAST = dict(arch="mlp", epochs=150, n_members=2, hidden=(64,))
 
 
 def test_learns_toy_skin(toy):
@@ -81,7 +81,9 @@ def test_uncertainty_from_ensemble(toy):
     mesh, X, y, Xt, _ = toy
     p = ContactLocalizer(**FAST).fit(X, y, mesh=mesh).predict_full(Xt)
     assert p.uncertainty_mm.shape == (len(Xt),) and np.all(p.uncertainty_mm >= 0)
-    single = ContactLocalizer(epochs=20, n_members=1, hidden=(8,)).fit(X, y).predict_full(Xt)
+    single = (
+        ContactLocalizer(arch="mlp", epochs=20, n_members=1, hidden=(8,)).fit(X, y).predict_full(Xt)
+    )
     assert np.all(np.isnan(single.uncertainty_mm))
 
 
@@ -103,7 +105,7 @@ def test_model_file_is_self_describing(toy, tmp_path):
     mesh, X, y, *_ = toy
     ContactLocalizer(**FAST).fit(X, y, mesh=mesh).save(tmp_path / "m.h5")
     with h5py.File(tmp_path / "m.h5") as f:
-        assert f.attrs["format"] == "skinloc-model" and f.attrs["format_version"] == 1
+        assert f.attrs["format"] == "skinloc-model" and f.attrs["format_version"] == 2
         assert json.loads(f.attrs["config"])["hidden"] == [64]
         assert f["network/layer0/weight"].shape == (2, 64, 64)
         assert f["surface/points"].shape == (14400, 3)
@@ -137,7 +139,13 @@ def test_wrong_width_names_64(toy):
 def test_bad_hyperparameters_named(toy, param, value, match):
     mesh, X, y, *_ = toy
     with pytest.raises(ValueError, match=match):
-        ContactLocalizer(**{param: value}).fit(X, y)
+        ContactLocalizer(**{"arch": "mlp", param: value}).fit(X, y)
+
+
+def test_parameter_of_another_kind_is_refused(toy):
+    mesh, X, y, *_ = toy
+    with pytest.raises(ValueError, match="'epochs' parameter does not apply to arch 'default'"):
+        ContactLocalizer(epochs=10).fit(X, y, mesh=mesh)
 
 
 def test_bad_training_shapes(toy):
@@ -149,7 +157,7 @@ def test_bad_training_shapes(toy):
 def test_divergence_raises(toy):
     mesh, X, y, *_ = toy
     with pytest.raises(ValueError, match="diverged"):
-        ContactLocalizer(epochs=5, n_members=1, hidden=(8,), lr=1e30).fit(X * 1e30, y)
+        ContactLocalizer(arch="mlp", epochs=5, n_members=1, hidden=(8,), lr=1e30).fit(X * 1e30, y)
 
 
 def test_load_errors(tmp_path):
@@ -166,3 +174,79 @@ def test_group_means():
     Xm, ym = group_means(X, y, np.array([5, 5, 7]))
     np.testing.assert_array_equal(Xm, [[2, 3], [10, 10]])
     np.testing.assert_array_equal(ym, [[0, 0, 1], [1, 1, 1]])
+
+
+# ------------------------------------------------------------------ response map (the default)
+
+
+def test_map_learns_toy_skin(toy):
+    mesh, X, y, Xt, yt = toy
+    m = ContactLocalizer().fit(X, y, mesh=mesh)
+    assert m.config_["kind"] == "map"
+    err = 1e3 * np.linalg.norm(m.predict(Xt) - yt, axis=1)
+    assert np.mean(err) < 6.0
+
+
+def test_map_outputs_are_surface_points_with_uncertainty(toy):
+    from skinloc.geometry import nearest_on_surface
+
+    mesh, X, y, Xt, yt = toy
+    pred = ContactLocalizer().fit(X, y, mesh=mesh).predict_full(Xt)
+    _, d, _ = nearest_on_surface(mesh, pred.points)
+    assert d.max() < 1e-9
+    assert np.all(np.isfinite(pred.uncertainty_mm)) and np.all(pred.uncertainty_mm >= 0)
+
+
+def test_map_uncertainty_grows_with_noise(toy):
+    mesh, X, y, Xt, _ = toy
+    m = ContactLocalizer().fit(X, y, mesh=mesh)
+    rng = np.random.default_rng(5)
+    clean = m.predict_full(Xt).uncertainty_mm
+    noisy = m.predict_full(Xt * 0.3 + rng.normal(0, 8, Xt.shape)).uncertainty_mm
+    assert np.median(noisy) > np.median(clean)
+
+
+def test_map_needs_a_surface(toy):
+    _, X, y, *_ = toy
+    with pytest.raises(ValueError, match="mesh"):
+        ContactLocalizer().fit(X, y)
+
+
+def test_map_save_load_roundtrip(toy, tmp_path):
+    mesh, X, y, Xt, _ = toy
+    m = ContactLocalizer().fit(X, y, mesh=mesh)
+    m.save(tmp_path / "m.h5")
+    back = ContactLocalizer.load(tmp_path / "m.h5")
+    np.testing.assert_array_equal(back.predict(Xt), m.predict(Xt))
+    assert back.config_ == m.config_
+
+
+def test_recalibration_recovers_a_moved_response(toy, tmp_path):
+    """A new session where some sensors' responses changed: a few touches repair the map."""
+    mesh, X, y, Xt, yt = toy
+    m = ContactLocalizer().fit(X, y, mesh=mesh)
+    rng = np.random.default_rng(1)
+    gains = rng.uniform(0.3, 2.0, X.shape[1])  # a re-mounted skin: every sensor's gain moved
+    new_t = sample_targets(mesh, 15, "even", random_state=9)
+    sensors = sample_targets(mesh, 64, "even", random_state=1)
+    X_new = bump_images(new_t, sensors) * gains
+    Xt_moved = Xt * gains
+
+    def err(model):
+        return (1e3 * np.linalg.norm(model.predict(Xt_moved) - yt, axis=1)).mean()
+
+    re = m.recalibrate(X_new, new_t)
+    assert err(re) < 0.7 * err(m)
+    assert len(re.map_.layers) == 2 and len(m.map_.layers) == 1  # the original is untouched
+    re.save(tmp_path / "re.h5")
+    np.testing.assert_array_equal(
+        ContactLocalizer.load(tmp_path / "re.h5").predict(Xt), re.predict(Xt)
+    )
+
+
+def test_network_recalibration_fine_tunes(toy):
+    mesh, X, y, Xt, yt = toy
+    m = ContactLocalizer(**FAST).fit(X, y, mesh=mesh)
+    re = m.recalibrate(X[:20], y[:20])
+    assert not np.array_equal(re.coefs_[0], m.coefs_[0])
+    assert re.predict(Xt).shape == yt.shape

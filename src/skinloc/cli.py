@@ -36,6 +36,7 @@ class Arch(StrEnum):
     """Localiser configurations."""
 
     default = "default"
+    mlp = "mlp"
     paper = "paper"
 
 

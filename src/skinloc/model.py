@@ -2,8 +2,15 @@
 
 ``ContactLocalizer`` follows the scikit-learn conventions: ``__init__`` stores
 hyperparameters, ``fit`` learns (attributes with a trailing ``_``) and returns ``self``.
-Training runs in PyTorch; prediction is a plain NumPy forward pass over the whole ensemble,
-which is faster than torch for one frame and is the path exported to other runtimes.
+
+Two kinds of model share the class:
+
+- ``kind="map"`` (the default): a response map of the skin (``skinloc.response_map``), fitted
+  by Gaussian-process regression on the surface in well under a second; prediction matches
+  the image's shape against the map at every candidate surface point.
+- ``kind="network"`` (``paper``, ``mlp``): fully connected networks trained in PyTorch and
+  run as a plain NumPy forward pass over the whole ensemble, the path exported to other
+  runtimes.
 """
 
 from __future__ import annotations
@@ -25,12 +32,22 @@ log = logging.getLogger(__name__)
 
 __all__ = ["ARCHITECTURES", "ContactLocalizer", "MODEL_FORMAT_VERSION", "Prediction"]
 
-MODEL_FORMAT_VERSION = 1
+#: 2 added response-map models; version 1 files (networks) still load.
+MODEL_FORMAT_VERSION = 2
 
 #: Named configurations. ``paper`` is the paper's network exactly (64-32-3, one hidden layer);
-#: ``default`` is the most accurate on the real recordings (see docs/benchmarks.md).
+#: ``default`` is the most accurate on the real recordings (see docs/accuracy.md); ``mlp`` is
+#: the best network found (an ensemble, also the way to an uncertainty from a network).
 ARCHITECTURES: dict[str, dict[str, Any]] = {
+    "default": dict(
+        kind="map",
+        normalise="l2",
+        clip_negative=True,
+        train_on="means",
+        length_scale_mm=20.0,
+    ),
     "paper": dict(
+        kind="network",
         hidden=(32,),
         activation="tanh",
         n_members=1,
@@ -42,7 +59,8 @@ ARCHITECTURES: dict[str, dict[str, Any]] = {
         weight_decay=0.0,
         noise_std=0.0,
     ),
-    "default": dict(
+    "mlp": dict(
+        kind="network",
         hidden=(128, 128),
         activation="relu",
         n_members=5,
@@ -57,6 +75,20 @@ ARCHITECTURES: dict[str, dict[str, Any]] = {
 }
 
 _ACTIVATIONS = ("relu", "tanh", "gelu")
+#: Hyperparameters a user may override (each an ``__init__`` argument).
+_TUNABLE = (
+    "length_scale_mm",
+    "hidden",
+    "activation",
+    "n_members",
+    "normalise",
+    "clip_negative",
+    "train_on",
+    "epochs",
+    "lr",
+    "weight_decay",
+    "noise_std",
+)
 
 
 @dataclass(frozen=True)
@@ -103,12 +135,15 @@ def group_means(X: np.ndarray, y: np.ndarray, groups: np.ndarray) -> tuple[np.nd
 
 
 class ContactLocalizer:
-    """Fully connected network (or ensemble of them) from sensor images to contact points.
+    """Sensor images to contact points: a response map or a network ensemble.
 
     Parameters
     ----------
-    arch : {"default", "paper"}, default="default"
-        Named configuration; keyword arguments given explicitly override its values.
+    arch : {"default", "mlp", "paper"}, default="default"
+        Named configuration; keyword arguments given explicitly override its values, and
+        must be ones that configuration has.
+    length_scale_mm : float, optional
+        Starting length scale of the response map's GP, mm (fitted by marginal likelihood).
     hidden : tuple of int, optional
         Hidden layer widths.
     activation : {"relu", "tanh", "gelu"}, optional
@@ -135,6 +170,7 @@ class ContactLocalizer:
         self,
         *,
         arch: str = "default",
+        length_scale_mm: float | None = None,
         hidden: tuple[int, ...] | None = None,
         activation: str | None = None,
         n_members: int | None = None,
@@ -149,6 +185,7 @@ class ContactLocalizer:
         random_state: int = 0,
     ) -> None:
         self.arch = arch
+        self.length_scale_mm = length_scale_mm
         self.hidden = hidden
         self.activation = activation
         self.n_members = n_members
@@ -171,11 +208,18 @@ class ContactLocalizer:
                 f"{', '.join(ARCHITECTURES)}"
             )
         cfg = dict(ARCHITECTURES[self.arch])
-        for key in cfg:
+        for key in _TUNABLE:
             value = getattr(self, key)
-            if value is not None:
-                cfg[key] = value
-        cfg["hidden"] = tuple(int(h) for h in cfg["hidden"])
+            if value is None:
+                continue
+            if key not in cfg:
+                raise ValueError(
+                    f"the {key!r} parameter does not apply to arch {self.arch!r} "
+                    f"(a {cfg['kind']} model)"
+                )
+            cfg[key] = value
+        if "hidden" in cfg:
+            cfg["hidden"] = tuple(int(h) for h in cfg["hidden"])
         cfg.update(arch=self.arch, constraint=self.constraint, random_state=self.random_state)
         self._validate(cfg)
         return cfg
@@ -187,16 +231,24 @@ class ContactLocalizer:
                 f"the {name!r} parameter of ContactLocalizer must be {allowed}; got {cfg[name]!r}"
             )
 
+        if cfg["normalise"] not in ("none", "l1", "l2"):
+            raise bad("normalise", "one of none, l1, l2")
+        if cfg["train_on"] not in ("frames", "means"):
+            raise bad("train_on", "one of frames, means")
+        if cfg["constraint"] not in ("snap", "project", "none"):
+            raise bad("constraint", "one of snap, project, none")
+        if cfg["kind"] == "map":
+            if not cfg["length_scale_mm"] > 0:
+                raise bad("length_scale_mm", "a float > 0")
+            if cfg["normalise"] != "l2" or cfg["train_on"] != "means":
+                raise ValueError("a response map matches L2-normalised touch means")
+            return
         if not cfg["hidden"] or any(h < 1 for h in cfg["hidden"]):
             raise bad("hidden", "a non-empty tuple of positive ints")
         if cfg["activation"] not in _ACTIVATIONS:
             raise bad("activation", f"one of {', '.join(_ACTIVATIONS)}")
         if not (isinstance(cfg["n_members"], int) and cfg["n_members"] >= 1):
             raise bad("n_members", "an int >= 1")
-        if cfg["normalise"] not in ("none", "l1", "l2"):
-            raise bad("normalise", "one of none, l1, l2")
-        if cfg["train_on"] not in ("frames", "means"):
-            raise bad("train_on", "one of frames, means")
         if not (isinstance(cfg["epochs"], int) and cfg["epochs"] >= 1):
             raise bad("epochs", "an int >= 1")
         if not cfg["lr"] > 0:
@@ -205,8 +257,6 @@ class ContactLocalizer:
             raise bad("weight_decay", "a float >= 0")
         if not cfg["noise_std"] >= 0:
             raise bad("noise_std", "a float >= 0")
-        if cfg["constraint"] not in ("snap", "project", "none"):
-            raise bad("constraint", "one of snap, project, none")
 
     # ---------------------------------------------------------------- preprocessing
     def _features(self, X: np.ndarray, cfg: dict[str, Any]) -> np.ndarray:
@@ -267,8 +317,6 @@ class ContactLocalizer:
         -------
         self
         """
-        import torch
-
         cfg = self.get_config()
         X = self._check_X(X)
         y = np.asarray(y, dtype=np.float64)
@@ -279,34 +327,78 @@ class ContactLocalizer:
         if cfg["train_on"] == "means" and groups is not None:
             X, y = group_means(X, y, groups)
         t0 = time.perf_counter()
+        for attr in ("coefs_", "intercepts_", "map_"):  # a second fit starts afresh
+            self.__dict__.pop(attr, None)
         self.n_features_in_ = X.shape[1]
-        F = self._features(X, cfg)
-        self.feature_mean_ = F.mean(axis=0)
-        self.feature_scale_ = np.maximum(F.std(axis=0), 1e-6 * max(F.std(), 1e-12))
-        self.target_mean_ = y.mean(axis=0)
-        self.target_scale_ = float(np.maximum(y.std(axis=0).max(), 1e-6))
-        Z = (F - self.feature_mean_) / self.feature_scale_
-        T = (y - self.target_mean_) / self.target_scale_
+        self.config_ = cfg
+        self._set_surface(mesh, surface_points)
+        if cfg["kind"] == "map":
+            self._fit_map(X, y)
+        else:
+            F = self._features(X, cfg)
+            self.feature_mean_ = F.mean(axis=0)
+            self.feature_scale_ = np.maximum(F.std(axis=0), 1e-6 * max(F.std(), 1e-12))
+            self.target_mean_ = y.mean(axis=0)
+            self.target_scale_ = float(np.maximum(y.std(axis=0).max(), 1e-6))
+            self._fit_network(X, y, cfg["epochs"], cfg["lr"], progress)
+        self.fit_time_s_ = time.perf_counter() - t0
+        log.info("trained %s in %.2f s", cfg["arch"], self.fit_time_s_)
+        return self
 
+    def _fit_map(self, X: np.ndarray, y: Points) -> None:
+        from skinloc.response_map import ResponseMap, shape_features
+
+        if self.surface_points_ is None:
+            raise ValueError(
+                "a response-map model chooses among surface points: give the skin mesh or "
+                "surface_points to fit()"
+            )
+        F = shape_features(X, self.config_["clip_negative"])
+        self.map_ = ResponseMap.fit(
+            y, F, self.surface_points_, length_scale_mm=self.config_["length_scale_mm"]
+        )
+
+    def _fit_network(
+        self,
+        X: np.ndarray,
+        y: Points,
+        epochs: int,
+        lr: float,
+        progress: Callable[[int, int], None] | None,
+    ) -> None:
+        """Train the ensemble with AdamW, cosine-decayed ``lr``, from the current weights if any.
+
+        ``X (n, n_sensors)`` counts and ``y (n, 3)`` m; the preprocessing attributes must be set.
+        """
+        import torch
+
+        cfg = self.config_
+        Z = (self._features(X, cfg) - self.feature_mean_) / self.feature_scale_
+        T = (y - self.target_mean_) / self.target_scale_
         g = torch.Generator().manual_seed(int(self.random_state))
         E = cfg["n_members"]
         sizes = [Z.shape[1], *cfg["hidden"], 3]
+        n_layers = len(sizes) - 1
         params: list[torch.Tensor] = []
-        for fan_in, fan_out in zip(sizes[:-1], sizes[1:], strict=True):
-            bound = 1.0 / np.sqrt(fan_in)  # the default init of torch.nn.Linear
-            W = (torch.rand(E, fan_in, fan_out, generator=g, dtype=torch.float64) * 2 - 1) * bound
-            b = (torch.rand(E, 1, fan_out, generator=g, dtype=torch.float64) * 2 - 1) * bound
-            params += [W.requires_grad_(), b.requires_grad_()]
+        if hasattr(self, "coefs_"):
+            for W, b in zip(self.coefs_, self.intercepts_, strict=True):
+                params += [torch.tensor(W).requires_grad_(), torch.tensor(b).requires_grad_()]
+        else:
+            for fan_in, fan_out in zip(sizes[:-1], sizes[1:], strict=True):
+                bound = 1.0 / np.sqrt(fan_in)  # the default init of torch.nn.Linear
+                shape_w, shape_b = (E, fan_in, fan_out), (E, 1, fan_out)
+                W = (torch.rand(shape_w, generator=g, dtype=torch.float64) * 2 - 1) * bound
+                b = (torch.rand(shape_b, generator=g, dtype=torch.float64) * 2 - 1) * bound
+                params += [W.requires_grad_(), b.requires_grad_()]
         act = {"relu": torch.relu, "tanh": torch.tanh, "gelu": torch.nn.functional.gelu}[
             cfg["activation"]
         ]
         Zt = torch.as_tensor(Z).expand(E, -1, -1)
         Tt = torch.as_tensor(T).expand(E, -1, -1)
-        opt = torch.optim.AdamW(params, lr=cfg["lr"], weight_decay=cfg["weight_decay"])
-        sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=cfg["epochs"])
-        n_layers = len(sizes) - 1
+        opt = torch.optim.AdamW(params, lr=lr, weight_decay=cfg["weight_decay"])
+        sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=epochs)
         self.loss_curve_ = []
-        for epoch in range(cfg["epochs"]):
+        for epoch in range(epochs):
             h = Zt
             if cfg["noise_std"] > 0:
                 h = h + cfg["noise_std"] * torch.randn(h.shape, generator=g, dtype=h.dtype)
@@ -320,31 +412,62 @@ class ContactLocalizer:
             opt.step()
             sched.step()
             self.loss_curve_.append(loss.item() / E)
-            if progress is not None and (epoch % 25 == 0 or epoch == cfg["epochs"] - 1):
-                progress(epoch + 1, cfg["epochs"])
-        self.coefs_ = [params[2 * i].detach().numpy().copy() for i in range(n_layers)]
-        self.intercepts_ = [params[2 * i + 1].detach().numpy().copy() for i in range(n_layers)]
-        if not all(np.all(np.isfinite(w)) for w in self.coefs_ + self.intercepts_):
+            if progress is not None and (epoch % 25 == 0 or epoch == epochs - 1):
+                progress(epoch + 1, epochs)
+        coefs = [params[2 * i].detach().numpy().copy() for i in range(n_layers)]
+        intercepts = [params[2 * i + 1].detach().numpy().copy() for i in range(n_layers)]
+        if not all(np.all(np.isfinite(w)) for w in coefs + intercepts):
             raise ValueError(
                 "training diverged (non-finite weights); lower lr or check the input images"
             )
-        self.config_ = cfg
-        self._set_surface(mesh, surface_points)
-        self.fit_time_s_ = time.perf_counter() - t0
-        log.info(
-            "trained %s in %.2f s, final loss %.4g",
-            cfg["arch"],
-            self.fit_time_s_,
-            self.loss_curve_[-1],
-        )
-        return self
+        self.coefs_, self.intercepts_ = coefs, intercepts
+
+    def recalibrate(
+        self,
+        X: Frames,
+        y: Points,
+        *,
+        groups: np.ndarray | None = None,
+        progress: Callable[[int, int], None] | None = None,
+    ) -> ContactLocalizer:
+        """A copy of this model adapted to a skin whose response has moved (a new session).
+
+        ``X (n, n_sensors)`` are baseline-subtracted images from the new session (with its own
+        fresh baseline) and ``y (n, 3)`` their touch positions, m; a handful of touches is
+        enough. A response map gains a correction layer fitted to the new touches; a network
+        is fine-tuned from its weights with a short, gentle schedule.
+        """
+        import copy
+
+        self._check_fitted()
+        X = self._check_X(X)
+        y = np.asarray(y, dtype=np.float64)
+        if y.shape != (len(X), 3) or len(X) < 1:
+            raise ValueError(f"touch positions must have shape ({len(X)}, 3), got {y.shape}")
+        new = copy.deepcopy(self)
+        t0 = time.perf_counter()
+        if self.config_["kind"] == "map":
+            from skinloc.response_map import shape_features
+
+            if groups is not None:
+                X, y = group_means(X, y, groups)
+            F = shape_features(X, self.config_["clip_negative"])
+            new.map_ = self.map_.refined(y, F)
+        else:
+            if self.config_["train_on"] == "means" and groups is not None:
+                X, y = group_means(X, y, groups)
+            epochs = max(50, self.config_["epochs"] // 4)
+            new._fit_network(X, y, epochs, self.config_["lr"] / 10, progress)
+        new.fit_time_s_ = time.perf_counter() - t0
+        return new
 
     # ---------------------------------------------------------------- surface
     def _set_surface(self, mesh: Any, surface_points: Points | None) -> None:
         self.mesh_vertices_ = None if mesh is None else np.asarray(mesh.vertices, dtype=np.float64)
         self.mesh_faces_ = None if mesh is None else np.asarray(mesh.faces, dtype=np.int64)
         self.surface_points_ = surface_points
-        if mesh is not None and surface_points is None and self.constraint == "snap":
+        needs_points = self.constraint == "snap" or self.config_["kind"] == "map"
+        if mesh is not None and surface_points is None and needs_points:
             from skinloc.geometry import surface_points as make_points
 
             self.surface_points_ = make_points(mesh)
@@ -375,7 +498,7 @@ class ContactLocalizer:
 
     # ---------------------------------------------------------------- prediction
     def _check_fitted(self) -> None:
-        if not hasattr(self, "coefs_"):
+        if not (hasattr(self, "coefs_") or hasattr(self, "map_")):
             raise NotFittedError(
                 "this ContactLocalizer is not fitted yet: call fit() or load a trained model"
             )
@@ -397,6 +520,11 @@ class ContactLocalizer:
         """Predict points, raw outputs and the ensemble spread for ``X (n, n_sensors)``."""
         self._check_fitted()
         X = self._check_X(X)
+        if self.config_["kind"] == "map":
+            from skinloc.response_map import shape_features
+
+            points, spread = self.map_.match(shape_features(X, self.config_["clip_negative"]))
+            return Prediction(points=points, raw=points, uncertainty_mm=spread)
         members = self._forward(X)
         raw = members.mean(axis=0)
         if len(members) > 1:
@@ -442,18 +570,10 @@ class ContactLocalizer:
                 f.attrs["config"] = json.dumps(self.config_)
                 f.attrs["meta"] = json.dumps(meta, default=str)
                 f.attrs["n_features_in"] = self.n_features_in_
-                f.attrs["description"] = (
-                    "x: baseline-subtracted counts (n_features_in,). features: clip/normalise per "
-                    "config, then (x - feature_mean) / feature_scale. layers: h = act(h @ W + b) "
-                    "per member; output * target_scale + target_mean is metres; ensemble mean."
-                )
-                p = f.create_group("preprocessing")
-                p["feature_mean"], p["feature_scale"] = self.feature_mean_, self.feature_scale_
-                p["target_mean"] = self.target_mean_
-                p.attrs["target_scale"] = self.target_scale_
-                net = f.create_group("network")
-                for i, (W, b) in enumerate(zip(self.coefs_, self.intercepts_, strict=True)):
-                    net[f"layer{i}/weight"], net[f"layer{i}/bias"] = W, b
+                if self.config_["kind"] == "map":
+                    self._write_map(f)
+                else:
+                    self._write_network(f)
                 if self.mesh_vertices_ is not None:
                     f["surface/vertices"], f["surface/faces"] = (
                         self.mesh_vertices_,
@@ -463,6 +583,58 @@ class ContactLocalizer:
                     f["surface/points"] = self.surface_points_
 
         _atomic_write(Path(path), write)
+
+    def _write_map(self, f: Any) -> None:
+        f.attrs["description"] = (
+            "x: baseline-subtracted counts (n_features_in,). features: clip negatives, divide by "
+            "max(L2 norm, 1). map(q) = mean + sum over layers of exp(-|q - points_mm|^2 / "
+            "(2 length_scale_mm^2)) @ alpha, q in mm. prediction: the row of map/candidates "
+            "(metres) whose map value is nearest the features."
+        )
+        g = f.create_group("map")
+        g["mean"], g["candidates"] = self.map_.mean, self.map_.candidates
+        for i, layer in enumerate(self.map_.layers):
+            lg = g.create_group(f"layer{i}")
+            lg["points_mm"], lg["alpha"] = layer.points_mm, layer.alpha
+            lg.attrs["length_scale_mm"], lg.attrs["noise"] = layer.length_scale_mm, layer.noise
+
+    def _write_network(self, f: Any) -> None:
+        f.attrs["description"] = (
+            "x: baseline-subtracted counts (n_features_in,). features: clip/normalise per "
+            "config, then (x - feature_mean) / feature_scale. layers: h = act(h @ W + b) "
+            "per member; output * target_scale + target_mean is metres; ensemble mean."
+        )
+        p = f.create_group("preprocessing")
+        p["feature_mean"], p["feature_scale"] = self.feature_mean_, self.feature_scale_
+        p["target_mean"] = self.target_mean_
+        p.attrs["target_scale"] = self.target_scale_
+        net = f.create_group("network")
+        for i, (W, b) in enumerate(zip(self.coefs_, self.intercepts_, strict=True)):
+            net[f"layer{i}/weight"], net[f"layer{i}/bias"] = W, b
+
+    def _read_map(self, g: Any) -> None:
+        from skinloc.response_map import MapLayer, ResponseMap
+
+        layers = [
+            MapLayer(
+                g[f"layer{i}/points_mm"][()],
+                g[f"layer{i}/alpha"][()],
+                float(g[f"layer{i}"].attrs["length_scale_mm"]),
+                float(g[f"layer{i}"].attrs["noise"]),
+            )
+            for i in range(sum(1 for k in g if k.startswith("layer")))
+        ]
+        self.map_ = ResponseMap(g["mean"][()], layers, g["candidates"][()])
+
+    def _read_network(self, f: Any) -> None:
+        p = f["preprocessing"]
+        self.feature_mean_ = p["feature_mean"][()]
+        self.feature_scale_ = p["feature_scale"][()]
+        self.target_mean_ = p["target_mean"][()]
+        self.target_scale_ = float(p.attrs["target_scale"])
+        net = f["network"]
+        self.coefs_ = [net[f"layer{i}/weight"][()] for i in range(len(net))]
+        self.intercepts_ = [net[f"layer{i}/bias"][()] for i in range(len(net))]
 
     @classmethod
     def load(cls, path: str | Path) -> ContactLocalizer:
@@ -483,26 +655,21 @@ class ContactLocalizer:
                         f"{MODEL_FORMAT_VERSION}: upgrade skinloc"
                     )
                 cfg = json.loads(f.attrs["config"])
-                cfg["hidden"] = tuple(cfg["hidden"])
-                keys = [k for k in ARCHITECTURES["default"] if k in cfg]
+                if version == 1:  # version 1 held networks only, under the names of today's mlp
+                    cfg["kind"] = "network"
+                    cfg["arch"] = "mlp" if cfg["arch"] == "default" else cfg["arch"]
+                if "hidden" in cfg:
+                    cfg["hidden"] = tuple(cfg["hidden"])
                 model = cls(
-                    **{k: cfg[k] for k in keys},
-                    arch=cfg["arch"],
-                    constraint=cfg["constraint"],
-                    random_state=cfg["random_state"],
+                    arch=cfg["arch"], constraint=cfg["constraint"], random_state=cfg["random_state"]
                 )
                 model.config_ = cfg
                 model.meta_ = json.loads(f.attrs.get("meta", "{}"))
                 model.n_features_in_ = int(f.attrs["n_features_in"])
-                p = f["preprocessing"]
-                model.feature_mean_ = p["feature_mean"][()]
-                model.feature_scale_ = p["feature_scale"][()]
-                model.target_mean_ = p["target_mean"][()]
-                model.target_scale_ = float(p.attrs["target_scale"])
-                net = f["network"]
-                n_layers = len(net)
-                model.coefs_ = [net[f"layer{i}/weight"][()] for i in range(n_layers)]
-                model.intercepts_ = [net[f"layer{i}/bias"][()] for i in range(n_layers)]
+                if cfg["kind"] == "map":
+                    model._read_map(f["map"])
+                else:
+                    model._read_network(f)
                 surf = f.get("surface")
                 model.mesh_vertices_ = surf["vertices"][()] if surf and "vertices" in surf else None
                 model.mesh_faces_ = surf["faces"][()] if surf and "faces" in surf else None

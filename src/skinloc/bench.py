@@ -141,7 +141,7 @@ def _load_all(data_dir: Path, names: Sequence[str]) -> dict[str, Recording]:
 
 def real_splits(
     data_dir: str | Path,
-    archs: Sequence[str] = ("default", "paper"),
+    archs: Sequence[str] = ("default", "mlp", "paper"),
     random_state: int = 0,
     step: Step = _noop,
 ) -> list[SplitResult]:
@@ -187,6 +187,53 @@ def real_splits(
     return out
 
 
+def _naive_map_predictor(model) -> Callable[[np.ndarray], np.ndarray]:
+    """Arg-min of ``np.linalg.norm(table - f)`` per frame: the obvious matcher, 64 frames a step."""
+    from skinloc.response_map import shape_features
+
+    table, cand = model.map_.table, model.map_.candidates
+
+    def predict(x: np.ndarray) -> np.ndarray:
+        F = shape_features(x, model.config_["clip_negative"]).astype(np.float32)
+        idx = [
+            np.linalg.norm(table[None] - F[i : i + 64, None], axis=2).argmin(axis=1)
+            for i in range(0, len(F), 64)
+        ]
+        return cand[np.concatenate(idx)]
+
+    return predict
+
+
+def _torch_predictor(model) -> Callable[[np.ndarray], np.ndarray]:
+    """The network's weights as one ``torch.nn.Sequential`` per member, then the KD-tree snap."""
+    import torch
+
+    act = {"relu": torch.nn.ReLU, "tanh": torch.nn.Tanh, "gelu": torch.nn.GELU}[
+        model.config_["activation"]
+    ]
+    members = []
+    for m in range(len(model.coefs_[0])):
+        layers: list[torch.nn.Module] = []
+        for i, (W, b) in enumerate(zip(model.coefs_, model.intercepts_, strict=True)):
+            lin = torch.nn.Linear(W.shape[1], W.shape[2]).double()
+            lin.weight.data = torch.as_tensor(W[m].T.copy())
+            lin.bias.data = torch.as_tensor(b[m, 0].copy())
+            layers.append(lin)
+            if i < len(model.coefs_) - 1:
+                layers.append(act())
+        members.append(torch.nn.Sequential(*layers))
+    snap = model._surface_constraint()
+
+    def predict(x: np.ndarray) -> np.ndarray:
+        f = (model._features(x, model.config_) - model.feature_mean_) / model.feature_scale_
+        with torch.inference_mode():
+            t = torch.as_tensor(f)
+            out = torch.stack([net(t) for net in members]).mean(0).numpy()
+        return snap(out * model.target_scale_ + model.target_mean_)
+
+    return predict
+
+
 def _short(name: str) -> str:
     """``ConeSkinData80Points_RND_80PL_1.mat`` -> ``80PL_1``."""
     return name.rsplit("_RND_", 1)[-1].removesuffix(".mat")
@@ -196,16 +243,17 @@ def timing(
     n_points: int = 100,
     samples_per_touch: int = 50,
     n_latency: int = 2000,
-    batch: int = 100_000,
+    batch: int = 20_000,
     arch: str = "default",
     random_state: int = 0,
     step: Step = _noop,
 ) -> dict[str, float]:
     """Training time, single-frame latency and batch throughput, with a baseline in the same run.
 
-    The baseline runs the same trained weights as a plain ``torch.nn.Sequential`` per member under
-    ``torch.inference_mode`` followed by the same KD-tree snap: what a straightforward
-    implementation would do.
+    The baseline is what a straightforward implementation of the same trained model would do:
+    for a response map, the distance from the features to every row of the map table by
+    broadcasting, then the arg-min; for a network, a ``torch.nn.Sequential`` per member under
+    ``torch.inference_mode`` followed by the same KD-tree snap.
     """
     import tempfile
 
@@ -238,29 +286,10 @@ def timing(
     frames = cal.deltas.reshape(-1, cal.n_sensors)
     rng = np.random.default_rng(random_state)
     single = frames[rng.integers(len(frames), size=n_latency)]
-
-    act = {"relu": torch.nn.ReLU, "tanh": torch.nn.Tanh, "gelu": torch.nn.GELU}[
-        model.config_["activation"]
-    ]
-    members = []
-    for m in range(len(model.coefs_[0])):
-        layers: list[torch.nn.Module] = []
-        for i, (W, b) in enumerate(zip(model.coefs_, model.intercepts_, strict=True)):
-            lin = torch.nn.Linear(W.shape[1], W.shape[2]).double()
-            lin.weight.data = torch.as_tensor(W[m].T.copy())
-            lin.bias.data = torch.as_tensor(b[m, 0].copy())
-            layers.append(lin)
-            if i < len(model.coefs_) - 1:
-                layers.append(act())
-        members.append(torch.nn.Sequential(*layers))
-    snap = model._surface_constraint()
-
-    def baseline_predict(x: np.ndarray) -> np.ndarray:
-        f = (model._features(x, model.config_) - model.feature_mean_) / model.feature_scale_
-        with torch.inference_mode():
-            t = torch.as_tensor(f)
-            out = torch.stack([net(t) for net in members]).mean(0).numpy()
-        return snap(out * model.target_scale_ + model.target_mean_)
+    if model.config_["kind"] == "map":
+        baseline_predict = _naive_map_predictor(model)
+    else:
+        baseline_predict = _torch_predictor(model)
 
     def lat(fn: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
         fn(single[:1])

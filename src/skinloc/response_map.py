@@ -128,6 +128,8 @@ class ResponseMap:
     layers: list[MapLayer]
     candidates: Points
     _table: np.ndarray | None = field(default=None, repr=False)
+    _sq: np.ndarray | None = field(default=None, repr=False)
+    _coarse: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
 
     @classmethod
     def fit(
@@ -177,32 +179,67 @@ class ResponseMap:
                 for i in range(0, len(self.candidates), 4096)
             ]
             self._table = np.concatenate(chunks).astype(np.float32)
+            self._sq = (self._table**2).sum(axis=1)
         return self._table
 
-    def match(self, F: np.ndarray, top: int = 256) -> tuple[Points, np.ndarray]:
-        """Localise features ``F (n, k)``.
+    def _cells(self) -> tuple[np.ndarray, np.ndarray]:
+        """A coarse level for the search: every 16th candidate, and the candidates nearest each.
+
+        Returns ``(coarse (C,) int, cells (C, m) int)``, each cell padded by repeating its
+        coarse point.
+        """
+        if getattr(self, "_coarse", None) is None:
+            from scipy.spatial import cKDTree
+
+            coarse = np.arange(0, len(self.candidates), 16)
+            owner = cKDTree(self.candidates[coarse]).query(self.candidates)[1]
+            order = np.argsort(owner, kind="stable")
+            counts = np.bincount(owner, minlength=len(coarse))
+            cells = np.repeat(coarse[:, None], counts.max(), axis=1)
+            starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+            for c, (s0, n) in enumerate(zip(starts, counts, strict=True)):
+                cells[c, :n] = order[s0 : s0 + n]
+            self._coarse = (coarse, cells)
+        return self._coarse
+
+    def match(self, F: np.ndarray, cells: int = 8) -> tuple[Points, np.ndarray]:
+        """Localise features ``F (n, k)``, coarse to fine.
+
+        The map is smooth at the scale of its length scale (tens of mm), so the best
+        candidate lies in one of the ``cells`` best-matching coarse cells (every 16th
+        candidate, about 5 mm apart on the paper's skin); only those cells are searched in
+        full. That is ~15x fewer distances than the exhaustive search, with the same answer
+        on the real recordings.
 
         Returns
         -------
         points : (n, 3) float
             The best-matching candidate point of each row, m.
         spread_mm : (n,) float
-            RMS distance from it of the candidates (among the ``top`` best), weighted by a
-            likelihood whose variance is the best match's own residual, mm. An image that fits
-            no candidate well thus spreads its weight wide: the spread grows with both
-            ambiguity and misfit, and ranks real errors (docs/accuracy.md).
+            RMS distance from it of the searched candidates, weighted by a likelihood whose
+            variance is the best match's own residual, mm. An image that fits no candidate
+            well spreads its weight wide, and one that fits two distant places equally well
+            spreads it between them: the spread grows with misfit and ambiguity, and ranks
+            real errors (docs/accuracy.md).
         """
-        T = self.table
-        Fs = np.asarray(F, dtype=np.float32)
-        # ||f - t||^2 without forming (n, P, k): |f|^2 - 2 f.t + |t|^2.
-        d = (Fs**2).sum(1)[:, None] - 2.0 * Fs @ T.T + (T**2).sum(1)[None, :]
-        top = min(top, d.shape[1])
-        idx = np.argpartition(d, top - 1, axis=1)[:, :top]
-        dt = np.take_along_axis(d, idx, axis=1).astype(np.float64)
-        best = idx[np.arange(len(d)), dt.argmin(axis=1)]
+        F = np.asarray(F)
+        if len(F) > 512:  # bounds the working arrays to a few tens of MB
+            parts = [self.match(F[i : i + 512], cells) for i in range(0, len(F), 512)]
+            return np.concatenate([p for p, _ in parts]), np.concatenate([s for _, s in parts])
+        T, (coarse, members) = self.table, self._cells()
+        Fs = F.astype(np.float32)
+        # ||f - t||^2 as |t|^2 - 2 f.t (|f|^2 is the same for every candidate of a row).
+        dc = self._sq[coarse][None, :] - 2.0 * Fs @ T[coarse].T
+        cells = min(cells, len(coarse))
+        best_cells = np.argpartition(dc, cells - 1, axis=1)[:, :cells]
+        idx = members[best_cells].reshape(len(F), -1)  # (n, cells * m)
+        d = self._sq[idx] - 2.0 * np.einsum("nk,nck->nc", Fs, T[idx])
+        d = d.astype(np.float64) + (Fs.astype(np.float64) ** 2).sum(axis=1, keepdims=True)
+        d = np.maximum(d, 0.0)
+        best = idx[np.arange(len(F)), d.argmin(axis=1)]
         points = self.candidates[best]
-        dmin = dt.min(axis=1, keepdims=True)
-        w = np.exp(-(dt - dmin) / np.maximum(dmin, 2.0 * self.noise))
+        dmin = d.min(axis=1, keepdims=True)
+        w = np.exp(-(d - dmin) / np.maximum(dmin, 2.0 * self.noise))
         w /= w.sum(axis=1, keepdims=True)
         sq = ((self.candidates[idx] - points[:, None, :]) ** 2).sum(axis=2)
         spread_mm = 1e3 * np.sqrt((w * sq).sum(axis=1))

@@ -72,6 +72,28 @@ def test_train_and_evaluate(rec_path, tmp_path):
     assert run("evaluate", model, rec_path).exit_code == 0
 
 
+def test_default_train_then_recalibrate(rec_path, tmp_path):
+    model, new = tmp_path / "m.h5", tmp_path / "new.h5"
+    assert run("train", rec_path, "--out", model).exit_code == 0
+    later = tmp_path / "later.h5"
+    write_recording(make_recording(5, 4, random_state=7), later)
+    res = run("train", later, "--init", model, "--out", new)
+    assert res.exit_code == 0, res.output
+    assert "Recalibrated" in res.output
+    out = json.loads(run("evaluate", new, later, "--json").output)
+    assert out["n"] == 5 and "uncertainty_spearman" in out
+    small = tmp_path / "small.h5"
+    write_recording(make_recording(3, 3, n_tx=4, n_rx=4), small)
+    res = run("train", small, "--init", model, "--out", tmp_path / "x.h5")
+    assert res.exit_code == 1 and "16 sensors" in res.output
+    assert not (tmp_path / "x.h5").exists()
+
+
+def test_option_of_another_model_kind(rec_path, tmp_path):
+    res = run("train", rec_path, "--out", tmp_path / "m.h5", "--epochs", "5")
+    assert res.exit_code == 1 and "does not apply" in res.output and "Traceback" not in res.output
+
+
 @pytest.mark.parametrize(
     "args,match",
     [

@@ -235,15 +235,36 @@ def train(
     mesh: Annotated[Path | None, typer.Option(help="Skin mesh; default: the recording's.")] = None,
     units: Annotated[Units, typer.Option(help="Units of --mesh.")] = Units.auto,
     epochs: Annotated[int | None, typer.Option(min=1, help="Override the training epochs.")] = None,
+    init: Annotated[
+        Path | None,
+        typer.Option(
+            help="Recalibrate this model to DATA (a new session: fresh baseline, a few touches) "
+            "instead of training from scratch."
+        ),
+    ] = None,
 ) -> None:
-    """Train a localiser on one or more calibration recordings.
+    """Train a localiser on one or more calibration recordings, or recalibrate one.
 
-    Example: skinloc train cal.h5 --out model.h5
+    Examples: skinloc train cal.h5 --out model.h5;
+    skinloc train today.h5 --init model.h5 --out model-today.h5
     """
-    from skinloc.evaluation import train_localizer
+    from skinloc.evaluation import recalibrate_localizer, train_localizer
     from skinloc.geometry import load_mesh
+    from skinloc.model import ContactLocalizer
 
     recs = _read_all(data)
+    if init is not None:
+        old = ContactLocalizer.load(init)
+        with progress_steps() as step:
+            model = recalibrate_localizer(
+                old, recs, progress=lambda d, t: step("recalibrating", d, t)
+            )
+        model.save(out)
+        n = sum(r.n_point_logs for r in recs)
+        console.print(
+            f"Recalibrated {init} with {n} point logs in {model.fit_time_s_:.1f} s; wrote {out}"
+        )
+        return
     surface = load_mesh(mesh, units.value) if mesh is not None else None
     overrides = {"epochs": epochs} if epochs is not None else {}
     with progress_steps() as step:
@@ -559,6 +580,7 @@ def _register_plugins() -> None:
     from skinloc.cli_hardware import register
 
     register(app)
+    __import__("skinloc.app.cli", fromlist=["register"]).register(app)  # skinloc app
 
 
 _register_plugins()

@@ -11,7 +11,14 @@ from skinloc.dataset import Recording
 from skinloc.errors import RecordingError
 from skinloc.metrics import ErrorStats, error_stats, localisation_errors_mm
 
-__all__ = ["Evaluation", "check_compatible", "evaluate", "train_localizer", "training_arrays"]
+__all__ = [
+    "Evaluation",
+    "check_compatible",
+    "evaluate",
+    "recalibrate_localizer",
+    "train_localizer",
+    "training_arrays",
+]
 
 
 def check_compatible(recordings: Sequence[Recording], n_sensors: int | None = None) -> int:
@@ -138,3 +145,21 @@ def train_localizer(
         "sources": [r.meta.get("description") or r.meta.get("source", "") for r in recordings],
     }
     return model
+
+
+def recalibrate_localizer(model, recordings: Sequence[Recording], *, progress=None):
+    """Adapt a trained model to new recordings of the same skin (``ContactLocalizer.recalibrate``).
+
+    Each recording's frames are taken against its own (fresh) baseline, so a moved baseline
+    is absorbed here; the model then corrects for the moved response.
+    """
+    check_compatible(recordings, getattr(model, "n_features_in_", None))
+    X, y, groups = training_arrays(recordings)
+    new = model.recalibrate(X, y, groups=groups, progress=progress)
+    previous = getattr(model, "meta_", {}).get("training") or getattr(model, "training_meta_", {})
+    new.training_meta_ = {
+        "recalibrated_from": previous,
+        "n_recordings": len(recordings),
+        "n_point_logs": int(sum(r.n_point_logs for r in recordings)),
+    }
+    return new

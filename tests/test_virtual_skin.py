@@ -86,6 +86,9 @@ def test_commands_and_scripted_finger():
     assert dev.handle_command("g 300").startswith("error")
     assert dev.handle_command("g 20") == "ok gain 20"
     assert dev.handle_command("bogus").startswith("error unknown command")
+    assert dev.handle_command("l 11110000 111") == "ok lines 4x3"  # the firmware's reply
+    assert dev.handle_command("l 1111x 111").startswith("error usage")
+    assert dev.handle_command("?").startswith("commands: v | f text|binary")
 
 
 def test_reconnects_after_unplug_and_never_delivers_a_wrong_frame():

@@ -351,7 +351,7 @@ class VirtualSkin:
             if cmd in ("v", "version"):
                 return (
                     f"{FIRMWARE_VERSION} grid {skin.n_tx}x{skin.n_rx} format {self.fmt.value} "
-                    f"rate {self.rate_hz:g} virtual"
+                    f"gain {self.gain} rate {self.rate_hz:g} virtual"
                 )
             if cmd == "f" and args and args[0] in ("text", "binary"):
                 self._flush_pending()
@@ -364,7 +364,17 @@ class VirtualSkin:
                 self.gain = gain
                 return f"ok gain {gain}"
             if cmd == "l" and len(args) == 2:
-                return f"ok lines tx {args[0]} rx {args[1]}"
+                # Checked and acknowledged like the firmware; the simulated grid stays as it is.
+                tx, rx = args
+                ok = all(set(m) <= {"0", "1"} and "1" in m for m in (tx, rx))
+                if not ok or len(tx) > 21 or len(rx) > 12:
+                    return "error usage: l TXMASK RXMASK, e.g. l 11111111 11111111"
+                return f"ok lines {tx.count('1')}x{rx.count('1')}"
+            if cmd == "?":
+                return (
+                    "commands: v | f text|binary | g N | l TXMASK RXMASK | c | ? "
+                    "| touch X Y Z | lift"
+                )
             if cmd == "c":
                 return "ok recalibrated"
             if cmd == "touch" and len(args) == 3:

@@ -70,6 +70,7 @@ def test_monitor_sim():
 )
 def test_bad_input_is_one_line(args, needles, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr("skinloc.cli_hardware.FIRST_FRAME_S", 0.05)  # no board to wait for
     assert_one_line_error(run(*args), *needles)
 
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import errno
+
 import numpy as np
 import pytest
 
@@ -158,3 +160,26 @@ def test_list_ports_runs():
     for p in list_ports():
         assert p.device
     assert isinstance(SerialSource.find_ports(), list)
+
+
+@pytest.mark.parametrize(
+    "code, hint",
+    [
+        (errno.ENOENT, "no such device"),
+        (errno.EACCES, "dialout"),
+        (errno.EBUSY, "busy"),
+        (errno.ENOTTY, "not a serial port"),
+        (errno.EIO, "skinloc ports"),
+    ],
+)
+def test_open_failures_say_what_to_do(code, hint):
+    import serial
+
+    from skinloc.sources.serial import _why_not_open
+
+    assert hint in _why_not_open(serial.SerialException(code, "could not open port"))
+
+
+def test_not_a_serial_port(tmp_path):
+    with pytest.raises(SourceNotConnectedError, match="not a serial port"):
+        SerialSource(SerialSourceConfig(str(tmp_path))).connect()

@@ -114,6 +114,16 @@ def _open_source(
     return SerialSource(cfg)
 
 
+#: Longest wait for a board's first frame, s: opening the port resets an Uno (DTR), and its
+#: bootloader and the controller's start-up take a second or two before frames flow.
+FIRST_FRAME_S = 5.0
+
+
+def _first_frame(src, timeout_s: float):
+    """The first frame after connecting, waited for at least ``FIRST_FRAME_S``."""
+    return src.read(max(timeout_s, FIRST_FRAME_S))
+
+
 def _load_surface(mesh: Path | None, units: UnitsChoice):
     from skinloc.geometry import cone_skin, load_mesh
 
@@ -261,7 +271,7 @@ def register(app: typer.Typer) -> None:
             return table
 
         with src:
-            first = src.read(timeout)
+            first = _first_frame(src, timeout)
             warm = [first.values]
             baseline = None
             start = time.monotonic()
@@ -338,6 +348,7 @@ def register(app: typer.Typer) -> None:
         )
         frames, times, index = [], [], []
         with src, progress_steps() as step:
+            _first_frame(src, timeout)
             base, _ = src.read_many(baseline_frames, timeout)
             step("baseline", baseline_frames, baseline_frames)
             t0 = None
@@ -442,6 +453,7 @@ def register(app: typer.Typer) -> None:
                 rx_mask=rx_mask,
             )
         with src:
+            _first_frame(src, 1.0)
             if resume:
                 session = CalibrationSession.resume(src, out)
                 if session.finished:

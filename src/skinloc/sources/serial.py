@@ -9,6 +9,7 @@ and reopens the port by itself when the device goes away and comes back.
 from __future__ import annotations
 
 import collections
+import errno
 import glob
 import logging
 import os
@@ -263,8 +264,7 @@ class SerialSource(FrameSource):
             self._serial = self._open()
         except (serial.SerialException, OSError, ValueError) as exc:
             raise SourceNotConnectedError(
-                f"cannot open serial port {self.config.port}: {exc} "
-                "(is the board plugged in? `skinloc ports` lists the ports)"
+                f"cannot open serial port {self.config.port}: {_why_not_open(exc)}"
             ) from None
         self._link_up = True
         self._stop.clear()
@@ -481,6 +481,23 @@ class SerialSource(FrameSource):
                 self._latest = frame
                 self._arrivals.append(now)
             self._cond.notify_all()
+
+
+def _why_not_open(exc: BaseException) -> str:
+    """What to tell a person whose port did not open."""
+    code = getattr(exc, "errno", None)
+    if code == errno.ENOENT:
+        return "no such device (is the board plugged in? `skinloc ports` lists the ports)"
+    if code == errno.EACCES:
+        return (
+            "permission denied (on Linux, add yourself to the 'dialout' group: "
+            "`sudo usermod -aG dialout $USER`, then log in again)"
+        )
+    if code == errno.EBUSY:
+        return "the port is busy (close other programs using it, e.g. a serial monitor)"
+    if code in (errno.ENOTTY, errno.EISDIR) or "Inappropriate ioctl" in str(exc):
+        return "not a serial port (`skinloc ports` lists the ports)"
+    return f"{exc} (is the board plugged in? `skinloc ports` lists the ports)"
 
 
 # --------------------------------------------------------------------------------------------

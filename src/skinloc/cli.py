@@ -580,6 +580,7 @@ def _register_plugins() -> None:
     from skinloc.cli_hardware import register
 
     register(app)
+    __import__("skinloc.app.cli", fromlist=["register"]).register(app)  # skinloc app
 
 
 _register_plugins()

@@ -1,0 +1,207 @@
+"""Guided capture, frame by frame: wait for a steady touch, capture, wait for the release.
+
+``TouchCapture`` is the per-frame form of ``CalibrationSession.record_point`` for a UI that must
+stay responsive (undo, skip, a key to capture now) while it waits. The quality checks flag
+touches worth retaking: weak, short, or off-target (an image unlike its neighbours').
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from enum import StrEnum
+
+import numpy as np
+
+from skinloc.calibrate import TouchDetector
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "CapturePhase",
+    "CapturedTouch",
+    "TouchCapture",
+    "baseline_drift_sigma",
+    "off_target",
+    "touch_flags",
+]
+
+
+class CapturePhase(StrEnum):
+    """Where a capture stands."""
+
+    WAIT_TOUCH = "wait_touch"  # waiting for a steady touch
+    CAPTURING = "capturing"  # storing frames
+    WAIT_RELEASE = "wait_release"  # the finger must lift before the next touch
+
+
+@dataclass
+class CapturedTouch:
+    """The frames of one touch.
+
+    Attributes
+    ----------
+    frames : (s, n_sensors) float32
+        Raw counts.
+    times : (s,) float
+        Frame timestamps, s.
+    n_untouched : int
+        Captured frames the detector did not see as a touch (the finger lifted early).
+    forced : bool
+        Started by the key, not by the detector.
+    """
+
+    frames: np.ndarray
+    times: np.ndarray
+    n_untouched: int
+    forced: bool
+
+
+@dataclass
+class TouchCapture:
+    """Per-frame state machine of one guided touch.
+
+    Parameters
+    ----------
+    detector : TouchDetector
+        Decides whether a frame is a touch.
+    samples : int
+        Frames to capture per touch.
+    settle_frames : int
+        Consecutive touch frames before capture starts.
+    release_frames : int
+        Consecutive no-touch frames that count as a release.
+    """
+
+    detector: TouchDetector
+    samples: int
+    settle_frames: int = 5
+    release_frames: int = 3
+    phase: CapturePhase = CapturePhase.WAIT_TOUCH
+    run: int = 0
+    _frames: list[np.ndarray] = field(default_factory=list)
+    _times: list[float] = field(default_factory=list)
+    _untouched: int = 0
+    _forced: bool = False
+
+    @property
+    def n_captured(self) -> int:
+        """Frames stored so far in the current capture."""
+        return len(self._frames)
+
+    def restart(self, touched_now: bool = True) -> None:
+        """Drop a capture in progress; wait for a release first when ``touched_now``."""
+        self._frames, self._times, self._untouched, self._forced = [], [], 0, False
+        self.run = 0
+        self.phase = CapturePhase.WAIT_RELEASE if touched_now else CapturePhase.WAIT_TOUCH
+
+    def force(self) -> None:
+        """Start capturing with the next frame, touch detected or not (the key fallback)."""
+        if self.phase is not CapturePhase.CAPTURING:
+            self._frames, self._times, self._untouched = [], [], 0
+            self._forced = True
+            self.phase = CapturePhase.CAPTURING
+
+    def feed(self, values: np.ndarray, timestamp_s: float) -> CapturedTouch | None:
+        """Advance by one frame of raw counts; returns the touch when its capture completes."""
+        touched = self.detector.is_touched(values)
+        if self.phase is CapturePhase.WAIT_RELEASE:
+            self.run = self.run + 1 if not touched else 0
+            if self.run >= self.release_frames:
+                self.phase, self.run = CapturePhase.WAIT_TOUCH, 0
+            return None
+        if self.phase is CapturePhase.WAIT_TOUCH:
+            self.run = self.run + 1 if touched else 0
+            if self.run >= self.settle_frames:
+                self._frames, self._times, self._untouched, self._forced = [], [], 0, False
+                self.phase = CapturePhase.CAPTURING
+            return None
+        self._frames.append(np.asarray(values, dtype=np.float32))
+        self._times.append(float(timestamp_s))
+        self._untouched += not touched
+        if len(self._frames) < self.samples:
+            return None
+        touch = CapturedTouch(
+            np.stack(self._frames), np.asarray(self._times), self._untouched, self._forced
+        )
+        self.restart(touched_now=True)
+        return touch
+
+
+def touch_flags(
+    touch: CapturedTouch,
+    baseline: np.ndarray,
+    detector: TouchDetector,
+    reference_peak: float | None,
+    *,
+    weak_ratio: float = 0.3,
+    short_fraction: float = 0.2,
+) -> tuple[list[str], float]:
+    """Flags of one touch by itself: ``weak`` and ``short``; and its peak signal (counts).
+
+    A touch is ``weak`` when its mean image is not a touch for the detector or its peak is below
+    ``weak_ratio`` times ``reference_peak`` (the session's median); ``short`` when more than
+    ``short_fraction`` of its frames were not touches (the finger lifted during the capture).
+    """
+    mean = touch.frames.astype(np.float64).mean(axis=0)
+    peak = float((mean - baseline).max())
+    flags = []
+    if not detector.is_touched(mean) or (
+        reference_peak is not None and peak < weak_ratio * reference_peak
+    ):
+        flags.append("weak")
+    if touch.n_untouched > short_fraction * len(touch.frames):
+        flags.append("short")
+    return flags, peak
+
+
+def off_target(
+    targets: np.ndarray,
+    touch_means: np.ndarray,
+    *,
+    k: int = 3,
+    factor: float = 3.0,
+    floor_mm: float = 25.0,
+    min_touches: int = 6,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Flag touches whose image looks nothing like the images of their neighbours.
+
+    Each touch's position is guessed from the ``k`` other touches with the most similar
+    images (cosine similarity of the clipped, baseline-subtracted mean images, weighted); a touch
+    whose guess lands more than ``max(floor_mm, factor x median miss)`` from its target is
+    off-target: the finger was probably elsewhere.
+
+    Parameters
+    ----------
+    targets : (n, 3) float
+        Prompted positions, m.
+    touch_means : (n, n_sensors) float
+        Baseline-subtracted mean image of each touch, counts.
+
+    Returns
+    -------
+    flags : (n,) bool
+        Off-target touches (all False with fewer than ``min_touches``).
+    miss_mm : (n,) float
+        Distance of each guess from its target, mm (nan with too few touches).
+    """
+    targets = np.asarray(targets, dtype=np.float64).reshape(-1, 3)
+    n = len(targets)
+    if n < max(min_touches, k + 2):
+        return np.zeros(n, dtype=bool), np.full(n, np.nan)
+    Z = np.maximum(np.asarray(touch_means, dtype=np.float64), 0.0)
+    Z = Z / np.maximum(np.linalg.norm(Z, axis=1, keepdims=True), 1e-9)
+    S = Z @ Z.T
+    np.fill_diagonal(S, -np.inf)
+    nearest = np.argsort(-S, axis=1)[:, :k]
+    w = np.maximum(np.take_along_axis(S, nearest, axis=1), 0.0) ** 4 + 1e-12
+    guess = (w[..., None] * targets[nearest]).sum(axis=1) / w.sum(axis=1, keepdims=True)
+    miss = 1e3 * np.linalg.norm(guess - targets, axis=1)
+    limit = max(floor_mm, factor * float(np.median(miss)))
+    return miss > limit, miss
+
+
+def baseline_drift_sigma(frames: np.ndarray, baseline: np.ndarray, noise: np.ndarray) -> float:
+    """How far no-touch ``frames (m, n)`` sit from the baseline: median |shift| / noise."""
+    shift = np.asarray(frames, dtype=np.float64).mean(axis=0) - baseline
+    return float(np.median(np.abs(shift) / np.maximum(noise, 1.0)))

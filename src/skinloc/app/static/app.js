@@ -1,0 +1,508 @@
+// The skinloc app in the browser: pages, the live stream, and the actions.
+import { Viewer } from "/static/viewer.js";
+import { drawHeat } from "/static/heatmap.js";
+
+const $ = (sel, root = document) => root.querySelector(sel);
+const $$ = (sel, root = document) => [...root.querySelectorAll(sel)];
+const esc = (s) => String(s ?? "").replace(/[&<>"']/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;", "'": "&#39;" }[c]));
+const mm = (p) => (p ? p.map((x) => (x * 1000).toFixed(1)).join(", ") : "-");
+const fmtErr = (s) => (s ? `${s.mean_mm.toFixed(1)} ± ${s.std_mm.toFixed(1)} mm` : "-");
+
+// A tab keeps its id across reloads (sessionStorage), so a reload keeps control.
+let clientId = sessionStorage.getItem("skinloc-client");
+if (!clientId) {
+  clientId = `tab-${Math.random().toString(36).slice(2, 10)}`;
+  sessionStorage.setItem("skinloc-client", clientId);
+}
+
+const app = {
+  page: "sessions",
+  state: null,
+  session: null,
+  sensors: null,
+  frame: null,
+  viewer: null,
+  lastLive: 0,
+  liveFrames: 0,
+};
+window.skinloc = app; // for the end-to-end test and for debugging
+
+// ------------------------------------------------------------------ talking to the server
+async function api(path, body, method = "POST") {
+  const opts = { method, headers: { "X-Skinloc-Client": clientId } };
+  if (body !== undefined) {
+    if (body instanceof Blob || body instanceof ArrayBuffer) {
+      opts.body = body;
+    } else {
+      opts.headers["Content-Type"] = "application/json";
+      opts.body = JSON.stringify(body);
+    }
+  }
+  const r = await fetch(path, opts);
+  let data = null;
+  try { data = await r.json(); } catch { data = null; }
+  if (!r.ok) {
+    const detail = data?.detail;
+    const text = typeof detail === "string" ? detail : Array.isArray(detail) ? detail.map((d) => `${d.loc?.slice(-1)[0]}: ${d.msg}`).join("; ") : `HTTP ${r.status}`;
+    if (r.status === 409) $("#busy").classList.remove("hidden");
+    showMessage(text, true);
+    throw new Error(text);
+  }
+  return data;
+}
+const get = (path) => fetch(path).then((r) => r.json());
+
+function showMessage(text, error = false) {
+  const el = $("#message");
+  el.textContent = text || "";
+  el.classList.toggle("error", error);
+}
+
+let ws = null;
+function connectStream() {
+  const proto = location.protocol === "https:" ? "wss" : "ws";
+  ws = new WebSocket(`${proto}://${location.host}/ws?client=${encodeURIComponent(clientId)}`);
+  ws.onopen = () => $("#offline").classList.add("hidden");
+  ws.onclose = () => {
+    $("#offline").classList.remove("hidden");
+    setTimeout(connectStream, 1000);
+  };
+  ws.onmessage = (ev) => {
+    const msg = JSON.parse(ev.data);
+    const handler = handlers[msg.type];
+    if (handler) handler(msg);
+  };
+}
+
+const handlers = {
+  state(msg) {
+    const prev = app.state;
+    app.state = msg;
+    renderState(prev);
+  },
+  frame(msg) {
+    app.frame = msg;
+    if (app.state?.device && msg.stats) Object.assign(app.state.device, msg.stats);
+    later("frame", () => renderFrame(app.frame));
+  },
+  sensors(msg) {
+    app.sensors = msg;
+    renderSensors();
+  },
+  touch() { refreshSession(); },
+  train(msg) { renderTraining(msg); },
+  live(msg) {
+    // Every point joins the trail; the page is drawn once per display frame.
+    app.liveFrames++;
+    app.lastLiveMsg = msg;
+    if (msg.touched) app.viewer.addTrail(msg.point);
+    later("live", () => renderLive(app.lastLiveMsg));
+  },
+};
+
+const pending = new Map();
+function later(key, fn) {
+  // Coalesce bursts of stream messages into one redraw per animation frame.
+  if (pending.has(key)) {
+    pending.set(key, fn);
+    return;
+  }
+  pending.set(key, fn);
+  requestAnimationFrame(() => {
+    const f = pending.get(key);
+    pending.delete(key);
+    f();
+  });
+}
+
+let sessionFetch = null;
+let sessionStale = false;
+async function refreshSession() {
+  // One request at a time; a refresh asked for meanwhile runs when it ends (never stale).
+  if (sessionFetch) {
+    sessionStale = true;
+    return sessionFetch;
+  }
+  sessionFetch = get("/api/session").then((s) => {
+    app.session = s && s.id ? s : null;
+    renderSession();
+  }).finally(() => {
+    sessionFetch = null;
+    if (sessionStale) {
+      sessionStale = false;
+      refreshSession();
+    }
+  });
+  return sessionFetch;
+}
+
+// ------------------------------------------------------------------ pages
+function showPage(page) {
+  app.page = page;
+  for (const b of $$("#nav button")) b.classList.toggle("active", b.dataset.page === page);
+  for (const s of $$(".page")) s.classList.toggle("active", s.id === `page-${page}`);
+  const slot = $(`.viewer-slot[data-for="${page}"]`);
+  if (slot) {
+    slot.appendChild($("#viewer"));
+    app.viewer.resize();
+  }
+  if (page === "sessions") loadSessions();
+  if (page === "connect") loadPorts();
+  renderSession();
+  renderState(app.state);
+}
+
+// ------------------------------------------------------------------ sessions page
+async function loadSessions() {
+  const data = await get("/api/sessions");
+  $("#data-dir").textContent = `in ${data.root}`;
+  const current = app.state?.session?.id;
+  const rows = data.sessions.map((s) => `
+    <tr class="${s.id === current ? "current" : ""}">
+      <td><b>${esc(s.name)}</b><br><span class="hint">${esc(s.id)}</span>${s.error ? `<br><span class="flag">${esc(s.error)}</span>` : ""}</td>
+      <td>${s.n_done ?? 0} / ${s.n_planned ?? "?"}</td>
+      <td>${s.has_model ? fmtErr(s.holdout) : "-"}</td>
+      <td>${fmtErr(s.validation)}</td>
+      <td class="hint">${esc((s.modified || s.created || "").replace("T", " ").slice(0, 16))}</td>
+      <td><button data-open="${esc(s.id)}">${s.id === current ? "Opened" : "Open"}</button></td>
+    </tr>`);
+  $("#session-list tbody").innerHTML = rows.join("") || `<tr><td colspan="6" class="hint">No session yet: create one.</td></tr>`;
+  $("#recording-list tbody").innerHTML = data.recordings.map((r) => `
+    <tr><td>${esc(r.name)}${r.error ? `<br><span class="flag">${esc(r.error)}</span>` : ""}</td>
+      <td>${r.n_point_logs ?? "-"}</td><td>${r.tx ? `${r.tx} x ${r.rx}` : "-"}</td>
+      <td>${r.error ? "" : `<button data-import="${esc(r.path)}">Open as session</button>`}</td></tr>`).join("")
+    || `<tr><td colspan="4" class="hint">None.</td></tr>`;
+  const meshes = await get("/api/state");
+  $("#mesh-select option[value='']").textContent = `default: ${meshes.default_mesh}`;
+}
+
+$("#session-list").addEventListener("click", async (ev) => {
+  const id = ev.target.dataset?.open;
+  if (!id) return;
+  await api(`/api/sessions/${encodeURIComponent(id)}/open`);
+  await refreshSession();
+  loadSessions();
+  showPage("calibrate");
+});
+$("#recording-list").addEventListener("click", async (ev) => {
+  const path = ev.target.dataset?.import;
+  if (!path) return;
+  await api(`/api/recordings/import?path=${encodeURIComponent(path)}`);
+  await refreshSession();
+  showPage("train");
+});
+$("#new-session [name=mode]").addEventListener("change", (ev) => {
+  $(".only-list").classList.toggle("hidden", ev.target.value !== "list");
+});
+$("#mesh-upload").addEventListener("change", async (ev) => {
+  const file = ev.target.files[0];
+  if (!file) return;
+  const info = await api(`/api/meshes?filename=${encodeURIComponent(file.name)}`, file);
+  const opt = document.createElement("option");
+  opt.value = info.name;
+  opt.textContent = `${info.name} (${info.n_faces} faces, ${info.extents_mm.join(" x ")} mm)`;
+  $("#mesh-select").appendChild(opt);
+  $("#mesh-select").value = info.name;
+  showMessage(`loaded mesh ${info.name}`);
+});
+$("#new-session").addEventListener("submit", async (ev) => {
+  ev.preventDefault();
+  const f = new FormData(ev.target);
+  const body = Object.fromEntries(f.entries());
+  for (const k of ["n_points", "samples", "baseline_frames", "seed", "n_validation"]) body[k] = Number(body[k]);
+  if (!body.mesh_file) delete body.mesh_file;
+  if (body.mode !== "list") delete body.targets_csv;
+  await api("/api/sessions", body);
+  await refreshSession();
+  showPage(app.state?.device ? "calibrate" : "connect");
+});
+
+// ------------------------------------------------------------------ connect page
+async function loadPorts() {
+  const ports = await get("/api/ports").catch(() => []);
+  const sel = $("#source-select");
+  const keep = sel.value;
+  sel.innerHTML = `<option value="sim">simulated skin</option>` + ports.map((p) =>
+    `<option value="${esc(p.device)}">${esc(p.device)} ${p.likely_arduino ? "(Arduino?)" : p.virtual ? "(virtual skin)" : ""} ${esc(p.description || "")}</option>`).join("");
+  if ([...sel.options].some((o) => o.value === keep)) sel.value = keep;
+}
+$("#refresh-ports").addEventListener("click", loadPorts);
+$("#connect-form").addEventListener("submit", async (ev) => {
+  ev.preventDefault();
+  const f = Object.fromEntries(new FormData(ev.target).entries());
+  const body = {
+    source: f.port.trim() || f.source,
+    tx: Number(f.tx), rx: Number(f.rx), baud: Number(f.baud), format: f.format,
+  };
+  await api("/api/connect", body);
+});
+$("#disconnect-btn").addEventListener("click", () => api("/api/disconnect"));
+$("#rezero").addEventListener("click", () => api("/api/rezero"));
+
+function renderSensors() {
+  const s = app.sensors, st = app.state?.device;
+  if (!s || !st) return;
+  drawHeat($("#heat-noise"), s.noise, st.tx, st.rx, { status: s.status, labels: true, fmt: (v) => v.toFixed(1), minScale: 10 });
+  drawHeat($("#heat-snr"), s.snr_db, st.tx, st.rx, { status: s.status, labels: true, scale: 25, offset: 20 });
+  $("#snr-from").textContent = s.snr_from === "session" ? "from the session's touches" : "peak since zero / noise";
+  const lines = [...s.tx_lines.map((l) => `TX ${l.index}: ${l.status}`), ...s.rx_lines.map((l) => `RX ${l.index}: ${l.status}`)];
+  const sensors = s.status.map((v, k) => (v !== "ok" ? `T${Math.floor(k / st.rx)} R${k % st.rx}: ${v}` : null)).filter(Boolean);
+  $("#line-report").innerHTML = `${lines.length ? `<b>Lines:</b> ${lines.map(esc).join(", ")}` : "No dead or noisy line."}<br>` +
+    `${sensors.length ? `<b>Sensors:</b> ${sensors.map(esc).join(", ")}` : "No flagged sensor."}<br>` +
+    `Mean SNR: ${s.mean_snr_db == null ? "-" : `${s.mean_snr_db.toFixed(1)} dB`}`;
+}
+
+function renderDeviceStats(d) {
+  const rows = d ? [
+    ["Skin", esc(d.name)], ["Grid", `${d.tx} TX x ${d.rx} RX`], ["Frame rate", `${d.rate_hz.toFixed(1)} Hz`],
+    ["Received", d.received], ["Dropped", d.dropped], ["Corrupted", d.corrupted], ["Lost", d.lost],
+    ["Overflow", d.overflow], ["Reconnects", d.reconnects], ["Link", d.link_up ? "up" : "<b>DOWN</b>"],
+    ...(d.error ? [["Error", esc(d.error)]] : []),
+  ] : [["Skin", "not connected"]];
+  $("#device-stats").innerHTML = rows.map(([k, v]) => `<tr><th>${k}</th><td>${v}</td></tr>`).join("");
+}
+
+// ------------------------------------------------------------------ guided capture (calibrate, validate)
+function guidedPanel(kind) {
+  const el = $(`.guided[data-kind="${kind}"]`);
+  if (el.dataset.built) return el;
+  el.dataset.built = "1";
+  const isCal = kind === "calibrate";
+  el.innerHTML = `
+    <h2>${isCal ? "Calibrate" : "Validate"}</h2>
+    ${isCal ? "" : `<label class="check">Touches <input type="number" class="n-val" min="1" max="500" value="20" style="width:70px"></label>`}
+    <div class="buttons">
+      <button class="primary start">${isCal ? "Start / resume" : "Start"}</button>
+      <button class="stop">Pause</button>
+    </div>
+    <div class="count hint"></div>
+    <div class="progress"><div class="bar-total"></div></div>
+    <div class="big-state idle">-</div>
+    <div class="progress"><div class="bar-capture"></div></div>
+    <div class="buttons">
+      <button class="now" title="Space">Capture now <kbd>Space</kbd></button>
+      <button class="undo" title="Z or Backspace">Undo <kbd>Z</kbd></button>
+      <button class="skip" title="S">Skip <kbd>S</kbd></button>
+    </div>
+    <label class="check"><input type="checkbox" class="finger"> scripted finger touches each target</label>
+    <div class="target-info hint"></div>
+    ${isCal ? `<div class="hint sheets">Printable targets: <a class="svg" target="_blank">SVG</a> · <a class="pdf" target="_blank">PDF</a></div>` : `<div class="val-result"></div>`}
+    <div class="touches"><table></table></div>
+    <canvas class="heat guided-heat"></canvas>`;
+  $(".start", el).addEventListener("click", () => (isCal ? api("/api/calibrate/start")
+    : api("/api/validate/start", { n_points: Number($(".n-val", el).value) })));
+  $(".stop", el).addEventListener("click", () => api("/api/capture/stop"));
+  $(".now", el).addEventListener("click", () => api("/api/capture/now"));
+  $(".undo", el).addEventListener("click", () => api("/api/capture/undo"));
+  $(".skip", el).addEventListener("click", () => api("/api/capture/skip"));
+  $(".finger", el).addEventListener("change", (ev) => api("/api/finger", { on: ev.target.checked }));
+  $(".touches", el).addEventListener("click", (ev) => {
+    const i = ev.target.dataset?.retake;
+    if (i !== undefined) api("/api/capture/retake", { index: Number(i), recording: isCal ? "calibration" : "validation" });
+  });
+  return el;
+}
+
+const PHASE_TEXT = {
+  wait_touch: ["Touch the red target and hold still", "touch"],
+  capturing: ["Hold still: capturing", "capture"],
+  wait_release: ["Lift your finger", "lift"],
+};
+
+function renderGuided(kind) {
+  const el = guidedPanel(kind);
+  const st = app.state;
+  const mode = kind === "calibrate" ? "calibrate" : "validate";
+  const active = st?.mode === mode;
+  const g = active ? st.guided : null;
+  const rec = app.session?.[kind === "calibrate" ? "calibration" : "validation"];
+  const total = g ? g.total : rec?.planned?.length ?? 0;
+  const done = g ? g.index : rec?.done?.length ?? 0;
+  $(".count", el).textContent = total ? `${done} of ${total} touches recorded` : "";
+  $(".bar-total", el).style.width = total ? `${(100 * done) / total}%` : "0";
+  $(".finger", el).checked = !!st?.finger;
+  for (const b of $$(".now, .undo, .skip, .stop", el)) b.disabled = !active;
+  $(".start", el).disabled = !st?.session || !st?.device || st?.mode === "baseline";
+  const state = $(".big-state", el);
+  if (st?.mode === "baseline") {
+    state.textContent = "Keep the skin untouched: baseline";
+    state.className = "big-state lift";
+  } else if (!active) {
+    state.textContent = !st?.device ? "Connect a skin first" : !st?.session ? "Open a session first" : done && done >= total ? "Complete" : "Paused";
+    state.className = "big-state idle";
+  } else {
+    const [text, cls] = PHASE_TEXT[app.frame?.capture?.phase || g.phase] || ["-", "idle"];
+    state.textContent = text;
+    state.className = `big-state ${cls}`;
+  }
+  $(".target-info", el).textContent = g?.target ? `Target ${g.index + 1} at ${mm(g.target)} mm` : "";
+  if (kind === "calibrate" && app.session) {
+    $(".svg", el).href = `/api/sessions/${app.session.id}/targets.svg`;
+    $(".pdf", el).href = `/api/sessions/${app.session.id}/targets.pdf`;
+  }
+  if (kind === "validate") {
+    const v = app.state?.session?.validation;
+    $(".val-result", el).innerHTML = v ? `<div class="result">${fmtErr(v)}</div><div class="hint">mean ± std over ${v.n} touches (median ${v.median_mm.toFixed(1)}, p95 ${v.p95_mm.toFixed(1)} mm)</div>` : "";
+  }
+  const rows = (rec?.done || []).map((p, i) => {
+    const flags = rec.flags?.[i] || [];
+    const err = rec.errors_mm?.[i];
+    return `<tr><td>${i + 1}</td><td>${mm(p)}</td><td>${err != null ? `${err.toFixed(1)} mm` : ""}</td>
+      <td>${flags.map((f) => `<span class="flag ${f}">${f}</span>`).join("")}</td>
+      <td>${flags.length || kind === "validate" ? `<button data-retake="${i}">Retake</button>` : ""}</td></tr>`;
+  }).reverse();
+  $(".touches table", el).innerHTML = rows.join("");
+}
+
+document.addEventListener("keydown", (ev) => {
+  if (!["calibrate", "validate"].includes(app.state?.mode) || ev.target.closest("input, textarea, select")) return;
+  if (ev.code === "Space") { ev.preventDefault(); api("/api/capture/now"); }
+  if (ev.key === "z" || ev.key === "Z" || ev.key === "Backspace") { ev.preventDefault(); api("/api/capture/undo"); }
+  if (ev.key === "s" || ev.key === "S") { ev.preventDefault(); api("/api/capture/skip"); }
+});
+
+// ------------------------------------------------------------------ train page
+$("#train-btn").addEventListener("click", () => api("/api/train"));
+function renderTraining(t) {
+  t = t || app.state?.training;
+  const bar = $("#train-bar");
+  if (!t) {
+    const h = app.state?.session?.holdout;
+    $("#train-result").innerHTML = h ? resultHtml(h) : "";
+    return;
+  }
+  if (t.running) {
+    const phases = ["held-out check", "final model"];
+    const k = Math.max(0, phases.indexOf(t.phase));
+    const frac = (k + (t.total ? t.done / t.total : 0)) / phases.length;
+    bar.style.width = `${Math.round(100 * frac)}%`;
+    $("#train-phase").textContent = `training: ${t.phase}`;
+    $("#train-btn").disabled = true;
+    return;
+  }
+  $("#train-btn").disabled = false;
+  bar.style.width = t.result ? "100%" : "0";
+  $("#train-phase").textContent = t.error ? `failed: ${t.error}` : "";
+  if (t.result) $("#train-result").innerHTML = resultHtml(t.result);
+}
+function resultHtml(h) {
+  return `<div class="result">${fmtErr(h)}</div>
+    <div class="hint">error on ${h.n_test} held-out touches (median ${h.median_mm.toFixed(1)} mm, p95 ${h.p95_mm.toFixed(1)} mm);
+    the final model learnt from all ${h.n_point_logs} touches${h.train_s != null ? ` in ${h.train_s} s` : ""}.</div>`;
+}
+
+// ------------------------------------------------------------------ live page
+$("#live-start").addEventListener("click", () => { app.viewer.clearLive(); api("/api/live/start"); });
+$("#live-stop").addEventListener("click", () => api("/api/capture/stop"));
+function renderLive(msg) {
+  const el = $("#live-state");
+  if (msg.touched) {
+    el.textContent = "touched";
+    el.className = "big-state touch";
+    $("#live-point").textContent = mm(msg.point);
+    $("#live-unc").textContent = msg.uncertainty_mm != null ? `± ${msg.uncertainty_mm.toFixed(1)} mm` : "-";
+    $("#live-conf").style.width = msg.confidence != null ? `${Math.round(100 * msg.confidence)}%` : "0";
+    app.viewer.setLive(msg.point, msg.uncertainty_mm);
+  } else {
+    el.textContent = "not touched";
+    el.className = "big-state idle";
+    app.viewer.setLive(null);
+  }
+}
+
+// ------------------------------------------------------------------ rendering the state
+function renderState(prev) {
+  const st = app.state;
+  if (!st) return;
+  const mine = !st.lease || st.lease === clientId;
+  $("#busy").classList.toggle("hidden", mine);
+  showMessage(st.message);
+  const d = st.device;
+  const pd = $("#pill-device");
+  pd.textContent = d ? `${d.name} · ${d.rate_hz.toFixed(0)} Hz` : "no skin";
+  pd.className = `pill ${d ? (d.link_up ? "" : "bad") : "off"}`;
+  const ps = $("#pill-session");
+  ps.textContent = st.session ? st.session.name : "no session";
+  ps.className = `pill ${st.session ? "" : "off"}`;
+  $("#touch-toggle").classList.toggle("hidden", !d?.sim);
+  renderDeviceStats(d);
+  if (st.session?.id !== prev?.session?.id || st.mode !== prev?.mode || st.guided?.index !== prev?.guided?.index) {
+    refreshSession();
+  }
+  if (app.page === "calibrate") renderGuided("calibrate");
+  if (app.page === "validate") renderGuided("validate");
+  if (app.page === "train") renderTraining(st.training);
+  const g = st.guided;
+  const wanted = g?.target ?? null;
+  const key = wanted ? wanted.join(",") : "";
+  if (key !== app.targetKey) {
+    app.targetKey = key;
+    app.viewer.setTarget(wanted, true);
+  }
+  if (st.mode !== "live" && prev?.mode === "live") app.viewer.clearLive();
+  $("#live-rate").textContent = d ? `${d.rate_hz.toFixed(1)} Hz` : "-";
+}
+
+function renderSession() {
+  const s = app.session, v = app.viewer;
+  if (!s) return;
+  v.setMesh(s.vertices, s.faces);
+  const page = app.page;
+  if (page === "validate") {
+    const val = s.validation;
+    const pred = val.predicted || [];
+    v.setErrors(val.done.slice(0, pred.length), pred, val.errors_mm || []);
+    v.setPlanned(val.planned.slice(val.done.length));
+    v.show(["errors", "planned", "target"]);
+  } else if (page === "live") {
+    v.show(["live"]);
+  } else {
+    const cal = s.calibration;
+    v.setPlanned(cal.planned.slice(cal.done.length));
+    v.setDone(cal.done, cal.flags || []);
+    v.show(["planned", "done", "target"]);
+  }
+  if (page === "calibrate") renderGuided("calibrate");
+  if (page === "validate") renderGuided("validate");
+}
+
+function renderFrame(msg) {
+  const opts = { status: app.sensors?.status, txLines: app.sensors?.tx_lines, rxLines: app.sensors?.rx_lines };
+  if (app.page === "connect") drawHeat($("#heat-connect"), msg.delta, msg.tx, msg.rx, { ...opts, labels: true });
+  if (app.page === "calibrate" || app.page === "validate") {
+    const el = guidedPanel(app.page);
+    drawHeat($(".guided-heat", el), msg.delta, msg.tx, msg.rx, opts);
+    const c = msg.capture;
+    $(".bar-capture", el).style.width = c ? `${c.phase === "capturing" ? (100 * c.n) / c.of : c.phase === "wait_touch" ? 0 : 100}%` : "0";
+    if (c && ["calibrate", "validate"].includes(app.state?.mode)) {
+      const [text, cls] = PHASE_TEXT[c.phase] || ["-", "idle"];
+      const state = $(".big-state", el);
+      state.textContent = c.phase === "capturing" ? `${text} ${c.n}/${c.of}` : msg.touched && c.phase === "wait_touch" ? "Touch detected: hold still" : text;
+      state.className = `big-state ${cls}`;
+    }
+  }
+  if (app.page === "live") drawHeat($("#heat-live"), msg.delta, msg.tx, msg.rx, opts);
+  const d = app.state?.device;
+  if (d && performance.now() - (app.lastPill || 0) > 500) {
+    app.lastPill = performance.now();
+    $("#pill-device").textContent = `${d.name} · ${d.rate_hz.toFixed(0)} Hz`;
+    $("#live-rate").textContent = `${d.rate_hz.toFixed(1)} Hz`;
+    if (app.page === "connect") renderDeviceStats(d);
+  }
+}
+
+// ------------------------------------------------------------------ start
+app.viewer = new Viewer($("#viewer"));
+app.viewer.onTouch = (p) => api("/api/sim/touch", { point: p }).catch(() => {});
+$("#mouse-touch").addEventListener("change", (ev) => {
+  app.viewer.touchMode = ev.target.checked;
+  $("#viewer-hint").textContent = ev.target.checked ? "press on the skin to touch it" : "drag to turn, scroll to zoom";
+});
+for (const b of $$("#nav button")) b.addEventListener("click", () => showPage(b.dataset.page));
+$("#takeover").addEventListener("click", async () => {
+  await api("/api/lease");
+  $("#busy").classList.add("hidden");
+});
+connectStream();
+refreshSession();
+showPage("sessions");

@@ -1,0 +1,266 @@
+// The skin in 3D: mesh, targets, touches, the live point and the validation error map.
+// Coordinates arrive in metres and are shown in millimetres.
+import * as THREE from "/static/vendor/three.bundle.min.js";
+
+const MM = 1000;
+const v3 = (p) => new THREE.Vector3(p[0] * MM, p[1] * MM, p[2] * MM);
+
+export function errorColor(mm) {
+  // green (0 mm) -> yellow (10 mm) -> red (20 mm and more)
+  const t = Math.max(0, Math.min(1, mm / 20));
+  return new THREE.Color().setHSL((1 - t) * 0.33, 0.8, 0.45);
+}
+
+export class Viewer {
+  constructor(el) {
+    this.el = el;
+    this.renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
+    this.renderer.setPixelRatio(Math.min(window.devicePixelRatio, 2));
+    this.renderer.setClearColor(0xf7f8fb);
+    el.prepend(this.renderer.domElement);
+    this.scene = new THREE.Scene();
+    this.camera = new THREE.PerspectiveCamera(40, 1, 1, 5000);
+    this.camera.up.set(0, 0, 1);
+    this.controls = new THREE.OrbitControls(this.camera, this.renderer.domElement);
+    this.controls.enableDamping = true;
+    this.controls.addEventListener("change", () => { this.dirty = true; });
+    this.dirty = true;
+    this.scene.add(new THREE.HemisphereLight(0xffffff, 0x8890a0, 1.6));
+    const sun = new THREE.DirectionalLight(0xffffff, 1.4);
+    sun.position.set(200, -300, 400);
+    this.scene.add(sun);
+    this.groups = {};
+    for (const name of ["skin", "planned", "done", "target", "live", "errors"]) {
+      this.groups[name] = new THREE.Group();
+      this.scene.add(this.groups[name]);
+    }
+    this.center = new THREE.Vector3();
+    this.radius = 100;
+    this.fly = null;
+    this.trail = [];
+    this.onTouch = null;
+    this.touchMode = false;
+    this.raycaster = new THREE.Raycaster();
+    this._pointer();
+    new ResizeObserver(() => this.resize()).observe(el);
+    this.resize();
+    const tick = (t) => {
+      this._animate(t);
+      requestAnimationFrame(tick);
+    };
+    requestAnimationFrame(tick);
+  }
+
+  resize() {
+    this.dirty = true;
+    const w = this.el.clientWidth || 600, h = this.el.clientHeight || 500;
+    this.renderer.setSize(w, h, false);
+    this.camera.aspect = w / h;
+    this.camera.updateProjectionMatrix();
+  }
+
+  clear(name) {
+    this.dirty = true;
+    const g = this.groups[name];
+    while (g.children.length) {
+      const c = g.children.pop();
+      c.geometry?.dispose?.();
+    }
+  }
+
+  setMesh(vertices, faces) {
+    const key = `${vertices.length}:${faces.length}:${vertices[0]}`;
+    if (key === this.meshKey) return;
+    this.meshKey = key;
+    this.clear("skin");
+    const geo = new THREE.BufferGeometry();
+    geo.setAttribute("position", new THREE.Float32BufferAttribute(vertices.flat().map((x) => x * MM), 3));
+    geo.setIndex(faces.flat());
+    geo.computeVertexNormals();
+    this.skinGeometry = geo;
+    const mesh = new THREE.Mesh(geo, new THREE.MeshStandardMaterial({
+      color: 0xe3c9ad, roughness: 0.85, metalness: 0, side: THREE.DoubleSide,
+      polygonOffset: true, polygonOffsetFactor: 1, polygonOffsetUnits: 1,
+    }));
+    this.skin = mesh;
+    this.groups.skin.add(mesh);
+    const edges = new THREE.LineSegments(new THREE.EdgesGeometry(geo, 25),
+      new THREE.LineBasicMaterial({ color: 0xb59a80 }));
+    this.groups.skin.add(edges);
+    geo.computeBoundingSphere();
+    this.center.copy(geo.boundingSphere.center);
+    this.radius = geo.boundingSphere.radius;
+    this.controls.target.copy(this.center);
+    this.camera.position.copy(this.center).add(new THREE.Vector3(0.9, -1.6, 1.4).normalize().multiplyScalar(this.radius * 3));
+    this.controls.update();
+  }
+
+  _dots(name, points, color, size, opacity = 1) {
+    this.clear(name);
+    const geo = new THREE.SphereGeometry(size, 14, 10);
+    for (let i = 0; i < points.length; i++) {
+      const c = Array.isArray(color) ? color[i] : color;
+      const m = new THREE.Mesh(geo, new THREE.MeshStandardMaterial({ color: c, transparent: opacity < 1, opacity }));
+      m.position.copy(v3(points[i]));
+      m.userData.index = i;
+      this.groups[name].add(m);
+    }
+  }
+
+  setPlanned(points) { this._dots("planned", points, 0x9aa3b5, 1.6, 0.7); }
+
+  setDone(points, flags) {
+    const colors = points.map((_, i) => ((flags[i] || []).length ? 0xe08a00 : 0x1e9e5a));
+    this._dots("done", points, colors, 2.4);
+  }
+
+  setTarget(point, turn = true) {
+    this.clear("target");
+    if (!point) return;
+    const p = v3(point);
+    const sphere = new THREE.Mesh(new THREE.SphereGeometry(4, 24, 16),
+      new THREE.MeshStandardMaterial({ color: 0xd13b3b, emissive: 0x550000 }));
+    sphere.position.copy(p);
+    const ring = new THREE.Mesh(new THREE.TorusGeometry(8, 0.8, 8, 40),
+      new THREE.MeshBasicMaterial({ color: 0xd13b3b }));
+    ring.position.copy(p);
+    const n = this.normalAt(p);
+    ring.lookAt(p.clone().add(n));
+    this.groups.target.add(sphere, ring);
+    this.targetRing = ring;
+    if (turn) this.lookAt(p, n);
+  }
+
+  normalAt(p) {
+    const pos = this.skinGeometry?.attributes.position, nor = this.skinGeometry?.attributes.normal;
+    if (!pos) return new THREE.Vector3(0, 0, 1);
+    let best = 0, bestD = Infinity;
+    const q = new THREE.Vector3();
+    for (let i = 0; i < pos.count; i++) {
+      q.fromBufferAttribute(pos, i);
+      const d = q.distanceToSquared(p);
+      if (d < bestD) { bestD = d; best = i; }
+    }
+    const n = new THREE.Vector3().fromBufferAttribute(nor, best).normalize();
+    // Face the viewer from the outside of the skin (away from its centre).
+    const out = p.clone().sub(this.center);
+    if (n.dot(out) < 0) n.negate();
+    return n;
+  }
+
+  lookAt(p, n) {
+    const dir = n.clone().multiplyScalar(1.0).add(p.clone().sub(this.center).normalize().multiplyScalar(0.6)).normalize();
+    const to = this.center.clone().add(dir.multiplyScalar(this.radius * 2.8));
+    this.fly = { from: this.camera.position.clone(), to, t0: performance.now(), ms: 700 };
+  }
+
+  setLive(point, uncertaintyMm) {
+    this.dirty = true;
+    if (!this.liveDot) {
+      this.liveDot = new THREE.Mesh(new THREE.SphereGeometry(3.5, 20, 14),
+        new THREE.MeshStandardMaterial({ color: 0x2f6fde, emissive: 0x10306a }));
+      this.liveHalo = new THREE.Mesh(new THREE.SphereGeometry(1, 20, 14),
+        new THREE.MeshBasicMaterial({ color: 0x2f6fde, transparent: true, opacity: 0.18, depthWrite: false }));
+      this.trailLine = new THREE.Line(new THREE.BufferGeometry(), new THREE.LineBasicMaterial({ color: 0x2f6fde }));
+      this.groups.live.add(this.liveDot, this.liveHalo, this.trailLine);
+    }
+    if (!point) {
+      this.liveDot.visible = this.liveHalo.visible = false;
+      return;
+    }
+    const p = v3(point);
+    this.liveDot.visible = true;
+    this.liveDot.position.copy(p);
+    const r = Number.isFinite(uncertaintyMm) ? Math.max(4, uncertaintyMm) : 0;
+    this.liveHalo.visible = r > 0;
+    this.liveHalo.position.copy(p);
+    this.liveHalo.scale.setScalar(r || 1);
+    this.trailLine.geometry.setFromPoints(this.trail);
+  }
+
+  addTrail(point) {
+    this.trail.push(v3(point));
+    if (this.trail.length > 40) this.trail.shift();
+  }
+
+  clearLive() {
+    this.dirty = true;
+    this.trail = [];
+    if (this.liveDot) {
+      this.liveDot.visible = this.liveHalo.visible = false;
+      this.trailLine.geometry.setFromPoints([]);
+    }
+  }
+
+  setErrors(targets, predicted, errors) {
+    this.clear("errors");
+    const geo = new THREE.SphereGeometry(2.6, 14, 10);
+    const pts = [];
+    for (let i = 0; i < predicted.length; i++) {
+      const m = new THREE.Mesh(geo, new THREE.MeshStandardMaterial({ color: errorColor(errors[i]) }));
+      m.position.copy(v3(targets[i]));
+      this.groups.errors.add(m);
+      pts.push(v3(targets[i]), v3(predicted[i]));
+      const x = new THREE.Mesh(new THREE.SphereGeometry(1.3, 10, 8), new THREE.MeshBasicMaterial({ color: 0x333333 }));
+      x.position.copy(v3(predicted[i]));
+      this.groups.errors.add(x);
+    }
+    if (pts.length) {
+      this.groups.errors.add(new THREE.LineSegments(new THREE.BufferGeometry().setFromPoints(pts),
+        new THREE.LineBasicMaterial({ color: 0x333333 })));
+    }
+  }
+
+  show(names) {
+    this.dirty = true;
+    for (const [k, g] of Object.entries(this.groups)) g.visible = k === "skin" || names.includes(k);
+  }
+
+  _pointer() {
+    const el = this.renderer.domElement;
+    const hit = (ev) => {
+      const r = el.getBoundingClientRect();
+      const ndc = new THREE.Vector2(((ev.clientX - r.left) / r.width) * 2 - 1, -((ev.clientY - r.top) / r.height) * 2 + 1);
+      this.raycaster.setFromCamera(ndc, this.camera);
+      const hits = this.skin ? this.raycaster.intersectObject(this.skin) : [];
+      return hits.length ? hits[0].point : null;
+    };
+    el.addEventListener("pointerdown", (ev) => {
+      if (!this.touchMode || !this.onTouch || ev.button !== 0) return;
+      const p = hit(ev);
+      if (!p) return;
+      this.controls.enabled = false;
+      this.touching = true;
+      this.onTouch([p.x / MM, p.y / MM, p.z / MM]);
+    });
+    const up = () => {
+      if (!this.touching) return;
+      this.touching = false;
+      this.controls.enabled = true;
+      this.onTouch(null);
+    };
+    el.addEventListener("pointerup", up);
+    el.addEventListener("pointerleave", up);
+  }
+
+  _animate(t) {
+    // Draw only when something moved (software WebGL is slow), the pulse at 12 frames/s.
+    if (this.targetRing && this.targetRing.parent && t - (this.lastPulse || 0) > 80) {
+      this.lastPulse = t;
+      this.targetRing.scale.setScalar(1 + 0.25 * Math.sin(t / 180));
+      this.dirty = true;
+    }
+    if (this.fly) {
+      const k = Math.min(1, (t - this.fly.t0) / this.fly.ms);
+      const e = k * k * (3 - 2 * k);
+      this.camera.position.lerpVectors(this.fly.from, this.fly.to, e);
+      this.controls.target.copy(this.center);
+      this.dirty = true;
+      if (k >= 1) this.fly = null;
+    }
+    this.controls.update();
+    if (!this.dirty) return;
+    this.dirty = false;
+    this.renderer.render(this.scene, this.camera);
+  }
+}

@@ -18,6 +18,7 @@ demo: $(BIN)/skinloc
 	$(BIN)/skinloc demo
 
 test: $(BIN)/skinloc
+	@sh scripts/ensure-chromium.sh
 	$(BIN)/ruff check src tests bench
 	$(BIN)/python -m pytest -q
 

@@ -267,3 +267,24 @@ def test_connect_page_reports_sensors(tmp_path):
         assert msg["status"][1 * 8 + 7] == "noisy"
         state = client.get("/api/state").json()
         assert state["device"]["rate_hz"] > 0 and state["device"]["dropped"] == 0
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "openpty"), reason="needs a POSIX pty")
+def test_calibrate_over_a_serial_port_with_the_virtual_skin(tmp_path):
+    """The virtual skin device on a pty; its scripted finger is driven over the port."""
+    from skinloc.sources.sim import SimulatedSkin
+    from skinloc.virtual_skin import VirtualSkin
+
+    with VirtualSkin(SimulatedSkin(random_state=0), fmt="binary", rate_hz=200) as dev:
+        config = AppConfig(data_dir=tmp_path, finger_delay_s=0.05)
+        with TestClient(create_app(config, SourceSpec(source=dev.path))) as client:
+            state = client.get("/api/state").json()
+            assert state["device"]["name"] == dev.path and not state["device"]["sim"]
+            sid = new_session(client, n_points=4)
+            calibrate(client)
+            rec = read_recording(tmp_path / sid / "calibration.h5")
+            assert rec.n_point_logs == 4 and rec.meta["source"] == dev.path
+            state = client.get("/api/state").json()
+            assert state["device"]["received"] > 0 and state["device"]["corrupted"] == 0
+            r = client.post("/api/sim/touch", json={"point": [0, 0, 0]}, headers=A)
+            assert r.status_code == 400 and "simulated skin" in r.json()["detail"]

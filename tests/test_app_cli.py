@@ -1,0 +1,54 @@
+"""``skinloc app`` on the command line: bad input ends in one line and exit 1."""
+
+from __future__ import annotations
+
+import socket
+
+from typer.testing import CliRunner
+
+from skinloc.cli import app
+
+runner = CliRunner()
+
+
+def run(*args: str):
+    return runner.invoke(app, ["app", "--no-browser", *args])
+
+
+def test_help():
+    result = runner.invoke(app, ["app", "--help"])
+    assert result.exit_code == 0 and "--source" in result.output
+
+
+def test_missing_mesh(tmp_path):
+    result = run("--mesh", str(tmp_path / "nope.obj"), "--data", str(tmp_path))
+    assert result.exit_code == 1
+    assert "mesh file not found" in result.output and "Traceback" not in result.output
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_bad_serial_port(tmp_path):
+    tty = str(tmp_path / "ttyNONE")
+    result = run("--source", tty, "--data", str(tmp_path), "--port", str(free_port()))
+    assert result.exit_code == 1 and "Traceback" not in result.output
+    assert f"cannot open serial port {tty}" in result.output
+
+
+def test_unknown_format(tmp_path):
+    result = run("--format", "morse", "--data", str(tmp_path))
+    assert result.exit_code == 1 and "morse" in result.output
+
+
+def test_port_in_use(tmp_path):
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        port = s.getsockname()[1]
+        result = run("--port", str(port), "--data", str(tmp_path))
+    assert result.exit_code == 1 and "pass another --port" in result.output
+    assert len(result.output.strip().splitlines()) == 1

@@ -457,11 +457,16 @@ def bench(
         "skinloc-bench"
     ),
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON results.")] = False,
+    online: Annotated[
+        bool, typer.Option("--online", help="Only the live path: latency, throughput, 100 skins.")
+    ] = False,
 ) -> None:
     """The paper's experiment: train on 20, 50, 80, 100 point logs, validate on 20 touches.
 
     Example: skinloc bench --seeds 3 --real ../shared/data/hiro-cone-skin --timing
     """
+    if online:  # skinloc.cli_live: the live pipeline's figures (docs/benchmarks.md)
+        return __import__("skinloc.cli_live", fromlist=["bench_online"]).bench_online(out, as_json)
     import numpy as np
 
     from skinloc import bench as B
@@ -581,6 +586,7 @@ def _register_plugins() -> None:
 
     register(app)
     __import__("skinloc.app.cli", fromlist=["register"]).register(app)  # skinloc app
+    __import__("skinloc.cli_live", fromlist=["register"]).register(app)  # skinloc run, export
 
 
 _register_plugins()

@@ -1,0 +1,170 @@
+"""The sink interface and ``make_sink``, which builds one from a short text spec."""
+
+from __future__ import annotations
+
+import abc
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+from urllib.parse import parse_qs, urlsplit
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from skinloc.pipeline import Contact
+
+log = logging.getLogger(__name__)
+
+__all__ = ["SINK_SPECS", "CallbackSink", "ListSink", "Sink", "SkinInfo", "make_sink"]
+
+#: The spec forms ``make_sink`` understands, for help texts and error messages.
+SINK_SPECS = (
+    "jsonl (stdout) | jsonl:FILE",
+    "ws://HOST:PORT (WebSocket server)",
+    "udp://HOST:PORT (one JSON datagram per contact)",
+    "foxglove://HOST:PORT[?mcap=FILE] (Foxglove live 3D scene; MCAP recording)",
+    "mcap:FILE (Foxglove MCAP recording only)",
+    "lsl[:NAME] (Lab Streaming Layer outlet)",
+    "ros2[:NODE] (ROS 2 PointStamped + Marker; needs rclpy)",
+)
+
+
+@dataclass(frozen=True)
+class SkinInfo:
+    """What a sink may want to know of a skin: its name and mesh.
+
+    Attributes
+    ----------
+    name : str
+        Skin name (``Contact.skin``).
+    vertices : (V, 3) float or None
+        Mesh vertices, m.
+    faces : (F, 3) int or None
+        Mesh triangles.
+    """
+
+    name: str
+    vertices: np.ndarray | None = None
+    faces: np.ndarray | None = None
+
+
+class Sink(abc.ABC):
+    """A consumer of contacts.
+
+    ``open`` is called once with the skins it will see, ``emit`` for every contact from the
+    pipeline's thread (it must not block for long: network sinks queue and send on their own
+    thread), ``close`` once at the end. Usable as a context manager.
+    """
+
+    name: str = "sink"
+
+    def open(self, skins: list[SkinInfo]) -> None:  # noqa: B027 - optional hook
+        """Prepare for the given skins (start servers, advertise channels)."""
+
+    @abc.abstractmethod
+    def emit(self, contact: Contact) -> None:
+        """Deliver one contact."""
+
+    def close(self) -> None:  # noqa: B027 - optional hook
+        """Flush and release everything; no thread may be left behind."""
+
+    def __enter__(self) -> Sink:
+        self.open([])
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class CallbackSink(Sink):
+    """Call ``fn(contact)`` for every contact."""
+
+    name = "callback"
+
+    def __init__(self, fn: Callable[[Contact], Any]) -> None:
+        self.fn = fn
+
+    def emit(self, contact: Contact) -> None:
+        """Call the function."""
+        self.fn(contact)
+
+
+class ListSink(Sink):
+    """Keep every contact in ``self.contacts`` (tests, notebooks)."""
+
+    name = "list"
+
+    def __init__(self) -> None:
+        self.contacts: list[Contact] = []
+
+    def emit(self, contact: Contact) -> None:
+        """Append."""
+        self.contacts.append(contact)
+
+
+def _host_port(spec: str, default_port: int) -> tuple[str, int]:
+    parts = urlsplit(spec)
+    host = parts.hostname or "127.0.0.1"
+    try:
+        port = parts.port or default_port
+    except ValueError:
+        raise ValueError(f"bad port in sink {spec!r}") from None
+    return host, port
+
+
+def make_sink(spec: str | Sink) -> Sink:
+    """Build a sink from a spec string (a ``Sink`` is returned as is).
+
+    Parameters
+    ----------
+    spec : str
+        One of ``SINK_SPECS``: ``jsonl``, ``jsonl:out.jsonl``, ``ws://127.0.0.1:8765``,
+        ``udp://127.0.0.1:9870``, ``foxglove://127.0.0.1:8766?mcap=run.mcap``,
+        ``mcap:run.mcap``, ``lsl``, ``lsl:skin``, ``ros2``.
+
+    Examples
+    --------
+    >>> make_sink("udp://127.0.0.1:9870").address
+    ('127.0.0.1', 9870)
+    """
+    if isinstance(spec, Sink):
+        return spec
+    text = str(spec).strip()
+    scheme, _, rest = text.partition(":")
+    scheme = scheme.lower()
+    if scheme == "jsonl":
+        from skinloc.sinks.jsonl import JsonLinesSink
+
+        return JsonLinesSink(rest or None)
+    if scheme in ("ws", "websocket"):
+        from skinloc.sinks.websocket import WebSocketSink
+
+        return WebSocketSink(*_host_port(text, 8765))
+    if scheme == "udp":
+        from skinloc.sinks.udp import UdpSink
+
+        return UdpSink(*_host_port(text, 9870))
+    if scheme == "foxglove":
+        from skinloc.sinks.foxglove import FoxgloveSink
+
+        host, port = _host_port(text, 8766)
+        query = parse_qs(urlsplit(text).query)
+        mcap = query.get("mcap", [None])[0]
+        live = query.get("live", ["1"])[0] not in ("0", "false", "no")
+        return FoxgloveSink(host=host, port=port, mcap_path=mcap, live=live)
+    if scheme == "mcap":
+        from skinloc.sinks.foxglove import FoxgloveSink
+
+        if not rest:
+            raise ValueError("sink 'mcap:FILE' needs a file name")
+        return FoxgloveSink(mcap_path=rest, live=False)
+    if scheme == "lsl":
+        from skinloc.sinks.lsl import LslSink
+
+        return LslSink(rest or "skinloc")
+    if scheme == "ros2":
+        from skinloc.sinks.ros2 import Ros2Sink
+
+        return Ros2Sink(rest or "skinloc")
+    raise ValueError(f"unknown sink {text!r}; use one of: {'; '.join(SINK_SPECS)}")

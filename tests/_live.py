@@ -1,0 +1,88 @@
+"""Small trained models and streams for the live-path tests (built once per session)."""
+
+from __future__ import annotations
+
+import functools
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+_DIR = Path(tempfile.mkdtemp(prefix="skinloc-live-tests-"))
+
+
+@functools.lru_cache(maxsize=1)
+def calibration():
+    """A simulated calibration: 30 touches x 5 frames on the paper cone."""
+    from skinloc.calibrate import SessionConfig, simulate_session
+    from skinloc.geometry import cone_skin
+    from skinloc.sources.sim import SimulatedSkin
+
+    mesh = cone_skin()
+    with SimulatedSkin(mesh, random_state=0) as skin:
+        return simulate_session(
+            skin,
+            mesh,
+            _DIR / "cal.h5",
+            SessionConfig(n_points=30, mode="even", samples_per_touch=5, random_state=0),
+        )
+
+
+@functools.cache
+def model_path(kind: str) -> Path:
+    """A saved model: ``map`` (the default), ``mlp`` (small relu ensemble), ``paper`` (tanh),
+    ``gelu`` (one gelu network, l1 normalised)."""
+    from skinloc.evaluation import train_localizer
+
+    cal = calibration()
+    if kind == "map":
+        model = train_localizer([cal], arch="default")
+    elif kind == "mlp":
+        model = train_localizer([cal], arch="mlp", epochs=5, hidden=(24, 16), n_members=3)
+    elif kind == "paper":
+        model = train_localizer([cal], arch="paper", epochs=30)
+    elif kind == "gelu":
+        model = train_localizer(
+            [cal],
+            arch="mlp",
+            epochs=5,
+            hidden=(16,),
+            n_members=1,
+            activation="gelu",
+            normalise="l1",
+            clip_negative=False,
+        )
+    else:
+        raise ValueError(kind)
+    path = _DIR / f"{kind}.h5"
+    model.save(path)
+    return path
+
+
+@functools.lru_cache(maxsize=1)
+def stream(n_frames: int = 1500) -> tuple[np.ndarray, list]:
+    """Raw frames of the simulated skin with a scripted finger and the script."""
+    from skinloc.bench_online import touch_stream
+
+    return touch_stream(n_frames, random_state=1)
+
+
+@functools.lru_cache(maxsize=1)
+def stream_recording() -> Path:
+    """``stream()`` as a ``skinloc record`` style recording (100 Hz)."""
+    from skinloc.geometry import cone_skin
+    from skinloc.sources.replay import write_stream_recording
+
+    frames, _ = stream()
+    path = _DIR / "stream.h5"
+    write_stream_recording(
+        path,
+        n_tx=8,
+        n_rx=8,
+        mesh=cone_skin(),
+        baseline_frames=frames[:100],
+        frames=frames,
+        times_s=np.arange(len(frames)) / 100.0,
+        index=np.arange(len(frames)),
+    )
+    return path

@@ -1,0 +1,93 @@
+"""The fast inference path agrees with the model's own prediction; snap and projection are exact."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+from scipy.spatial import cKDTree
+
+from skinloc.geometry import cone_skin, nearest_on_surface, surface_points
+from skinloc.inference import (
+    FastLocalizer,
+    InferenceSpec,
+    SnapIndex,
+    check_against,
+    closest_on_triangles,
+)
+from skinloc.model import ContactLocalizer
+from tests._live import calibration, model_path
+
+
+@pytest.mark.parametrize("kind", ["map", "mlp", "paper", "gelu"])
+def test_fast_path_matches_predict_full(kind):
+    model = ContactLocalizer.load(model_path(kind))
+    fast = FastLocalizer.from_model(model)
+    X = calibration().deltas.reshape(-1, 64)
+    ref = model.predict_full(X)
+    points, raw, spread = fast.predict_batch(X.astype(np.float32))
+    np.testing.assert_allclose(raw, ref.raw, atol=1e-6)
+    assert np.mean(np.abs(points - ref.points).max(axis=1) < 1e-9) > 0.99
+    out = np.empty(7)
+    for x, r, p in zip(X[:40], ref.raw[:40], ref.points[:40], strict=True):
+        fast.localise_into(x.astype(np.float32), out)
+        np.testing.assert_allclose(out[:3], r, atol=1e-6)
+        assert np.abs(out[3:6] - p).max() < 1e-9 or kind == "map"
+    if fast.n_members > 1 or kind == "map":
+        np.testing.assert_allclose(spread, ref.uncertainty_mm, atol=1e-3)
+    assert check_against(fast, model) < 1e-6
+
+
+def test_spec_from_file_equals_spec_from_model():
+    path = model_path("mlp")
+    a = InferenceSpec.load(path)
+    b = InferenceSpec.from_localizer(ContactLocalizer.load(path))
+    for W, V in zip(a.weights, b.weights, strict=True):
+        np.testing.assert_array_equal(W, V)
+    assert a.layer_sizes == [64, 24, 16, 3] and a.n_members == 3
+
+
+def test_spec_rejects_layers_that_do_not_chain():
+    spec = InferenceSpec.load(model_path("paper"))
+    with pytest.raises(ValueError, match="do not chain"):
+        InferenceSpec(**{**spec.__dict__, "weights": [spec.weights[1], spec.weights[0]]})
+
+
+def test_snap_index_is_exact(seed):
+    rng = np.random.default_rng(seed)
+    pts = surface_points(cone_skin(), 3000, random_state=seed)
+    index = SnapIndex(pts)
+    q = pts[rng.integers(len(pts), size=300)] + rng.normal(0, 0.01, (300, 3))
+    q[:10] += 0.3  # far outside the grid
+    want = cKDTree(pts).query(q)[1]
+    got = index.query(q)
+    d_want = np.linalg.norm(pts[want] - q, axis=1)
+    d_got = np.linalg.norm(pts[got] - q, axis=1)
+    np.testing.assert_allclose(d_got, d_want, rtol=0, atol=1e-15)
+
+
+def test_closest_on_triangles_matches_trimesh(seed):
+    rng = np.random.default_rng(seed)
+    mesh = trimesh.creation.icosphere(subdivisions=1, radius=0.05)
+    q = rng.normal(0, 0.06, (200, 3))
+    got = closest_on_triangles(q, mesh.triangles)
+    want = nearest_on_surface(mesh, q)[0]
+    np.testing.assert_allclose(
+        np.linalg.norm(got - q, axis=1), np.linalg.norm(want - q, axis=1), atol=1e-12
+    )
+
+
+def test_project_and_none_constraints():
+    model = ContactLocalizer.load(model_path("mlp"))
+    spec = InferenceSpec.from_localizer(model)
+    X = calibration().touch_means.astype(np.float32)
+    raw = FastLocalizer(spec, "none").predict_batch(X)[0]
+    proj = FastLocalizer(spec, "project").predict_batch(X)[0]
+    np.testing.assert_allclose(raw, model.predict_full(X).raw, atol=1e-6)
+    want = nearest_on_surface(model.mesh, raw)[0]
+    np.testing.assert_allclose(
+        np.linalg.norm(proj - raw, axis=1), np.linalg.norm(want - raw, axis=1), atol=1e-6
+    )
+    assert nearest_on_surface(model.mesh, proj)[1].max() < 1e-7  # on the skin
+    with pytest.raises(ValueError, match="output constraint"):
+        FastLocalizer(spec, "wobble")

@@ -863,7 +863,10 @@ class Workspace:
 
     def _refresh_flags(self, rec: Recording) -> None:
         meta = _app_meta(rec)
-        own = meta.setdefault("touch_flags", [[] for _ in range(rec.n_point_logs)])
+        own = meta.setdefault("touch_flags", [])
+        # Touches recorded elsewhere (skinloc collect on the same file) have no flags of their own.
+        own.extend([] for _ in range(rec.n_point_logs - len(own)))
+        del own[rec.n_point_logs :]
         bad, _ = off_target(rec.targets, rec.touch_means)
         meta["flags"] = [
             list(f) + (["off-target"] if b else []) for f, b in zip(own, bad, strict=True)

@@ -21,6 +21,7 @@ from skinloc.app.device import SourceSpec  # noqa: E402
 from skinloc.app.server import create_app  # noqa: E402
 from skinloc.app.workspace import AppConfig  # noqa: E402
 from skinloc.dataset import read_recording  # noqa: E402
+from skinloc.geometry import cone_skin  # noqa: E402
 
 #: The default localiser (it trains in seconds); tests may pass overrides here.
 FAST_TRAIN: dict = {}
@@ -78,6 +79,8 @@ def test_full_session_calibrate_train_validate_live(tmp_path):
         np.testing.assert_allclose(rec.targets, rec.planned_targets)
         detail = client.get("/api/session").json()
         assert len(detail["calibration"]["done"]) == 8
+        mesh = client.get("/api/session/mesh").json()
+        assert mesh["id"] == sid and len(mesh["faces"]) == len(cone_skin().faces)
 
         assert client.post("/api/train", headers=A).status_code == 200
         state = wait_for(
@@ -211,7 +214,7 @@ def test_target_sheets(tmp_path):
 
 
 def test_target_list_and_mesh_upload(tmp_path):
-    from skinloc.geometry import cone_skin, sample_targets
+    from skinloc.geometry import sample_targets
 
     with make_client(tmp_path, source=False) as client:
         pts = sample_targets(cone_skin(), 4, "random", random_state=1) * 1e3

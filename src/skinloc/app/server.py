@@ -150,6 +150,10 @@ def create_app(
     def session() -> Response:
         return _json(workspace.session_detail())
 
+    @app.get("/api/session/mesh")
+    def session_mesh() -> Response:
+        return _json(workspace.session_mesh())
+
     @app.post("/api/lease")
     def take_over(client: str | None = ClientHeader) -> dict[str, Any]:
         workspace.take_over(client or "anonymous")

@@ -452,8 +452,16 @@ class Workspace:
             raise ValueError("no session open: open one on the Sessions page or start a new one")
         return self.active
 
+    def session_mesh(self) -> dict[str, Any] | None:
+        """The open session's skin mesh (m), for the 3D view."""
+        with self._lock:
+            a = self.active
+            if a is None:
+                return None
+            return {"id": a.folder.id, "vertices": a.mesh.vertices, "faces": a.mesh.faces}
+
     def session_detail(self) -> dict[str, Any] | None:
-        """The open session: mesh, targets, point logs and their flags, model, validation."""
+        """The open session: targets, point logs and their flags, model, validation."""
         with self._lock:
             a = self.active
             if a is None:
@@ -462,8 +470,6 @@ class Workspace:
                 "id": a.folder.id,
                 "name": a.info.get("name"),
                 "info": a.info,
-                "vertices": a.mesh.vertices,
-                "faces": a.mesh.faces,
                 "history": a.folder.history_count(),
             }
             out["calibration"] = self._rec_detail(a.cal, a.folder.calibration, a.targets)
@@ -539,8 +545,13 @@ class Workspace:
                 raise ValueError("train a model first: validation scores the trained model")
             if a.val is None and a.folder.validation.is_file():
                 a.val = CalibrationSession.resume(device.source, a.folder.validation)
-            if a.val is not None and not a.val.finished and n_points is None:
-                self._begin(Mode.VALIDATE, a.val)
+            if (
+                a.val is not None
+                and a.val.recording is not None
+                and not a.val.finished
+                and n_points in (None, len(a.val.targets))
+            ):
+                self._begin(Mode.VALIDATE, a.val)  # carry on where it stopped
                 return
             n = int(n_points or a.info.get("n_validation", 20))
             if n < 1:

@@ -123,8 +123,14 @@ async function refreshSession() {
     sessionStale = true;
     return sessionFetch;
   }
-  sessionFetch = get("/api/session").then((s) => {
+  sessionFetch = get("/api/session").then(async (s) => {
     app.session = s && s.id ? s : null;
+    if (app.session && app.meshFor !== app.session.id) {
+      // The mesh comes once per session, not with every touch.
+      const m = await get("/api/session/mesh");
+      app.meshFor = m.id;
+      app.viewer.setMesh(m.vertices, m.faces);
+    }
     renderSession();
   }).finally(() => {
     sessionFetch = null;
@@ -289,6 +295,7 @@ function guidedPanel(kind) {
     ${isCal ? `<div class="hint sheets">Printable targets: <a class="svg" target="_blank">SVG</a> · <a class="pdf" target="_blank">PDF</a></div>` : `<div class="val-result"></div>`}
     <div class="touches"><table></table></div>
     <canvas class="heat guided-heat"></canvas>`;
+  if (!isCal) $(".n-val", el).addEventListener("input", (ev) => { ev.target.dataset.touched = "1"; });
   $(".start", el).addEventListener("click", () => (isCal ? api("/api/calibrate/start")
     : api("/api/validate/start", { n_points: Number($(".n-val", el).value) })));
   $(".stop", el).addEventListener("click", () => api("/api/capture/stop"));
@@ -341,6 +348,8 @@ function renderGuided(kind) {
     $(".pdf", el).href = `/api/sessions/${app.session.id}/targets.pdf`;
   }
   if (kind === "validate") {
+    const input = $(".n-val", el);
+    if (!input.dataset.touched && st?.session?.n_validation) input.value = st.session.n_validation;
     const v = app.state?.session?.validation;
     $(".val-result", el).innerHTML = v ? `<div class="result">${fmtErr(v)}</div><div class="hint">mean ± std over ${v.n} touches (median ${v.median_mm.toFixed(1)}, p95 ${v.p95_mm.toFixed(1)} mm)</div>` : "";
   }
@@ -446,7 +455,6 @@ function renderState(prev) {
 function renderSession() {
   const s = app.session, v = app.viewer;
   if (!s) return;
-  v.setMesh(s.vertices, s.faces);
   const page = app.page;
   if (page === "validate") {
     const val = s.validation;

@@ -291,3 +291,13 @@ def test_calibrate_over_a_serial_port_with_the_virtual_skin(tmp_path):
             assert state["device"]["received"] > 0 and state["device"]["corrupted"] == 0
             r = client.post("/api/sim/touch", json={"point": [0, 0, 0]}, headers=A)
             assert r.status_code == 400 and "simulated skin" in r.json()["detail"]
+
+
+def test_reconnecting_the_skin_mid_session_carries_on(tmp_path):
+    with make_client(tmp_path) as client:
+        sid = new_session(client, n_points=5)
+        calibrate(client, until=2)
+        body = {"source": "sim", "rate_hz": 400.0, "seed": 3}
+        assert client.post("/api/connect", json=body, headers=A).status_code == 200
+        calibrate(client)
+        assert read_recording(tmp_path / sid / "calibration.h5").n_point_logs == 5

@@ -516,6 +516,10 @@ class Workspace:
             device = self._need_device()
             if a.cal is None and a.folder.calibration.is_file():
                 a.cal = CalibrationSession.resume(device.source, a.folder.calibration)
+            if a.cal is not None and a.cal.recording is None:
+                # The baseline capture did not finish: take it again.
+                self._capture_baseline(a.cal, Mode.CALIBRATE)
+                return
             if a.cal is not None:
                 if a.cal.recording.n_sensors != device.source.n_sensors:
                     raise RecordingError(
@@ -584,6 +588,7 @@ class Workspace:
         self._publish_state()
 
         def job(source) -> None:
+            sess.source = source  # the skin may have been reconnected since
             clear = getattr(source, "clear", None)
             if callable(clear):
                 clear()

@@ -456,7 +456,9 @@ function renderSession() {
   const s = app.session, v = app.viewer;
   if (!s) return;
   const page = app.page;
-  if (page === "validate") {
+  if (page === "validate" && s.validation.error) {
+    showMessage(s.validation.error, true);
+  } else if (page === "validate") {
     const val = s.validation;
     const pred = val.predicted || [];
     v.setErrors(val.done.slice(0, pred.length), pred, val.errors_mm || []);
@@ -464,6 +466,8 @@ function renderSession() {
     v.show(["errors", "planned", "target"]);
   } else if (page === "live") {
     v.show(["live"]);
+  } else if (s.calibration.error) {
+    showMessage(s.calibration.error, true);
   } else {
     const cal = s.calibration;
     v.setPlanned(cal.planned.slice(cal.done.length));

@@ -12,7 +12,7 @@ import logging
 import os
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from enum import StrEnum
@@ -580,21 +580,30 @@ class Workspace:
             self._capture_baseline(a.val, Mode.VALIDATE)
 
     def _capture_baseline(self, sess: CalibrationSession, then: Mode) -> None:
-        """Capture the baseline on the reader thread, then start guided capture."""
+        """Capture the session's baseline (it writes the recording), then start guided capture."""
+
+        def read(source) -> None:
+            sess.source = source  # the skin may have been reconnected since
+            sess.capture_baseline()
+
+        self._baseline(read, lambda _: self._begin(then, sess))
+
+    def _baseline(self, read: Callable[[Any], Any], then: Callable[[Any], None]) -> None:
+        """Run ``read(source)`` on the reader thread while the skin is untouched; then ``then``.
+
+        The mode is ``BASELINE`` meanwhile; a failure is reported and ends in ``IDLE``.
+        """
         device = self._need_device()
         self._stop_capture()
         self.mode = Mode.BASELINE
         self.message = "keep the skin untouched: capturing the baseline"
         self._publish_state()
 
-        def job(source) -> None:
-            sess.source = source  # the skin may have been reconnected since
+        def job(source) -> Any:
             clear = getattr(source, "clear", None)
-            if callable(clear):
+            if callable(clear):  # drop frames buffered before the request
                 clear()
-            sess.capture_baseline()
-
-        fut = device.run_exclusive(job)
+            return read(source)
 
         def done(f) -> None:
             with self._locked_for(device) as ok:
@@ -603,11 +612,11 @@ class Workspace:
                 if f.cancelled() or f.exception() is not None:
                     self.mode = Mode.IDLE
                     self.message = f"baseline capture failed: {f.exception() or 'cancelled'}"
-                    self._publish_state()
-                    return
-                self._begin(then, sess)
+                else:
+                    then(f.result())
+                self._publish_state()
 
-        fut.add_done_callback(done)
+        device.run_exclusive(job).add_done_callback(done)
 
     def _begin(self, mode: Mode, sess: CalibrationSession) -> None:
         rec = sess.recording
@@ -944,38 +953,23 @@ class Workspace:
                     f"the model expects {a.model.n_features_in_} sensors but the skin has "
                     f"{device.source.n_sensors}"
                 )
-            self._stop_capture()
-            self.mode = Mode.BASELINE
-            self.message = "keep the skin untouched: capturing the baseline"
-            self._publish_state()
-            n = int(a.info["config"].get("n_baseline_frames", 50))
             cfg = a.info["config"]
+            n = int(cfg.get("n_baseline_frames", 50))
 
-            def job(source) -> tuple[np.ndarray, np.ndarray]:
-                clear = getattr(source, "clear", None)
-                if callable(clear):
-                    clear()
+            def read(source) -> tuple[np.ndarray, np.ndarray]:
                 frames, _ = source.read_many(n)
                 return frames.mean(axis=0), frames.std(axis=0)
 
-            def done(f) -> None:
-                with self._locked_for(device) as ok:
-                    if not ok or self.mode is not Mode.BASELINE:
-                        return
-                    if f.cancelled() or f.exception() is not None:
-                        self.mode = Mode.IDLE
-                        self.message = f"baseline capture failed: {f.exception() or 'cancelled'}"
-                    else:
-                        base, noise = f.result()
-                        self._live_base = base
-                        self.detector = TouchDetector(
-                            base, noise, cfg.get("threshold_sigma", 5.0), cfg.get("min_active", 2)
-                        )
-                        self.mode = Mode.LIVE
-                        self.message = "live: touch the skin"
-                    self._publish_state()
+            def then(result: tuple[np.ndarray, np.ndarray]) -> None:
+                base, noise = result
+                self._live_base = base
+                self.detector = TouchDetector(
+                    base, noise, cfg.get("threshold_sigma", 5.0), cfg.get("min_active", 2)
+                )
+                self.mode = Mode.LIVE
+                self.message = "live: touch the skin"
 
-            device.run_exclusive(job).add_done_callback(done)
+            self._baseline(read, then)
 
     def _live_frame(self, values: np.ndarray) -> None:
         delta = values - self._live_base

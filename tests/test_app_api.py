@@ -7,6 +7,7 @@ target, as in the browser; the tests wait for what the app reports, with generou
 from __future__ import annotations
 
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +16,9 @@ import pytest
 pytest.importorskip("fastapi")
 pytest.importorskip("httpx")
 
-from fastapi.testclient import TestClient  # noqa: E402
+with warnings.catch_warnings():  # starlette's note that it prefers httpx2 to httpx
+    warnings.simplefilter("ignore")
+    from fastapi.testclient import TestClient  # noqa: E402
 
 from skinloc.app.device import SourceSpec  # noqa: E402
 from skinloc.app.server import create_app  # noqa: E402

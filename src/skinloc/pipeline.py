@@ -129,7 +129,15 @@ class PipelineConfig:
     drift_time_constant_s : float
         Time constant of the baseline's exponential tracking, s.
     quiet_z : float
-        Frames whose peak signal exceeds this (in noise std) never update the baseline.
+        Untouched frames whose peak signal exceeds this (in noise std) do not update the
+        baseline (a finger approaching), unless that lasts ``max_freeze_s``: then it is drift.
+        During a touch, sensors below it (far from the finger) keep tracking; those under the
+        finger are frozen, so a held touch is never tracked away.
+    max_freeze_s : float
+        Longest pause of idle tracking because of a raised sensor, s.
+    release_fraction : float
+        A touch also ends when its signal falls below this fraction of its level during the
+        touch (a release after a long hold, when the frozen sensors have drifted).
     touch_on_z, touch_off_z : float
         Hysteresis: a touch starts above ``touch_on_z`` and ends below ``touch_off_z``.
     debounce_on_frames, debounce_off_frames : int
@@ -148,8 +156,10 @@ class PipelineConfig:
 
     baseline_frames: int = 50
     drift_tracking: bool = True
-    drift_time_constant_s: float = 10.0
+    drift_time_constant_s: float = 3.0
     quiet_z: float = 3.0
+    max_freeze_s: float = 2.0
+    release_fraction: float = 0.25
     touch_on_z: float = 8.0
     touch_off_z: float = 4.0
     debounce_on_frames: int = 2
@@ -177,6 +187,7 @@ class PipelineConfig:
             "touch_on_z",
             "touch_off_z",
             "quiet_z",
+            "max_freeze_s",
             "noise_floor_counts",
             "min_cutoff_hz",
             "d_cutoff_hz",
@@ -186,6 +197,8 @@ class PipelineConfig:
             need(name, isinstance(v, int | float) and math.isfinite(v) and v > 0, "a number > 0")
         need("beta", isinstance(self.beta, int | float) and self.beta >= 0, "a number >= 0")
         need("touch_off_z", self.touch_off_z <= self.touch_on_z, "<= touch_on_z")
+        rf = self.release_fraction
+        need("release_fraction", isinstance(rf, int | float) and 0 <= rf < 1, "in [0, 1)")
         need("filter", self.filter in ("one-euro", "none"), "one of one-euro, none")
 
     @classmethod
@@ -214,11 +227,13 @@ def _prep(
     delta: np.ndarray,
     alpha: float,
     quiet_z: float,
+    mode: int,
 ) -> float:  # pragma: no cover - compiled
     """``delta = values - baseline``; returns the peak ``delta / sigma``.
 
-    When ``alpha > 0`` and the peak is below ``quiet_z``, the baseline moves ``alpha`` of the way
-    towards ``values`` (drift tracking).
+    Drift tracking moves the baseline ``alpha`` of the way towards ``values``: ``mode`` 0 not
+    at all; 1 every sensor if the peak is below ``quiet_z``; 2 every sensor; 3 only sensors
+    below ``quiet_z`` (during a touch: those away from the finger).
     """
     n = values.shape[0]
     peak = -np.inf
@@ -228,9 +243,14 @@ def _prep(
         z = d * inv_sigma[i]
         if z > peak:
             peak = z
-    if alpha > 0.0 and peak < quiet_z:
-        for i in range(n):
-            baseline[i] += alpha * (values[i] - baseline[i])
+    if alpha > 0.0:
+        if mode == 2 or (mode == 1 and peak < quiet_z):
+            for i in range(n):
+                baseline[i] += alpha * (values[i] - baseline[i])
+        elif mode == 3:
+            for i in range(n):
+                if delta[i] * inv_sigma[i] < quiet_z:
+                    baseline[i] += alpha * (values[i] - baseline[i])
     return peak
 
 
@@ -376,6 +396,10 @@ class SkinCore:
         self.n_touches = 0
         self.n_contacts = 0
         self._alpha = 0.0
+        self._dt = 0.01
+        self._level_alpha = 0.02
+        self._level = 0.0
+        self._frozen_s = 0.0
         self._last_ts: float | None = None
 
     # ------------------------------------------------------------------ baseline
@@ -449,18 +473,33 @@ class SkinCore:
             self._accumulate(values)
             return None
         cfg = self.config
-        if self._last_ts is not None and cfg.drift_tracking:
+        if self._last_ts is not None:
             dt = timestamp_s - self._last_ts
-            self._alpha = min(max(dt, 0.0) / cfg.drift_time_constant_s, 1.0) if dt > 0 else 0.0
+            if 0.0 < dt < 1.0:
+                self._dt = dt
+                self._alpha = min(dt / cfg.drift_time_constant_s, 1.0)
+                self._level_alpha = min(dt / 0.5, 1.0)  # touch level: 0.5 s time constant
         self._last_ts = timestamp_s
-        idle = not self._touching and self._above == 0 and self._holdoff == 0
-        alpha = self._alpha if (idle and cfg.drift_tracking) else 0.0
-        z = _prep(values, self._baseline, self._inv_sigma, self._delta, alpha, cfg.quiet_z)
+        mode = 0
+        if cfg.drift_tracking:
+            if self._touching:
+                mode = 3  # only sensors away from the finger: the touch is never tracked away
+            elif self._above == 0 and self._holdoff == 0:
+                mode = 2 if self._frozen_s > cfg.max_freeze_s else 1
+        z = _prep(
+            values, self._baseline, self._inv_sigma, self._delta, self._alpha, cfg.quiet_z, mode
+        )
+        if mode == 1 and z >= cfg.quiet_z:
+            self._frozen_s += self._dt
+        elif mode != 2 or z < cfg.quiet_z:
+            self._frozen_s = 0.0
         if self._holdoff:
             self._holdoff -= 1
         state = None
         if self._touching:
-            if z < cfg.touch_off_z:
+            level = self._level
+            self._level = level + self._level_alpha * (z - level) if level > 0 else z
+            if z < cfg.touch_off_z or z < cfg.release_fraction * level:
                 self._below += 1
                 if self._below >= cfg.debounce_off_frames:
                     self._touching = False
@@ -478,6 +517,7 @@ class SkinCore:
                 self._below = 0
                 self._touch_id += 1
                 self.n_touches += 1
+                self._level = 0.0
                 self._filt_state[0] = 0.0
                 state = TouchState.START
         else:

@@ -18,6 +18,7 @@ thread it started.
 from __future__ import annotations
 
 import collections
+import io
 import logging
 import math
 import os
@@ -222,6 +223,10 @@ def open_source(spec: SkinSpec, n_sensors: int) -> FrameSource:
 # feeds: how frames reach the loop
 
 
+class _NoFileDescriptor(Exception):
+    """The port (a pyserial URL such as ``loop://``) has no file descriptor to wait on."""
+
+
 class _PortFeed:
     """A serial port read by the loop itself (non-blocking file descriptor, no thread)."""
 
@@ -253,11 +258,14 @@ class _PortFeed:
 
         self.ser = serial.serial_for_url(self.port, baudrate=self.cfg.baud, timeout=0)
         try:
-            self.fd = self.ser.fileno()
-        except (AttributeError, OSError, serial.SerialException):
+            fd = self.ser.fileno()
+            if not isinstance(fd, int):
+                raise AttributeError("fileno")
+            self.fd = fd
+        except (AttributeError, io.UnsupportedOperation):
             self.ser.close()
             self.ser = None
-            raise
+            raise _NoFileDescriptor(self.port) from None
         os.set_blocking(self.fd, False)
 
     def close(self) -> None:
@@ -442,7 +450,7 @@ class Runner:
                 feed = _PortFeed(slot, spec, core)
                 try:
                     feed.open()
-                except AttributeError:
+                except _NoFileDescriptor:
                     feed = None  # a URL without a file descriptor (loop://): use a thread
                 except (OSError, ValueError) as exc:  # serial.SerialException is an OSError
                     raise SourceNotConnectedError(

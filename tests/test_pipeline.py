@@ -151,3 +151,18 @@ def test_contact_json_and_config_errors():
     assert PipelineConfig.from_dict({"touch-on-z": 9.0}).touch_on_z == 9.0
     with pytest.raises(ValueError, match="sensors"):
         _core().process(np.zeros(10), 0.0)
+
+
+def test_falls_back_to_the_models_own_prediction(caplog):
+    from skinloc.model import ContactLocalizer
+    from skinloc.pipeline import load_fast_localizer
+
+    model = ContactLocalizer.load(model_path("mlp"))
+    model.config_ = {**model.config_, "activation": "softsign"}  # unknown to the fast path
+    fast = load_fast_localizer(model)
+    assert fast.kind == "model" and "own prediction" in caplog.text
+    frames, _ = stream()
+    core = SkinCore(fast, PipelineConfig())
+    assert any(
+        c is not None for c in (core.process(f, k * 0.01, k) for k, f in enumerate(frames[:250]))
+    )

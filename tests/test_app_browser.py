@@ -1,7 +1,8 @@
 """End to end in a real browser: headless Chromium driven by Playwright through a whole session.
 
 Connect the simulated skin, create a session, calibrate 10 targets with the scripted finger,
-train, validate, and see a live point while the mouse touches the skin. Screenshots go to
+train, validate, see a live point while the mouse touches the skin, and be told in a second tab
+that the skin is busy. Screenshots go to
 ``build/test-artifacts/app/`` (or ``$SKINLOC_ARTIFACTS``). The test skips, saying why, where
 Playwright or a Chromium (Debian's ``chromium``, which ``make test`` installs) is missing.
 """
@@ -171,6 +172,16 @@ def test_full_session_in_the_browser(server):
         page.wait_for_function(
             "() => document.querySelector('#live-state').textContent === 'not touched'"
         )
+
+        # A second tab may watch but is told the skin is busy when it tries to change anything.
+        other = browser.new_page(viewport={"width": 1440, "height": 900})
+        other.goto(url)
+        other.click("#nav button[data-page=connect]")
+        other.click("#rezero")
+        other.wait_for_selector("#busy:not(.hidden)")
+        assert "in use in another tab" in other.inner_text("#busy")
+        other.screenshot(path=str(ARTIFACTS / "07-second-tab-busy.png"))
+        other.close()
 
         # The first page lists the session with its results.
         page.click("#nav button[data-page=sessions]")

@@ -110,7 +110,7 @@ def register(app: typer.Typer) -> None:
         web = create_app(config, spec, allowed_hosts=hosts)
         shown = f"[{host}]" if ":" in host else host
         url = f"http://{shown}:{port}/"
-        console.print(f"skinloc app on {url} (sessions in {data}/); Ctrl-C stops")
+        console.print(f"skinloc app on {url} (sessions in {data}/); Ctrl-C stops", soft_wrap=True)
         if not no_browser:
             import webbrowser
 

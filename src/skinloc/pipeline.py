@@ -444,6 +444,24 @@ class SkinCore:
         self._level = 0.0
         self._frozen_s = 0.0
         self._last_ts: float | None = None
+        self._warm_up()
+
+    def _warm_up(self) -> None:
+        """Compile (or load from numba's cache) the per-frame kernels now, not on a touch."""
+        n = self.n_sensors
+        scratch = np.zeros(n, dtype=np.float32)
+        for dtype in (np.float32, np.uint16):
+            _prep(
+                np.zeros(n, dtype=dtype),
+                self._baseline.copy(),
+                self._inv_sigma,
+                scratch,
+                0.0,
+                1.0,
+                0,
+            )
+        _one_euro(np.zeros(8), 0.0, 0.0, 0.0, 0.0, self._filt_prm, np.zeros(3))
+        self.fast.constrain_into(0.0, 0.0, 0.0, np.zeros(3))
 
     # ------------------------------------------------------------------ baseline
     def set_baseline(self, frames: np.ndarray) -> None:

@@ -164,6 +164,10 @@ def register(app: typer.Typer) -> None:
                     runner.run(duration)
                 except KeyboardInterrupt:
                     pass
+                except BrokenPipeError:  # stdout closed by the reader (| head): stop quietly
+                    import os
+
+                    os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
                 counters = runner.stats()
         finally:
             if previous is not None:

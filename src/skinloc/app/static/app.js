@@ -486,6 +486,7 @@ function renderFrame(msg) {
     drawHeat($(".guided-heat", el), msg.delta, msg.tx, msg.rx, opts);
     const c = msg.capture;
     $(".bar-capture", el).style.width = c ? `${c.phase === "capturing" ? (100 * c.n) / c.of : c.phase === "wait_touch" ? 0 : 100}%` : "0";
+    app.viewer.setTargetState(c?.phase === "capturing" ? "capturing" : msg.touched ? "touched" : "waiting");
     if (c && ["calibrate", "validate"].includes(app.state?.mode)) {
       const [text, cls] = PHASE_TEXT[c.phase] || ["-", "idle"];
       const state = $(".big-state", el);

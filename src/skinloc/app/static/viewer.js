@@ -128,7 +128,17 @@ export class Viewer {
     ring.lookAt(p.clone().add(n));
     this.groups.target.add(sphere, ring);
     this.targetRing = ring;
+    this.targetState = null;
     if (turn) this.lookAt(p, n);
+  }
+
+  setTargetState(state) {
+    // The ring shows the touch as it happens: red waiting, green touched, blue capturing.
+    if (!this.targetRing || state === this.targetState) return;
+    this.targetState = state;
+    const colour = { touched: 0x1e9e5a, capturing: 0x2f6fde }[state] ?? 0xd13b3b;
+    this.targetRing.material.color.setHex(colour);
+    this.dirty = true;
   }
 
   normalAt(p) {

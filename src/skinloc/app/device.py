@@ -14,7 +14,7 @@ import logging
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -301,8 +301,3 @@ class DeviceLink:
                 self.on_frame(frame, self)
             except Exception:  # a bug in a handler must not stop the stream
                 log.exception("frame handler failed")
-
-
-def spec_dict(spec: SourceSpec) -> dict[str, Any]:
-    """The spec as a plain dict."""
-    return asdict(spec)

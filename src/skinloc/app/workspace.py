@@ -668,13 +668,8 @@ class Workspace:
             self._publish_state()
 
     def _stop_capture(self) -> None:
-        if self._finger_down and self._finger is not None:
-            try:
-                self._finger.captured(-1)
-            except SkinlocError:
-                pass
+        self._stop_capture_finger()
         self.capture = None
-        self._finger, self._finger_due, self._finger_down = None, None, False
 
     def set_finger(self, on: bool) -> None:
         """Let the scripted finger touch each target (simulated or virtual skin)."""
@@ -687,8 +682,12 @@ class Workspace:
             self._publish_state()
 
     def _stop_capture_finger(self) -> None:
+        """Lift the scripted finger if it is down, and forget it."""
         if self._finger_down and self._finger is not None:
-            self._finger.captured(-1)
+            try:
+                self._finger.captured(-1)
+            except SkinlocError:  # the port may be gone already
+                pass
         self._finger, self._finger_due, self._finger_down = None, None, False
 
     def _setup_finger(self) -> None:

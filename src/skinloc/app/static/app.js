@@ -22,8 +22,6 @@ const app = {
   sensors: null,
   frame: null,
   viewer: null,
-  lastLive: 0,
-  liveFrames: 0,
 };
 window.skinloc = app; // for the end-to-end test and for debugging
 
@@ -93,7 +91,6 @@ const handlers = {
   train(msg) { renderTraining(msg); },
   live(msg) {
     // Every point joins the trail; the page is drawn once per display frame.
-    app.liveFrames++;
     app.lastLiveMsg = msg;
     if (msg.touched) app.viewer.addTrail(msg.point);
     later("live", () => renderLive(app.lastLiveMsg));

@@ -1012,10 +1012,17 @@ class Workspace:
     def _train(self, a: _Active, rec: Recording) -> None:
         import torch
 
+        # Leave a core to the reader thread (training would otherwise starve the live stream).
+        threads = torch.get_num_threads()
+        torch.set_num_threads(max(1, (os.cpu_count() or 2) - 1))
+        try:
+            self._fit(a, rec)
+        finally:
+            torch.set_num_threads(threads)
+
+    def _fit(self, a: _Active, rec: Recording) -> None:
         from skinloc.evaluation import evaluate, train_localizer
 
-        # Leave a core to the reader thread (training would otherwise starve the live stream).
-        torch.set_num_threads(max(1, (os.cpu_count() or 2) - 1))
         opts = self.config.train_options
         n = rec.n_point_logs
         rng = np.random.default_rng(0)

@@ -832,9 +832,11 @@ class SnapIndex:
     ----------
     points : (P, 3) float
         The discretised surface, m.
-    points_per_cell : float, default=64
-        Target number of points in an occupied cell (cells about 4 point spacings wide suit
-        network outputs a few millimetres off the surface).
+    points_per_cell : float, default=128
+        Target number of points in an occupied cell. Cells about 11 point spacings wide suit
+        network outputs, which lie a median 8 mm and a 90th percentile 19 mm off the surface
+        on the simulated skin: smaller cells make far queries scan many empty cells (128 ran
+        1.3 times faster than 64 and 17 times faster than 8 on such outputs).
 
     Notes
     -----
@@ -843,7 +845,7 @@ class SnapIndex:
     points near the surface that is a few dozen distance computations.
     """
 
-    def __init__(self, points: Points, points_per_cell: float = 64.0) -> None:
+    def __init__(self, points: Points, points_per_cell: float = 128.0) -> None:
         from scipy.spatial import cKDTree
 
         pts = np.ascontiguousarray(points, dtype=np.float64)
@@ -1143,23 +1145,24 @@ class FastLocalizer:
     def predict_batch(self, X: Frames) -> tuple[Points, Points, np.ndarray]:
         """``(points (n, 3) m, raw (n, 3) m, spread_mm (n,))`` for ``X (n, n_features)``.
 
-        Large batches go through in chunks of 8192 rows, so the working arrays stay in cache.
+        A network's forward pass runs on BLAS over the whole batch (in blocks of 65,536 rows)
+        before the constraint's parallel loop starts: alternating the two per small block makes
+        OpenBLAS's spinning threads and numba's contend for the cores, which halved the
+        throughput on this 2-core machine.
         """
-        X = np.asarray(X)
-        if X.ndim == 2 and len(X) > 8192 and self.kind != "map":
-            parts = [self.predict_batch(X[i : i + 8192]) for i in range(0, len(X), 8192)]
-            return tuple(np.concatenate([p[k] for p in parts]) for k in range(3))  # type: ignore[return-value]
+        Xc = np.ascontiguousarray(np.asarray(X, dtype=np.float32).reshape(-1, self.n_features))
         if self.kind == "map":
-            Xc = np.ascontiguousarray(np.asarray(X, dtype=np.float32).reshape(-1, self.n_features))
             out = np.empty((len(Xc), 7))
             _match_many(Xc, *self._map_args(), out)
             return out[:, 3:6].copy(), out[:, :3].copy(), out[:, 6].copy()
-        members = self.forward_batch(X)
-        raw = members.mean(axis=0)
-        if self.n_members > 1:
-            spread = 1e3 * np.sqrt(((members - raw) ** 2).sum(axis=2).mean(axis=0))
-        else:
-            spread = np.full(len(raw), np.nan)
+        raw = np.empty((len(Xc), 3))
+        spread = np.full(len(Xc), np.nan)
+        for i in range(0, len(Xc), 65536):
+            members = self.forward_batch(Xc[i : i + 65536])
+            raw[i : i + len(members[0])] = members.mean(axis=0)
+            if self.n_members > 1:
+                dev = ((members - raw[i : i + len(members[0])]) ** 2).sum(axis=2)
+                spread[i : i + len(members[0])] = 1e3 * np.sqrt(dev.mean(axis=0))
         return self.constrain(raw), raw, spread
 
     def constrain(self, q: Points) -> Points:

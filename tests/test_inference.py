@@ -38,6 +38,18 @@ def test_fast_path_matches_predict_full(kind):
     assert check_against(fast, model) < 1e-6
 
 
+def test_batches_larger_than_a_block_give_the_same_rows():
+    # predict_batch runs networks in blocks of 65,536 rows: the block edge must not show
+    fast = FastLocalizer.from_model(ContactLocalizer.load(model_path("mlp")))
+    X = calibration().deltas.reshape(-1, 64).astype(np.float32)
+    big = np.tile(X, (70_000 // len(X) + 1, 1))[:70_000]
+    points, raw, spread = fast.predict_batch(big)
+    p2, r2, s2 = fast.predict_batch(big[65_530:65_540])
+    np.testing.assert_array_equal(points[65_530:65_540], p2)
+    np.testing.assert_allclose(raw[65_530:65_540], r2, atol=1e-9)
+    np.testing.assert_allclose(spread[65_530:65_540], s2, atol=1e-6)
+
+
 def test_spec_from_file_equals_spec_from_model():
     path = model_path("mlp")
     a = InferenceSpec.load(path)

@@ -85,6 +85,9 @@ def test_record_sim_and_replay(tmp_path):
     frames, times, index = read_stream(out)
     assert frames.shape == (100, 64) and times[-1] <= 1.0 and (np.diff(index) == 1).all()
     assert run("info", out).exit_code == 0
+    info = json.loads(run("info", out, "--json").output)
+    assert info["stream_frames"] == 100 and info["stream_lost_frames"] == 0
+    assert info["stream_rate_hz"] == pytest.approx(100.0, rel=0.05)
     with ReplaySource(out) as src:
         assert src.read().values.tolist() == frames[0].tolist()
 

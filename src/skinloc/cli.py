@@ -379,6 +379,7 @@ def info(
     import numpy as np
 
     from skinloc.metrics import mean_snr_db
+    from skinloc.sources.replay import stream_summary
 
     (rec,) = _read_all([data])
     summary = {
@@ -401,6 +402,13 @@ def info(
         "mesh_faces": len(rec.faces),
         "meta": {k: v for k, v in rec.meta.items() if k not in ("true_contacts",)},
     }
+    stream = stream_summary(data)
+    if stream is not None:  # a `skinloc record` file: its raw stream too
+        summary = {
+            **{k: v for k, v in summary.items() if k != "meta"},
+            **stream,
+            "meta": summary["meta"],
+        }
     if as_json:
         _print_json(summary)
         return

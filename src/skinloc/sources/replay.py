@@ -21,7 +21,7 @@ from skinloc.sources.base import Frame, FrameSource
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ReplaySource", "read_stream", "write_stream_recording"]
+__all__ = ["ReplaySource", "read_stream", "stream_summary", "write_stream_recording"]
 
 
 def write_stream_recording(
@@ -112,6 +112,36 @@ def read_stream(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray] |
             return g["frames"][()], g["times_s"][()], g["index"][()]
     except OSError as exc:
         raise RecordingError(f"cannot read the stream of {path}: {exc}") from exc
+
+
+def stream_summary(path: str | Path) -> dict[str, Any] | None:
+    """Frame count, length (s), rate (Hz) and lost frames of a recording's raw stream.
+
+    Reads the stream's times and counters only, not its frames. None if there is no stream
+    (a calibration recording, or a MATLAB file).
+    """
+    import h5py
+
+    if Path(path).suffix.lower() not in (".h5", ".hdf5"):
+        return None
+    try:
+        with h5py.File(path, "r") as f:
+            if "stream" not in f:
+                return None
+            g = f["stream"]
+            n = int(g["frames"].shape[0])
+            times = g["times_s"][()]
+            index = g["index"][()]
+    except OSError as exc:
+        raise RecordingError(f"cannot read the stream of {path}: {exc}") from exc
+    seconds = float(times[-1] - times[0]) if n > 1 else 0.0
+    return {
+        "stream_frames": n,
+        "stream_seconds": seconds,
+        "stream_rate_hz": (n - 1) / seconds if seconds > 0 else None,
+        # gaps in the device's counter are frames that never arrived
+        "stream_lost_frames": int(index[-1] - index[0] + 1 - n) if n else 0,
+    }
 
 
 class ReplaySource(FrameSource):

@@ -53,8 +53,7 @@ def onnx_model(model: Any, *, include_surface: bool = True, opset: int = 17) -> 
         ONNX opset.
     """
     try:
-        import onnx
-        from onnx import TensorProto, helper, numpy_helper
+        from onnx import helper, numpy_helper
     except ImportError:
         raise ImportError("ONNX export needs onnx: pip install 'skinloc[export]'") from None
 
@@ -123,11 +122,42 @@ def onnx_model(model: Any, *, include_surface: bool = True, opset: int = 17) -> 
         inits.append(numpy_helper.from_array(P, "surface_points_flat"))
     else:
         node("Identity", ["raw"], "points")
-    n_f = s.n_features
+    return _finish_onnx(
+        nodes,
+        inits,
+        "skinloc_localizer",
+        s.n_features,
+        opset,
+        doc=(
+            "frames: baseline-subtracted counts (n, n_features). points: contact on the skin, m "
+            f"(constraint: {s.constraint if include_surface else 'none'}). raw: network output, "
+            "m. uncertainty_mm: ensemble spread."
+        ),
+        props={
+            "skinloc.constraint": s.constraint if include_surface else "none",
+            "skinloc.units": "m",
+            "skinloc.n_members": str(s.n_members),
+        },
+    )
+
+
+def _finish_onnx(
+    nodes: list[Any],
+    inits: list[Any],
+    name: str,
+    n_features: int,
+    opset: int,
+    doc: str,
+    props: dict[str, str],
+) -> Any:
+    """The checked model of a graph from ``frames (n, n_features)`` to the three outputs."""
+    import onnx
+    from onnx import TensorProto, helper
+
     graph = helper.make_graph(
         nodes,
-        "skinloc_localizer",
-        [helper.make_tensor_value_info("frames", TensorProto.FLOAT, ["n", n_f])],
+        name,
+        [helper.make_tensor_value_info("frames", TensorProto.FLOAT, ["n", n_features])],
         [
             helper.make_tensor_value_info("points", TensorProto.FLOAT, ["n", 3]),
             helper.make_tensor_value_info("raw", TensorProto.FLOAT, ["n", 3]),
@@ -139,29 +169,17 @@ def onnx_model(model: Any, *, include_surface: bool = True, opset: int = 17) -> 
         graph,
         opset_imports=[helper.make_opsetid("", opset)],
         producer_name="skinloc",
-        doc_string=(
-            "frames: baseline-subtracted counts (n, n_features). points: contact on the skin, m "
-            f"(constraint: {s.constraint if include_surface else 'none'}). raw: network output, "
-            "m. uncertainty_mm: ensemble spread."
-        ),
+        doc_string=doc,
     )
     m.ir_version = min(m.ir_version, 9)
-    helper.set_model_props(
-        m,
-        {
-            "skinloc.constraint": s.constraint if include_surface else "none",
-            "skinloc.units": "m",
-            "skinloc.n_members": str(s.n_members),
-        },
-    )
+    helper.set_model_props(m, props)
     onnx.checker.check_model(m)
     return m
 
 
 def _onnx_map(s: InferenceSpec, opset: int) -> Any:
     """A response-map model as ONNX: the same coarse-to-fine search as ``ResponseMap.match``."""
-    import onnx
-    from onnx import TensorProto, helper, numpy_helper
+    from onnx import helper, numpy_helper
 
     table = np.asarray(s.map_table, dtype=np.float32)
     sq = (table**2).sum(axis=1).astype(np.float32)
@@ -239,31 +257,19 @@ def _onnx_map(s: InferenceSpec, opset: int) -> Any:
     v = node("Div", [num, den], "spread2")
     v = node("Sqrt", [v], "spread")
     node("Mul", [v, "to_mm"], "uncertainty_mm")
-    graph = helper.make_graph(
+    return _finish_onnx(
         N,
-        "skinloc_response_map",
-        [helper.make_tensor_value_info("frames", TensorProto.FLOAT, ["n", s.n_features])],
-        [
-            helper.make_tensor_value_info("points", TensorProto.FLOAT, ["n", 3]),
-            helper.make_tensor_value_info("raw", TensorProto.FLOAT, ["n", 3]),
-            helper.make_tensor_value_info("uncertainty_mm", TensorProto.FLOAT, ["n"]),
-        ],
         inits,
-    )
-    m = helper.make_model(
-        graph,
-        opset_imports=[helper.make_opsetid("", opset)],
-        producer_name="skinloc",
-        doc_string=(
+        "skinloc_response_map",
+        s.n_features,
+        opset,
+        doc=(
             "frames: baseline-subtracted counts (n, n_features). points = raw: the surface "
             "candidate whose response-map value best matches the image's shape, m. "
             "uncertainty_mm: likelihood-weighted spread of the searched candidates."
         ),
+        props={"skinloc.kind": "map", "skinloc.units": "m"},
     )
-    m.ir_version = min(m.ir_version, 9)
-    helper.set_model_props(m, {"skinloc.kind": "map", "skinloc.units": "m"})
-    onnx.checker.check_model(m)
-    return m
 
 
 def export_onnx(model: Any, path: str | Path, *, include_surface: bool = True) -> Path:

@@ -171,21 +171,7 @@ class InferenceSpec:
         rmap = model.map_
         cfg = model.config_
         table = np.ascontiguousarray(rmap.table, dtype=np.float32)
-        cells_fn = getattr(rmap, "_cells", None)
-        if cells_fn is not None:
-            coarse, cells = cells_fn()
-        else:  # the same coarse-to-fine cells as ResponseMap.match builds
-            from scipy.spatial import cKDTree
-
-            cand = rmap.candidates
-            coarse = np.arange(0, len(cand), 16)
-            owner = cKDTree(cand[coarse]).query(cand)[1]
-            order = np.argsort(owner, kind="stable")
-            counts = np.bincount(owner, minlength=len(coarse))
-            cells = np.repeat(coarse[:, None], counts.max(), axis=1)
-            starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-            for c, (s0, n) in enumerate(zip(starts, counts, strict=True)):
-                cells[c, :n] = order[s0 : s0 + n]
+        coarse, cells = rmap.search_cells()
         return cls(
             n_features=int(model.n_features_in_),
             clip_negative=bool(cfg.get("clip_negative", True)),
@@ -1158,11 +1144,12 @@ class FastLocalizer:
         raw = np.empty((len(Xc), 3))
         spread = np.full(len(Xc), np.nan)
         for i in range(0, len(Xc), 65536):
-            members = self.forward_batch(Xc[i : i + 65536])
-            raw[i : i + len(members[0])] = members.mean(axis=0)
+            block = slice(i, i + 65536)
+            members = self.forward_batch(Xc[block])  # (E, rows, 3)
+            raw[block] = members.mean(axis=0)
             if self.n_members > 1:
-                dev = ((members - raw[i : i + len(members[0])]) ** 2).sum(axis=2)
-                spread[i : i + len(members[0])] = 1e3 * np.sqrt(dev.mean(axis=0))
+                dev = ((members - raw[block]) ** 2).sum(axis=2)
+                spread[block] = 1e3 * np.sqrt(dev.mean(axis=0))
         return self.constrain(raw), raw, spread
 
     def constrain(self, q: Points) -> Points:

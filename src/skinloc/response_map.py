@@ -182,7 +182,7 @@ class ResponseMap:
             self._sq = (self._table**2).sum(axis=1)
         return self._table
 
-    def _cells(self) -> tuple[np.ndarray, np.ndarray]:
+    def search_cells(self) -> tuple[np.ndarray, np.ndarray]:
         """A coarse level for the search: every 16th candidate, and the candidates nearest each.
 
         Returns ``(coarse (C,) int, cells (C, m) int)``, each cell padded by repeating its
@@ -226,7 +226,7 @@ class ResponseMap:
         if len(F) > 512:  # bounds the working arrays to a few tens of MB
             parts = [self.match(F[i : i + 512], cells) for i in range(0, len(F), 512)]
             return np.concatenate([p for p, _ in parts]), np.concatenate([s for _, s in parts])
-        T, (coarse, members) = self.table, self._cells()
+        T, (coarse, members) = self.table, self.search_cells()
         Fs = F.astype(np.float32)
         # ||f - t||^2 as |t|^2 - 2 f.t (|f|^2 is the same for every candidate of a row).
         dc = self._sq[coarse][None, :] - 2.0 * Fs @ T[coarse].T

@@ -9,6 +9,7 @@ import subprocess
 import sys
 import time
 
+import h5py
 import numpy as np
 import pytest
 from typer.testing import CliRunner
@@ -90,6 +91,9 @@ def test_record_sim_and_replay(tmp_path):
     assert info["stream_rate_hz"] == pytest.approx(100.0, rel=0.05)
     with ReplaySource(out) as src:
         assert src.read().values.tolist() == frames[0].tolist()
+    with h5py.File(out, "a") as f:  # a damaged stream: one line, not a traceback
+        del f["stream/times_s"]
+    assert_one_line_error(run("info", out), "cannot read the stream")
 
 
 def test_collect_sim_resumes(tmp_path):

@@ -400,15 +400,9 @@ def info(
         else None,
         "mesh_vertices": len(rec.vertices),
         "mesh_faces": len(rec.faces),
+        **(stream_summary(data) or {}),  # a `skinloc record` file: its raw stream too
         "meta": {k: v for k, v in rec.meta.items() if k not in ("true_contacts",)},
     }
-    stream = stream_summary(data)
-    if stream is not None:  # a `skinloc record` file: its raw stream too
-        summary = {
-            **{k: v for k, v in summary.items() if k != "meta"},
-            **stream,
-            "meta": summary["meta"],
-        }
     if as_json:
         _print_json(summary)
         return

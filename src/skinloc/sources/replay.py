@@ -110,7 +110,7 @@ def read_stream(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray] |
                 return None
             g = f["stream"]
             return g["frames"][()], g["times_s"][()], g["index"][()]
-    except OSError as exc:
+    except (OSError, KeyError) as exc:  # KeyError: a stream group without its datasets
         raise RecordingError(f"cannot read the stream of {path}: {exc}") from exc
 
 
@@ -132,7 +132,7 @@ def stream_summary(path: str | Path) -> dict[str, Any] | None:
             n = int(g["frames"].shape[0])
             times = g["times_s"][()]
             index = g["index"][()]
-    except OSError as exc:
+    except (OSError, KeyError) as exc:  # KeyError: a stream group without its datasets
         raise RecordingError(f"cannot read the stream of {path}: {exc}") from exc
     seconds = float(times[-1] - times[0]) if n > 1 else 0.0
     return {

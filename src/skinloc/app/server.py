@@ -26,7 +26,7 @@ import tempfile
 from collections.abc import AsyncIterator, Iterable
 from importlib import resources
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from fastapi import FastAPI, Header, HTTPException, Query, Request, WebSocket, WebSocketDisconnect
 from fastapi.exceptions import RequestValidationError
@@ -68,7 +68,7 @@ class ConnectBody(BaseModel):
     rx: int = Field(8, ge=1, le=12)
     baud: int = Field(115200, ge=50, le=12_000_000)
     format: Literal["auto", "text", "binary"] = "auto"
-    seed: int = 0
+    seed: int = Field(0, ge=0, le=2**32 - 1)
     rate_hz: float = Field(100.0, gt=0, le=2000)
 
 
@@ -80,23 +80,27 @@ class SessionBody(BaseModel):
     mode: str = "even"
     samples: int = Field(50, ge=1, le=1000)
     baseline_frames: int = Field(50, ge=2, le=5000)
-    seed: int = 0
+    seed: int = Field(0, ge=0, le=2**32 - 1)
     mesh_file: str | None = None
     targets_csv: str | None = Field(None, max_length=1_000_000)
     n_validation: int = Field(20, ge=1, le=500)
 
 
+#: A coordinate of a touch, m: any skin fits in +-10 m, and larger numbers are a mistake.
+Coordinate = Annotated[float, Field(ge=-10.0, le=10.0)]
+
+
 class TouchBody(BaseModel):
     """``POST /api/sim/touch``: a point in m, or none to lift."""
 
-    point: list[float] | None = None
+    point: list[Coordinate] | None = Field(None, min_length=3, max_length=3)
 
 
 class IndexBody(BaseModel):
     """An index of a touch (0-based) and which recording it is in."""
 
-    index: int
-    recording: str = "calibration"
+    index: int = Field(ge=0)
+    recording: Literal["calibration", "validation"] = "calibration"
 
 
 class FlagBody(BaseModel):
@@ -252,6 +256,9 @@ def create_app(
         # FastAPI's own answer echoes the whole input; name the fields and the rule only.
         parts = []
         for err in exc.errors()[:5]:
+            if err.get("type") == "json_invalid":
+                parts.append("the body is not valid JSON")
+                continue
             where = ".".join(str(x) for x in err.get("loc", ()) if x not in ("body", "query"))
             parts.append(f"{where or 'body'}: {err.get('msg', 'invalid')}")
         return JSONResponse({"detail": _one_line("; ".join(parts))}, status_code=422)
@@ -533,7 +540,11 @@ def _install_mesh(tmp: Path, path: Path) -> dict[str, Any]:
     """Load the uploaded ``tmp``; only if it is a mesh does it replace ``path`` (atomically)."""
     from skinloc.geometry import load_mesh
 
-    mesh = load_mesh(tmp)
+    try:
+        mesh = load_mesh(tmp)
+    except (SkinlocError, ValueError) as exc:
+        # Name the file as the person did, not the hidden file it was received into.
+        raise ValueError(str(exc).replace(str(tmp), path.name)) from None
     os.replace(tmp, path)
     return {
         "name": path.name,

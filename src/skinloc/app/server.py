@@ -23,7 +23,7 @@ import os
 import re
 import secrets
 import tempfile
-from collections.abc import AsyncIterator, Iterable
+from collections.abc import AsyncIterator, Callable, Iterable
 from importlib import resources
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -123,7 +123,9 @@ class _Guard:
     Refusals are 403 (415 for a foreign body type) with a one-line ``detail``.
     """
 
-    def __init__(self, app: ASGIApp, token: str, own_origins: Any) -> None:
+    def __init__(
+        self, app: ASGIApp, token: str, own_origins: Callable[[Headers, Scope], frozenset[str]]
+    ) -> None:
         self.app = app
         self.token = token.encode()
         self.own_origins = own_origins

@@ -32,10 +32,25 @@ A = {"X-Skinloc-Client": "tab-a"}
 B = {"X-Skinloc-Client": "tab-b"}
 
 
+def page_client(app) -> TestClient:
+    """A client that acts as the app's own page: it sends the launch token with every action."""
+    client = TestClient(app)
+    client.headers.update({"X-Skinloc-Token": app.state.token})
+    return client
+
+
 def make_client(data: Path, source: bool = True) -> TestClient:
     config = AppConfig(data_dir=data, train_options=FAST_TRAIN, finger_delay_s=0.05)
     spec = SourceSpec(source="sim", rate_hz=400.0, seed=3) if source else None
-    return TestClient(create_app(config, spec))
+    return page_client(create_app(config, spec))
+
+
+def stream(client: TestClient, tab: str):
+    """The page's WebSocket: its own origin and the launch token."""
+    token = client.headers["X-Skinloc-Token"]
+    return client.websocket_connect(
+        f"/ws?client={tab}&token={token}", headers={"origin": "http://testserver"}
+    )
 
 
 def wait_for(client: TestClient, check, what: str, timeout_s: float = 60.0) -> dict:
@@ -107,7 +122,7 @@ def test_full_session_calibrate_train_validate_live(tmp_path):
         assert client.post("/api/live/start", headers=A).status_code == 200
         wait_for(client, lambda s: s["mode"] == "live", "live mode")
         target = rec.targets[0]
-        with client.websocket_connect("/ws?client=tab-a") as ws:
+        with stream(client, "tab-a") as ws:
             r = client.post("/api/sim/touch", json={"point": target.tolist()}, headers=A)
             assert r.status_code == 200
             for _ in range(2000):
@@ -175,8 +190,8 @@ def test_resume_after_restart(tmp_path):
 def test_two_tabs_one_is_told_busy(tmp_path):
     with make_client(tmp_path) as client:
         with (
-            client.websocket_connect("/ws?client=tab-a") as ws_a,
-            client.websocket_connect("/ws?client=tab-b") as ws_b,
+            stream(client, "tab-a") as ws_a,
+            stream(client, "tab-b") as ws_b,
         ):
             assert ws_a.receive_json()["type"] == "state"
             assert ws_b.receive_json()["type"] == "state"
@@ -260,7 +275,7 @@ def test_bad_requests_get_one_line_errors(tmp_path):
 def test_connect_page_reports_sensors(tmp_path):
     with make_client(tmp_path) as client:
         client.post("/api/sessions", json={"n_points": 5}, headers=A)
-        with client.websocket_connect("/ws?client=tab-a") as ws:
+        with stream(client, "tab-a") as ws:
             seen = set()
             for _ in range(3000):
                 msg = ws.receive_json()
@@ -283,7 +298,7 @@ def test_calibrate_over_a_serial_port_with_the_virtual_skin(tmp_path):
 
     with VirtualSkin(SimulatedSkin(random_state=0), fmt="binary", rate_hz=200) as dev:
         config = AppConfig(data_dir=tmp_path, finger_delay_s=0.05)
-        with TestClient(create_app(config, SourceSpec(source=dev.path))) as client:
+        with page_client(create_app(config, SourceSpec(source=dev.path))) as client:
             state = client.get("/api/state").json()
             assert state["device"]["name"] == dev.path and not state["device"]["sim"]
             sid = new_session(client, n_points=4)

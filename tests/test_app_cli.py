@@ -52,3 +52,13 @@ def test_port_in_use(tmp_path):
         result = run("--port", str(port), "--data", str(tmp_path))
     assert result.exit_code == 1 and "pass another --port" in result.output
     assert len(result.output.strip().splitlines()) == 1
+
+
+def test_pyserial_url_is_refused(tmp_path):
+    victim = tmp_path / "precious.txt"
+    victim.write_text("keep me\n")
+    for source in (f"spy://loop://?file={victim}", "socket://127.0.0.1:9"):
+        result = run("--source", source, "--data", str(tmp_path), "--port", str(free_port()))
+        assert result.exit_code == 1 and "Traceback" not in result.output
+        assert "pyserial URL" in result.output and "'sim'" in result.output
+    assert victim.read_text() == "keep me\n"

@@ -59,6 +59,7 @@ def test_run_with_a_skins_file(tmp_path):
         (("run", "--model", "nope.h5"), "model not found"),
         (("run", "--model", "MAP", "--sink", "pigeon"), "unknown sink"),
         (("run", "--model", "MAP", "--source", "/dev/ttyNOPE0"), "cannot open serial port"),
+        (("run", "--model", "MAP", "--source", "socket://127.0.0.1:9"), "--allow-url"),
         (("run", "--model", "MAP", "--config", "x.toml"), "not both"),
         (("run", "--config", "missing.toml"), "skins file not found"),
         (("export", "MAP"), "nothing to do"),

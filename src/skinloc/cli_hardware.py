@@ -57,7 +57,17 @@ class UnitsChoice(StrEnum):
 # Options shared by every command that reads a skin.
 PortOpt = Annotated[
     str | None,
-    typer.Option("--port", "-p", help="Serial port or pyserial URL (see 'skinloc ports')."),
+    typer.Option(
+        "--port", "-p", help="Serial port (see 'skinloc ports'); a pyserial URL needs --allow-url."
+    ),
+]
+AllowUrlOpt = Annotated[
+    bool,
+    typer.Option(
+        "--allow-url",
+        help="Let --port be a pyserial URL (socket://, rfc2217://, loop://, spy://...); these "
+        "reach the network or files, not only a skin.",
+    ),
 ]
 SourceOpt = Annotated[
     SourceChoice, typer.Option("--source", help="'sim' reads the simulated skin instead.")
@@ -88,6 +98,7 @@ def _open_source(
     realtime: bool = False,
     seed: int = 0,
     mesh: Any = None,
+    allow_url: bool = False,
 ):
     """Build (not connect) the frame source the options describe."""
     if source is SourceChoice.sim:
@@ -100,8 +111,9 @@ def _open_source(
         raise ValueError(
             "give --port (a serial port: see 'skinloc ports') or --source sim for the simulator"
         )
-    from skinloc.sources.serial import SerialSource, SerialSourceConfig
+    from skinloc.sources.serial import SerialSource, SerialSourceConfig, check_source
 
+    check_source(port, allow_urls=allow_url, allow_sim=False, opt_in="pass --allow-url")
     cfg = SerialSourceConfig(
         port=port,
         baud=baud,
@@ -227,6 +239,7 @@ def register(app: typer.Typer) -> None:
         raw: Annotated[bool, typer.Option("--raw", help="Show raw counts, not deltas.")] = False,
         timeout: Annotated[float, typer.Option(min=0.01, help="Longest wait for a frame, s.")] = 2,
         seed: SeedOpt = 0,
+        allow_url: AllowUrlOpt = False,
     ) -> None:
         """Live view of the sensor image, the frame rate and the drop counts.
 
@@ -248,6 +261,7 @@ def register(app: typer.Typer) -> None:
             rx_mask=rx_mask,
             realtime=True,
             seed=seed,
+            allow_url=allow_url,
         )
 
         def render(values: np.ndarray, baseline: np.ndarray | None, n: int) -> Table:
@@ -321,6 +335,7 @@ def register(app: typer.Typer) -> None:
         units: Annotated[UnitsChoice, typer.Option(help="Units of --mesh.")] = UnitsChoice.auto,
         timeout: Annotated[float, typer.Option(min=0.01, help="Longest wait for a frame, s.")] = 2,
         seed: SeedOpt = 0,
+        allow_url: AllowUrlOpt = False,
     ) -> None:
         """Record a no-touch baseline, then the raw stream for --seconds, to an HDF5 recording.
 
@@ -345,6 +360,7 @@ def register(app: typer.Typer) -> None:
             rx_mask=rx_mask,
             seed=seed,
             mesh=surface if source is SourceChoice.sim else None,
+            allow_url=allow_url,
         )
         frames, times, index = [], [], []
         with src, progress_steps() as step:
@@ -419,6 +435,7 @@ def register(app: typer.Typer) -> None:
         tx_mask: TxMaskOpt = None,
         rx_mask: RxMaskOpt = None,
         seed: Annotated[int, typer.Option(help="Seed of the targets (and of --source sim).")] = 0,
+        allow_url: AllowUrlOpt = False,
     ) -> None:
         """Record a calibration session on the skin, resumable after a crash.
 
@@ -451,6 +468,7 @@ def register(app: typer.Typer) -> None:
                 rx=rx,
                 tx_mask=tx_mask,
                 rx_mask=rx_mask,
+                allow_url=allow_url,
             )
         with src:
             _first_frame(src, 1.0)

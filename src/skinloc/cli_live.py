@@ -41,6 +41,19 @@ def _sigterm_as_interrupt() -> Any:
         return None
 
 
+def _check_sources(specs: list[Any], allow_url: bool) -> None:
+    """Refuse a port that is a pyserial URL (without ``--allow-url``) or not a serial device."""
+    from skinloc.runner import _is_recording
+    from skinloc.sources.serial import check_source
+
+    for spec in specs:
+        src = spec.source
+        if not isinstance(src, str) or src == "sim" or src.startswith("sim:"):
+            continue
+        if not _is_recording(src):
+            check_source(src, allow_urls=allow_url, allow_sim=False, opt_in="pass --allow-url")
+
+
 def register(app: typer.Typer) -> None:
     """Add ``run`` and ``export`` to the main ``skinloc`` app."""
     from skinloc.cli import err_console, friendly_errors
@@ -56,8 +69,8 @@ def register(app: typer.Typer) -> None:
             typer.Option(
                 "--source",
                 "-s",
-                help="'sim' (simulated skin, scripted finger), a serial port or URL, or a "
-                "recording (.h5/.mat) to replay.",
+                help="'sim' (simulated skin, scripted finger), a serial port, or a "
+                "recording (.h5/.mat) to replay; a pyserial URL needs --allow-url.",
             ),
         ] = "sim",
         sink: Annotated[
@@ -109,6 +122,14 @@ def register(app: typer.Typer) -> None:
         stats: Annotated[
             bool, typer.Option("--stats", help="Print per-skin counters as JSON on stderr at exit.")
         ] = False,
+        allow_url: Annotated[
+            bool,
+            typer.Option(
+                "--allow-url",
+                help="Let a source be a pyserial URL (socket://, rfc2217://, loop://, spy://...); "
+                "these reach the network or files, not only a skin.",
+            ),
+        ] = False,
     ) -> None:
         """Run the live pipeline: frames -> baseline -> touch -> localiser -> surface -> sinks.
 
@@ -124,6 +145,7 @@ def register(app: typer.Typer) -> None:
             if model is not None:
                 raise ValueError("give either --config (many skins) or --model, not both")
             specs, global_sinks = load_skins(config)
+            _check_sources(specs, allow_url)
             runner = Runner(specs, sinks=[*global_sinks, *(sink or [])] or ["jsonl"])
         else:
             if model is None:
@@ -150,6 +172,7 @@ def register(app: typer.Typer) -> None:
                 loop=loop,
                 baseline=baseline,
             )
+            _check_sources([spec], allow_url)
             runner = Runner([spec], sinks=sinks)
         previous = _sigterm_as_interrupt()
         t0 = time.monotonic()

@@ -197,6 +197,12 @@ def load_mesh(path: str | Path, units: str = "auto") -> trimesh.Trimesh:
         raise MeshError(f"cannot read mesh {path}: use an OBJ, STL or PLY file")
     try:
         loaded = trimesh.load(path, force="mesh", process=False)
+    except ImportError as exc:
+        # trimesh reaches for an optional package only on files it cannot parse as they are
+        # (a broken binary STL is retried as text and its encoding guessed).
+        raise MeshError(
+            f"cannot read mesh {path}: not a valid {path.suffix[1:].upper()} file"
+        ) from exc
     except Exception as exc:  # trimesh raises many kinds; all mean "unreadable"
         raise MeshError(f"cannot read mesh {path}: {exc}") from exc
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:

@@ -49,7 +49,8 @@ def register(app: typer.Typer) -> None:
             str | None,
             typer.Option(
                 "--source",
-                help="'sim' for the simulated skin, or a serial port; default: choose in the page.",
+                help="'sim' for the simulated skin, or a serial port (no pyserial URL); "
+                "default: choose in the page.",
             ),
         ] = None,
         mesh: Annotated[
@@ -82,7 +83,7 @@ def register(app: typer.Typer) -> None:
             import uvicorn
 
             from skinloc.app.device import SourceSpec
-            from skinloc.app.server import create_app
+            from skinloc.app.server import create_app, own_origins
             from skinloc.app.workspace import AppConfig
         except ImportError as exc:  # pragma: no cover - dependencies of a plain install
             raise ValueError(f"the app needs {exc.name}: pip install skinloc") from None
@@ -107,7 +108,8 @@ def register(app: typer.Typer) -> None:
         if source is not None:
             spec = SourceSpec(source=source, tx=tx, rx=rx, baud=baud, format=fmt, seed=seed)
         hosts = ["127.0.0.1", "localhost", "[::1]", host, f"[{host}]"]
-        web = create_app(config, spec, allowed_hosts=hosts)
+        # The page's own origins only: another site's page gets no stream and no actions.
+        web = create_app(config, spec, allowed_hosts=hosts, origins=own_origins(host, port))
         shown = f"[{host}]" if ":" in host else host
         url = f"http://{shown}:{port}/"
         console.print(f"skinloc app on {url} (sessions in {data}/); Ctrl-C stops", soft_wrap=True)

@@ -34,7 +34,8 @@ class SourceSpec:
     Attributes
     ----------
     source : str
-        ``sim`` for the simulated skin, else a serial port or pyserial URL.
+        ``sim`` for the simulated skin, else a serial port (a pyserial URL is refused: see
+        ``skinloc.sources.serial.check_source``).
     tx, rx : int
         Grid the device sends.
     baud : int
@@ -60,10 +61,15 @@ class SourceSpec:
         """Whether this is the simulated skin."""
         return self.source == "sim"
 
+    def check(self) -> None:
+        """Raise ``ValueError`` unless the source is ``sim`` or a serial device (no URL)."""
+        from skinloc.sources.serial import check_source
+
+        check_source(self.source)
+
     def build(self, mesh: Any = None) -> FrameSource:
         """The (unconnected) frame source; ``mesh`` is the simulated skin's surface."""
-        if not self.source or not self.source.strip():
-            raise ValueError("choose a source: 'sim' or a serial port")
+        self.check()
         if self.is_sim:
             return make_source(
                 "sim",

@@ -4,23 +4,38 @@
 changes something names its tab in the ``X-Skinloc-Client`` header; a tab without control gets
 409 and the message that the session is busy. Errors a person can fix come back as 400 with a
 one-line ``detail``.
+
+Only the app's own page drives it (docs/app.md, Security): the page carries a per-launch secret
+that every request other than GET/HEAD sends back in ``X-Skinloc-Token`` (a header another
+site's page cannot set without a CORS preflight, which is never granted), JSON actions take
+JSON bodies only, and the WebSocket wants the app's own Origin and the secret. Host headers
+other than the app's names are refused (DNS rebinding).
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import hmac
+import html
 import logging
-from collections.abc import AsyncIterator
+import os
+import re
+import secrets
+import tempfile
+from collections.abc import AsyncIterator, Callable, Iterable
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal
 
-from fastapi import FastAPI, Header, Query, Request, WebSocket, WebSocketDisconnect
-from fastapi.responses import FileResponse, JSONResponse, Response
+from fastapi import FastAPI, Header, HTTPException, Query, Request, WebSocket, WebSocketDisconnect
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import HTMLResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, Field
+from starlette.datastructures import Headers
 from starlette.middleware.trustedhost import TrustedHostMiddleware
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from skinloc.app.device import SourceSpec
 from skinloc.app.hub import Hub, to_json
@@ -34,6 +49,14 @@ __all__ = ["create_app"]
 
 STATIC = Path(str(resources.files("skinloc.app") / "static"))
 MAX_UPLOAD_BYTES = 64 * 1024 * 1024
+MESH_SUFFIXES = (".obj", ".stl", ".ply")
+TOKEN_HEADER = "X-Skinloc-Token"
+#: Requests that change nothing; every other method needs the token.
+SAFE_METHODS = frozenset({"GET", "HEAD"})
+#: Endpoints whose body is a file, not JSON.
+RAW_BODY_PATHS = frozenset({"/api/meshes"})
+#: Longest ``detail`` sent back, characters (no request is ever echoed at length).
+MAX_DETAIL = 300
 ClientHeader = Header(default=None, alias="X-Skinloc-Client")
 
 
@@ -44,8 +67,8 @@ class ConnectBody(BaseModel):
     tx: int = Field(8, ge=1, le=21)
     rx: int = Field(8, ge=1, le=12)
     baud: int = Field(115200, ge=50, le=12_000_000)
-    format: str = "auto"
-    seed: int = 0
+    format: Literal["auto", "text", "binary"] = "auto"
+    seed: int = Field(0, ge=0, le=2**32 - 1)
     rate_hz: float = Field(100.0, gt=0, le=2000)
 
 
@@ -57,23 +80,27 @@ class SessionBody(BaseModel):
     mode: str = "even"
     samples: int = Field(50, ge=1, le=1000)
     baseline_frames: int = Field(50, ge=2, le=5000)
-    seed: int = 0
+    seed: int = Field(0, ge=0, le=2**32 - 1)
     mesh_file: str | None = None
     targets_csv: str | None = Field(None, max_length=1_000_000)
     n_validation: int = Field(20, ge=1, le=500)
 
 
+#: A coordinate of a touch, m: any skin fits in +-10 m, and larger numbers are a mistake.
+Coordinate = Annotated[float, Field(ge=-10.0, le=10.0)]
+
+
 class TouchBody(BaseModel):
     """``POST /api/sim/touch``: a point in m, or none to lift."""
 
-    point: list[float] | None = None
+    point: list[Coordinate] | None = Field(None, min_length=3, max_length=3)
 
 
 class IndexBody(BaseModel):
     """An index of a touch (0-based) and which recording it is in."""
 
-    index: int
-    recording: str = "calibration"
+    index: int = Field(ge=0)
+    recording: Literal["calibration", "validation"] = "calibration"
 
 
 class FlagBody(BaseModel):
@@ -88,10 +115,85 @@ class ValidateBody(BaseModel):
     n_points: int | None = Field(None, ge=1, le=500)
 
 
+class _Guard:
+    """Refuse requests not sent by the app's own page (pure ASGI, so streams stay streams).
+
+    Every HTTP method but GET/HEAD needs the launch token in ``X-Skinloc-Token`` and, when it
+    says where it comes from, the app's own Origin; bodies other than uploads must be JSON.
+    Refusals are 403 (415 for a foreign body type) with a one-line ``detail``.
+    """
+
+    def __init__(
+        self, app: ASGIApp, token: str, own_origins: Callable[[Headers, Scope], frozenset[str]]
+    ) -> None:
+        self.app = app
+        self.token = token.encode()
+        self.own_origins = own_origins
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        if scope["method"] not in SAFE_METHODS:
+            problem = self.refusal(scope)
+            if problem is not None:
+                status, detail = problem
+                await JSONResponse({"detail": detail}, status_code=status)(scope, receive, send)
+                return
+
+        async def send_with_headers(message: Message) -> None:
+            if message["type"] == "http.response.start":
+                # No sniffing a JSON answer into a script or a page.
+                message.setdefault("headers", []).append((b"x-content-type-options", b"nosniff"))
+            await send(message)
+
+        await self.app(scope, receive, send_with_headers)
+
+    def refusal(self, scope: Scope) -> tuple[int, str] | None:
+        """Status and message when a state-changing request is refused, else None."""
+        headers = Headers(scope=scope)
+        origin = headers.get("origin")
+        if origin is not None and origin not in self.own_origins(headers, scope):
+            return 403, f"refused: a request from another site ({origin[:80]})"
+        sent = headers.get(TOKEN_HEADER, "").encode("utf-8", "replace")
+        if not sent or not hmac.compare_digest(sent, self.token):
+            return 403, (
+                f"refused: {'wrong' if sent else 'no'} {TOKEN_HEADER}; actions come from the "
+                "app's own page (reload it if the app was restarted)"
+            )
+        body = headers.get("content-length", "0") != "0" or "transfer-encoding" in headers
+        if body and scope["path"] not in RAW_BODY_PATHS:
+            kind = headers.get("content-type", "").split(";")[0].strip().lower()
+            if kind != "application/json":
+                return 415, f"send JSON (Content-Type: application/json), not {kind[:60]!r}"
+        return None
+
+
+def own_origins(host: str, port: int) -> list[str]:
+    """The origins a page served on ``host:port`` has (the names that reach that address).
+
+    Parameters
+    ----------
+    host : str
+        Address served on, as given to ``skinloc app --host``.
+    port : int
+        TCP port served on.
+    """
+    shown = f"[{host.strip('[]')}]" if ":" in host else host
+    names = {shown}
+    if host in ("127.0.0.1", "localhost", "0.0.0.0", "::", "[::]"):
+        names |= {"127.0.0.1", "localhost"}
+    if host in ("::1", "[::1]", "localhost", "::", "[::]"):
+        names |= {"[::1]", "localhost"}
+    return sorted(f"http://{name}:{port}" for name in names)
+
+
 def create_app(
     config: AppConfig | None = None,
     spec: SourceSpec | None = None,
     allowed_hosts: list[str] | None = None,
+    token: str | None = None,
+    origins: Iterable[str] | None = None,
 ) -> FastAPI:
     """The app, with its workspace; connects to ``spec`` at once when given.
 
@@ -103,8 +205,25 @@ def create_app(
         Skin to open at start (errors propagate, so the command line can report them).
     allowed_hosts : list of str, optional
         Host headers accepted (a guard against DNS rebinding); loopback names by default.
+    token : str, optional
+        The secret the page sends back with every action; a fresh random one by default
+        (``app.state.token``).
+    origins : iterable of str, optional
+        The app's own origins (``http://127.0.0.1:8765``; ``own_origins`` lists them); by
+        default the origin of the (checked) Host header the request came to.
     """
     config = config or AppConfig()
+    token = token or secrets.token_urlsafe(32)
+    fixed_origins = frozenset(origins) if origins is not None else None
+
+    def accepted_origins(headers: Headers, scope: Scope) -> frozenset[str]:
+        if fixed_origins is not None:
+            return fixed_origins
+        scheme = "https" if scope.get("scheme") in ("https", "wss") else "http"
+        return frozenset({f"{scheme}://{headers.get('host', '')}"})
+
+    if spec is not None:
+        spec.check()
     hub = Hub()
     workspace = Workspace(config, hub)
     if spec is not None:
@@ -117,28 +236,50 @@ def create_app(
 
     app = FastAPI(title="skinloc", lifespan=lifespan, docs_url=None, redoc_url=None)
     app.state.workspace = workspace
+    app.state.token = token
     hosts = allowed_hosts or ["127.0.0.1", "localhost", "[::1]", "testserver"]
+    # The last added runs first: the Host check, then the token.
+    app.add_middleware(_Guard, token=token, own_origins=accepted_origins)
     app.add_middleware(TrustedHostMiddleware, allowed_hosts=hosts)
 
     @app.exception_handler(BusyError)
     @app.exception_handler(SessionBusyError)
     async def busy(_: Request, exc: Exception) -> JSONResponse:
-        return JSONResponse({"detail": str(exc)}, status_code=409)
+        return JSONResponse({"detail": _one_line(exc)}, status_code=409)
 
     @app.exception_handler(SkinlocError)
     @app.exception_handler(ValueError)
     @app.exception_handler(OSError)
     async def bad(_: Request, exc: Exception) -> JSONResponse:
-        return JSONResponse(
-            {"detail": str(exc).splitlines()[0] if str(exc) else repr(exc)}, status_code=400
-        )
+        return JSONResponse({"detail": _one_line(exc)}, status_code=400)
+
+    @app.exception_handler(RequestValidationError)
+    async def invalid(_: Request, exc: RequestValidationError) -> JSONResponse:
+        # FastAPI's own answer echoes the whole input; name the fields and the rule only.
+        parts = []
+        for err in exc.errors()[:5]:
+            if err.get("type") == "json_invalid":
+                parts.append("the body is not valid JSON")
+                continue
+            where = ".".join(str(x) for x in err.get("loc", ()) if x not in ("body", "query"))
+            parts.append(f"{where or 'body'}: {err.get('msg', 'invalid')}")
+        return JSONResponse({"detail": _one_line("; ".join(parts))}, status_code=422)
 
     ok = {"ok": True}
 
     # ------------------------------------------------------------------ page and state
     @app.get("/", include_in_schema=False)
-    def index() -> FileResponse:
-        return FileResponse(STATIC / "index.html", headers={"Cache-Control": "no-store"})
+    def index() -> HTMLResponse:
+        page = (STATIC / "index.html").read_text(encoding="utf-8")
+        meta = f'<meta name="skinloc-token" content="{html.escape(token)}">'
+        page = re.sub(r"(<head[^>]*>)", lambda m: m.group(1) + meta, page, count=1)
+        headers = {
+            "Cache-Control": "no-store",  # the token changes with every launch
+            "Content-Security-Policy": "frame-ancestors 'none'",
+            "X-Frame-Options": "DENY",
+            "Referrer-Policy": "no-referrer",
+        }
+        return HTMLResponse(page, headers=headers)
 
     app.mount("/static", StaticFiles(directory=STATIC), name="static")
 
@@ -169,7 +310,9 @@ def create_app(
     @app.post("/api/connect")
     def connect(body: ConnectBody, client: str | None = ClientHeader) -> dict[str, Any]:
         workspace.require(client)
-        workspace.connect(SourceSpec(**body.model_dump()))
+        spec = SourceSpec(**body.model_dump())
+        spec.check()  # before the skin in use is closed
+        workspace.connect(spec)
         return ok
 
     @app.post("/api/disconnect")
@@ -219,15 +362,39 @@ def create_app(
         workspace.require(client)
         return {"id": workspace.import_recording(path)}
 
+    @app.get("/api/meshes")
+    def meshes() -> list[dict[str, Any]]:
+        return _list_meshes(workspace.mesh_dir)
+
     @app.post("/api/meshes")
     async def upload_mesh(
-        request: Request, filename: str = Query(...), client: str | None = ClientHeader
+        request: Request,
+        filename: str = Query(..., max_length=255),
+        client: str | None = ClientHeader,
     ) -> dict[str, Any]:
         await asyncio.to_thread(workspace.require, client)
-        body = await request.body()
-        if len(body) > MAX_UPLOAD_BYTES:
-            raise ValueError(f"mesh file too large ({len(body)} bytes; at most 64 MB)")
-        return await asyncio.to_thread(_save_mesh, workspace, filename, body)
+        name = _mesh_name(filename)
+        declared = request.headers.get("content-length", "")
+        if declared.isdigit() and int(declared) > MAX_UPLOAD_BYTES:
+            raise HTTPException(413, f"mesh file too large ({int(declared)} bytes; at most 64 MB)")
+        folder = workspace.mesh_dir
+        folder.mkdir(parents=True, exist_ok=True)
+        # Into a hidden file beside the meshes, counted as it comes: a file over the limit
+        # stops there, and a stored mesh of that name is replaced only by one that loads.
+        fd, tmp = tempfile.mkstemp(prefix=".upload-", suffix=Path(name).suffix, dir=folder)
+        try:
+            size = 0
+            with os.fdopen(fd, "wb") as fh:
+                async for chunk in request.stream():
+                    size += len(chunk)
+                    if size > MAX_UPLOAD_BYTES:
+                        raise HTTPException(413, "mesh file too large (more than 64 MB)")
+                    fh.write(chunk)
+            if size == 0:
+                raise ValueError(f"{name} is empty: upload an OBJ, STL or PLY mesh")
+            return await asyncio.to_thread(_install_mesh, Path(tmp), folder / name)
+        finally:
+            Path(tmp).unlink(missing_ok=True)
 
     @app.get("/api/sessions/{session_id}/targets.{fmt}")
     def targets_sheet(session_id: str, fmt: str) -> Response:
@@ -297,11 +464,18 @@ def create_app(
 
     # ------------------------------------------------------------------ the stream
     @app.websocket("/ws")
-    async def stream(websocket: WebSocket, client: str = Query("anonymous")) -> None:
+    async def stream(
+        websocket: WebSocket, client: str = Query("anonymous", max_length=100)
+    ) -> None:
+        # A browser always sends Origin with a WebSocket: no Origin, or another one, is not
+        # the app's page. Closing before accepting answers the handshake with 403.
         origin = websocket.headers.get("origin")
-        if origin and origin.split("://", 1)[-1].split(":")[0].strip("[]") not in {
-            h.strip("[]") for h in hosts
-        }:
+        sent = websocket.query_params.get("token", "").encode("utf-8", "replace")
+        if (
+            origin is None
+            or origin not in accepted_origins(websocket.headers, websocket.scope)
+            or not hmac.compare_digest(sent, token.encode())
+        ):
             await websocket.close(code=1008)
             return
         await websocket.accept()
@@ -338,23 +512,44 @@ def _json(obj: Any) -> Response:
     return Response(to_json(obj), media_type="application/json")
 
 
-def _save_mesh(workspace: Workspace, filename: str, body: bytes) -> dict[str, Any]:
+def _one_line(exc: object) -> str:
+    """The first line of a message, at most ``MAX_DETAIL`` characters."""
+    text = str(exc).strip()
+    line = text.splitlines()[0] if text else repr(exc)
+    return line if len(line) <= MAX_DETAIL else line[: MAX_DETAIL - 3] + "..."
+
+
+def _mesh_name(filename: str) -> str:
+    """The stored name of an uploaded mesh (no folders, a mesh suffix, not hidden)."""
+    name = Path(filename.replace("\\", "/")).name
+    if Path(name).suffix.lower() not in MESH_SUFFIXES or name.startswith("."):
+        raise ValueError(f"upload an OBJ, STL or PLY mesh, not {name[:80]!r}")
+    return name
+
+
+def _list_meshes(folder: Path) -> list[dict[str, Any]]:
+    """The uploaded meshes, by name."""
+    if not folder.is_dir():
+        return []
+    return [
+        {"name": p.name, "bytes": p.stat().st_size}
+        for p in sorted(folder.iterdir())
+        if p.suffix.lower() in MESH_SUFFIXES and not p.name.startswith(".") and p.is_file()
+    ]
+
+
+def _install_mesh(tmp: Path, path: Path) -> dict[str, Any]:
+    """Load the uploaded ``tmp``; only if it is a mesh does it replace ``path`` (atomically)."""
     from skinloc.geometry import load_mesh
 
-    name = Path(filename).name
-    if Path(name).suffix.lower() not in (".obj", ".stl", ".ply"):
-        raise ValueError(f"upload an OBJ, STL or PLY mesh, not {name!r}")
-    folder = workspace.mesh_dir
-    folder.mkdir(parents=True, exist_ok=True)
-    path = folder / name
-    path.write_bytes(body)
     try:
-        mesh = load_mesh(path)
-    except SkinlocError:
-        path.unlink(missing_ok=True)
-        raise
+        mesh = load_mesh(tmp)
+    except (SkinlocError, ValueError) as exc:
+        # Name the file as the person did, not the hidden file it was received into.
+        raise ValueError(str(exc).replace(str(tmp), path.name)) from None
+    os.replace(tmp, path)
     return {
-        "name": name,
+        "name": path.name,
         "n_faces": len(mesh.faces),
         "extents_mm": [round(float(e) * 1e3, 1) for e in mesh.extents],
     }

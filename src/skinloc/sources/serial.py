@@ -1,7 +1,9 @@
 """A skin on a serial port (a Muca board behind an Arduino), read on a background thread.
 
 The port is anything pyserial opens: a device (``/dev/ttyACM0``, ``COM3``) or a URL such as
-``loop://`` (tests) or ``socket://host:port``. A reader thread feeds the bytes to a pure parser
+``loop://`` (tests) or ``socket://host:port``. Ports a person or a page names go through
+``check_source`` first, which lets only ``sim`` and serial devices through (URLs on opt-in). A
+reader thread feeds the bytes to a pure parser
 from ``skinloc.framing`` (text, binary or auto-detected), keeps the frames in a bounded buffer
 and reopens the port by itself when the device goes away and comes back.
 """
@@ -13,6 +15,8 @@ import errno
 import glob
 import logging
 import os
+import re
+import stat
 import tempfile
 import threading
 import time
@@ -32,6 +36,7 @@ __all__ = [
     "SerialSource",
     "SerialSourceConfig",
     "SourceStats",
+    "check_source",
     "list_ports",
     "parse_line_mask",
 ]
@@ -48,6 +53,66 @@ ARDUINO_VIDS = {
 }
 #: Where ``skinloc virtual-skin`` puts the stable links to its pseudo-terminals.
 VIRTUAL_GLOB = os.path.join(tempfile.gettempdir(), "skinloc-virtual-*", "ttySKIN*")
+
+
+#: What ``check_source`` lets through, for its messages.
+ALLOWED_SOURCES = (
+    "'sim' (the simulated skin), a serial port such as /dev/ttyACM0 or COM3, or a running "
+    "virtual skin's port (`skinloc ports` lists both)"
+)
+
+
+def check_source(
+    source: str, *, allow_urls: bool = False, allow_sim: bool = True, opt_in: str = ""
+) -> str:
+    """``source`` if it names ``sim`` or a serial device; raise ``ValueError`` otherwise.
+
+    A pyserial URL (anything with ``://``: ``spy://`` writes a log to any file, ``socket://``
+    opens a network connection, ``loop://``, ``rfc2217://``, ``hwgrep://``) reaches far more
+    than a skin, so it passes only with ``allow_urls``. A path must be a character device (a
+    USB serial port, or the pseudo-terminal of ``skinloc virtual-skin``); nothing is opened.
+
+    Parameters
+    ----------
+    source : str
+        What a person or a page named.
+    allow_urls : bool
+        Let pyserial URLs through (the command line's ``--allow-url``; the app never does).
+    allow_sim : bool
+        Accept ``sim``.
+    opt_in : str
+        How to opt in to URLs, added to the message (e.g. ``"pass --allow-url"``).
+
+    Examples
+    --------
+    >>> check_source("sim")
+    'sim'
+    >>> check_source("loop://", allow_urls=True)
+    'loop://'
+    """
+    if not isinstance(source, str) or not source.strip():
+        raise ValueError(f"choose a source: {ALLOWED_SOURCES}")
+    if allow_sim and source == "sim":
+        return source
+    if "://" in source:
+        if allow_urls:
+            return source
+        hint = f"; {opt_in} to open it anyway" if opt_in else ""
+        raise ValueError(
+            f"{source!r} is a pyserial URL, which is not accepted{hint}: give {ALLOWED_SOURCES}"
+        )
+    if os.name == "nt" and re.fullmatch(r"(\\\\\.\\)?COM\d+", source, re.IGNORECASE):
+        return source  # Windows ports are names, not files
+    try:
+        mode = os.stat(source).st_mode
+    except (OSError, ValueError):
+        raise ValueError(
+            f"cannot open serial port {source}: no such device (is the board plugged in? "
+            "`skinloc ports` lists the ports)"
+        ) from None
+    if not stat.S_ISCHR(mode):
+        raise ValueError(f"{source} is not a serial port: give {ALLOWED_SOURCES}")
+    return source
 
 
 def parse_line_mask(mask: str | Sequence[bool] | Sequence[int] | None, n: int, what: str):

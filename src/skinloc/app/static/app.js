@@ -26,8 +26,10 @@ const app = {
 window.skinloc = app; // for the end-to-end test and for debugging
 
 // ------------------------------------------------------------------ talking to the server
+// The launch secret the server put in the page: every action and the stream send it back.
+const token = document.querySelector('meta[name="skinloc-token"]')?.content ?? "";
 async function api(path, body, method = "POST") {
-  const opts = { method, headers: { "X-Skinloc-Client": clientId } };
+  const opts = { method, headers: { "X-Skinloc-Client": clientId, "X-Skinloc-Token": token } };
   if (body !== undefined) {
     if (body instanceof Blob || body instanceof ArrayBuffer) {
       opts.body = body;
@@ -59,7 +61,7 @@ function showMessage(text, error = false) {
 let ws = null;
 function connectStream() {
   const proto = location.protocol === "https:" ? "wss" : "ws";
-  ws = new WebSocket(`${proto}://${location.host}/ws?client=${encodeURIComponent(clientId)}`);
+  ws = new WebSocket(`${proto}://${location.host}/ws?client=${encodeURIComponent(clientId)}&token=${encodeURIComponent(token)}`);
   ws.onopen = () => $("#offline").classList.add("hidden");
   ws.onclose = () => {
     $("#offline").classList.remove("hidden");
@@ -177,6 +179,15 @@ async function loadSessions() {
     || `<tr><td colspan="4" class="hint">None.</td></tr>`;
   const meshes = await get("/api/state");
   $("#mesh-select option[value='']").textContent = `default: ${meshes.default_mesh}`;
+  // Meshes uploaded before (also before a reload or a restart) stay choosable.
+  const listed = new Set($$("#mesh-select option").map((o) => o.value));
+  for (const m of await get("/api/meshes")) {
+    if (listed.has(m.name)) continue;
+    const opt = document.createElement("option");
+    opt.value = m.name;
+    opt.textContent = m.name;
+    $("#mesh-select").appendChild(opt);
+  }
 }
 
 $("#session-list").addEventListener("click", async (ev) => {

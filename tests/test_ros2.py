@@ -485,3 +485,40 @@ def test_skins_file_mount_errors(tmp_path, extra, match):
     cfg.write_text(f'[[skin]]\nname = "s"\nmodel = "m.h5"\n{extra}\n')
     with pytest.raises(ValueError, match=match):
         load_skins(cfg)
+
+
+def test_frames_from_a_serial_port_are_recorded(tmp_path):
+    """Port-fed skins are parsed inside SkinCore.feed: their frames reach the bag too."""
+    from skinloc.runner import Runner, SkinSpec
+    from skinloc.virtual_skin import VirtualSkin
+    from tests._live import model_path
+
+    bag = tmp_path / "port.mcap"
+    with VirtualSkin(fmt="binary", rate_hz=200) as dev:
+        spec = SkinSpec(model=model_path("map"), source=dev.path, wire_format="binary", name="p")
+        runner = Runner([spec], sinks=[f"mcap-ros2:{bag}"])
+        runner.start()
+        assert _wait(lambda: runner.stats()[0]["frames"] >= 100)
+        runner.close()
+        n = runner.stats()[0]["frames"]
+    frames = _read_bag(bag)["/skinloc/p/frames"]
+    assert len(frames) == n
+    seq = [m.sequence for _, m, _ in frames]
+    assert seq == sorted(seq) and len(set(seq)) == n  # the device's counter
+    assert frames[0][2].height * frames[0][2].width == 64
+
+
+def test_dds_sink_close_leaves_no_thread(domain):
+    from skinloc.sinks.ros2 import Ros2Sink
+
+    def threads():
+        return len(os.listdir("/proc/self/task"))
+
+    before = threads()
+    for _ in range(2):
+        sink = Ros2Sink(domain_id=domain, backend="dds")
+        sink.open([SkinInfo("a")])
+        assert threads() > before  # Cyclone's own threads
+        sink.emit(_contact(skin="a"))
+        sink.close()
+    assert _wait(lambda: threads() <= before, 10.0)

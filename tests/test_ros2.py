@@ -522,3 +522,11 @@ def test_dds_sink_close_leaves_no_thread(domain):
         sink.emit(_contact(skin="a"))
         sink.close()
     assert _wait(lambda: threads() <= before, 10.0)
+
+
+def test_an_encoder_mismatch_is_one_clear_error(monkeypatch):
+    from skinloc.sinks import ros2_msgs
+
+    monkeypatch.setattr(ros2_msgs, "_ENCAPSULATION", b"\x00\x00\x00\x00")  # big-endian tag
+    with pytest.raises(RuntimeError, match="PointStamped encoder disagrees"):
+        ros2_msgs.check_encoders()

@@ -80,6 +80,14 @@ class Sink(abc.ABC):
     def emit(self, contact: Contact) -> None:
         """Deliver one contact."""
 
+    def emit_gesture(  # noqa: B027 - optional hook
+        self, skin: str, timestamp_s: float, event: dict[str, Any]
+    ) -> None:
+        """Deliver a gesture event of ``skin`` (a JSON-ready dict); ignored unless overridden.
+
+        The ROS 2 sinks publish it on ``/skinloc/<skin>/gestures``.
+        """
+
     def close(self) -> None:  # noqa: B027 - optional hook
         """Flush and release everything; no thread may be left behind."""
 

@@ -14,6 +14,7 @@ import os
 import random
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -160,6 +161,8 @@ class Mk(IdlStruct, typename="visualization_msgs::msg::dds_::Marker_"):
 
 
 # ----------------------------------------------------------------------------- helpers
+
+SRC = Path(__file__).resolve().parents[1] / "src"
 
 _LOOPBACK = (
     "<CycloneDDS><Domain Id='any'><General><Interfaces><NetworkInterface name='lo'/>"
@@ -530,3 +533,44 @@ def test_an_encoder_mismatch_is_one_clear_error(monkeypatch):
     monkeypatch.setattr(ros2_msgs, "_ENCAPSULATION", b"\x00\x00\x00\x00")  # big-endian tag
     with pytest.raises(RuntimeError, match="PointStamped encoder disagrees"):
         ros2_msgs.check_encoders()
+
+
+def test_skinloc_run_publishes_to_a_subscriber_in_another_process(tmp_path, domain):
+    """`skinloc run --config robot.toml --sink ros2` as its own process, as a ROS user runs it."""
+    import subprocess
+    import sys
+
+    from cyclonedds.domain import DomainParticipant
+
+    from tests._live import model_path
+
+    cfg = tmp_path / "robot.toml"
+    cfg.write_text(
+        f'[[skin]]\nname = "arm"\nmodel = "{model_path("map")}"\nsource = "sim"\n'
+        'parent_frame = "fr3_link5"\ntranslation = [0.0, 0.02, 0.0]\nrpy = [0.0, 0.0, 0.0]\n'
+    )
+    env = {
+        **os.environ,
+        "ROS_DOMAIN_ID": str(domain),
+        "PYTHONPATH": os.pathsep.join([str(SRC), os.environ.get("PYTHONPATH", "")]),
+    }
+    dp = DomainParticipant(domain)
+    point = _Sub(dp, "/skinloc/arm/contact", PS)
+    tf = _Sub(dp, "/tf_static", TfM, latched=True)
+    mesh = _Sub(dp, "/skinloc/arm/mesh", Mk, latched=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "skinloc", "run", "--config", str(cfg), "--sink", "ros2",
+         "--duration", "60"],
+        env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+    )  # fmt: skip
+    try:
+        got = _wait(lambda: point.take() and tf.take() and mesh.take(), 60.0)
+    finally:
+        proc.terminate()
+        _, err = proc.communicate(timeout=30)
+    assert got, f"nothing received from skinloc run; its stderr: {err.decode()[-2000:]}"
+    assert point.got[0].header.frame_id == "skin/arm"
+    assert math.isfinite(point.got[0].point.x)
+    assert tf.got[-1].transforms[0].header.frame_id == "fr3_link5"
+    assert tf.got[-1].transforms[0].transform.translation.y == pytest.approx(0.02)
+    assert mesh.got[-1].header.frame_id == "skin/arm"

@@ -351,6 +351,20 @@ def test_ros2_bag_decodes_with_mcap_ros2_support(tmp_path):
     assert tf.transforms[0].child_frame_id == "skin/arm"
     assert tf.transforms[0].transform.translation.x == pytest.approx(0.1)
     assert json.loads(bag["/skinloc/arm/gestures"][0][2].data)["type"] == "swipe"
+    # the QoS ros2 bag play publishes with: latched topics stay transient local
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as fh:
+        channels = {c.topic: c for c in make_reader(fh).get_summary().channels.values()}
+    for topic, durability in (
+        ("/tf_static", 1),
+        ("/skinloc/arm/mesh", 1),
+        ("/skinloc/arm/contact", 2),
+    ):
+        text = channels[topic].metadata["offered_qos_profiles"]
+        lines = [ln.strip() for ln in text.splitlines()]
+        assert lines[0] == "- history: 1" and "reliability: 1" in lines
+        assert f"durability: {durability}" in lines
 
 
 def test_ros2_bag_never_overwrites(tmp_path):

@@ -20,7 +20,25 @@ from typing import Any
 from skinloc.sinks.base import SkinInfo
 from skinloc.sinks.ros2 import Ros2Topics
 
-__all__ = ["Ros2BagSink"]
+__all__ = ["Ros2BagSink", "offered_qos"]
+
+
+def offered_qos(latched: bool, depth: int) -> str:
+    """The ``offered_qos_profiles`` channel metadata (YAML) of a topic of the bag.
+
+    rosbag2 stores it and ``ros2 bag play`` publishes with it: one reliable keep-last profile,
+    transient local when ``latched``.
+
+    Numeric enums (rmw's: history 1 keep last; reliability 1 reliable; durability 1 transient
+    local, 2 volatile; liveliness 1 automatic) and zero durations (the defaults), the form
+    rosbag2 has written since Foxy.
+    """
+    zero = "\n    sec: 0\n    nsec: 0"
+    return (
+        f"- history: 1\n  depth: {depth}\n  reliability: 1\n  durability: {1 if latched else 2}"
+        f"\n  deadline:{zero}\n  lifespan:{zero}\n  liveliness: 1"
+        f"\n  liveliness_lease_duration:{zero}\n  avoid_ros_namespace_conventions: false"
+    )
 
 
 def _require_mcap() -> Any:
@@ -89,7 +107,10 @@ class Ros2BagSink(Ros2Topics):
                 data=m.msg_definition(cls).encode(),
             )
         self._channels[topic] = self._writer.register_channel(
-            topic=topic, message_encoding="cdr", schema_id=schema
+            topic=topic,
+            message_encoding="cdr",
+            schema_id=schema,
+            metadata={"offered_qos_profiles": offered_qos(latched, 1 if latched else 10)},
         )
 
     def _write(self, topic: str, data: bytes, t_ns: int, sequence: int | None = None) -> None:

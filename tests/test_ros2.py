@@ -588,3 +588,20 @@ def test_skinloc_run_publishes_to_a_subscriber_in_another_process(tmp_path, doma
     assert tf.got[-1].transforms[0].header.frame_id == "fr3_link5"
     assert tf.got[-1].transforms[0].transform.translation.y == pytest.approx(0.02)
     assert mesh.got[-1].header.frame_id == "skin/arm"
+
+
+def test_bench_functions_with_the_ros2_sink_run_small(domain):
+    from skinloc.bench_online import many_skins, sink_cost
+    from tests._live import model_path
+
+    cost = sink_cost(300, n_skins=3, rounds=1)
+    assert set(cost) == {
+        "jsonl",
+        "ros2 (DDS, no subscriber)",
+        "ros2 (DDS, 1 subscriber)",
+        "mcap-ros2 (bag)",
+    }
+    assert all(v["contacts"] == 300 and v["median_us"] > 0 for v in cost.values())
+    assert cost["ros2 (DDS, 1 subscriber)"]["samples_taken_by_subscriber"] > 0
+    m = many_skins(model_path("map"), n_skins=3, rate_hz=50.0, duration_s=2.0, sinks=("ros2",))
+    assert m["sinks"] == ["ros2"] and m["frames_processed"] > 0

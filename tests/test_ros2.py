@@ -452,6 +452,7 @@ def test_bag_source_topic_choice(tmp_path):
     sink.close()
     src = McapReplaySource(bag, skin="a")
     assert (src.n_tx, src.n_rx, src.topic) == (4, 2, "/skinloc/a/frames")
+    assert McapReplaySource(bag, skin="b").topic == "/skinloc/b/frames"
     with pytest.raises(RecordingError, match="several image topics"):
         McapReplaySource(bag, skin="c")
     with pytest.raises(RecordingError, match="no image topic"):
@@ -605,3 +606,22 @@ def test_bench_functions_with_the_ros2_sink_run_small(domain):
     assert cost["ros2 (DDS, 1 subscriber)"]["samples_taken_by_subscriber"] > 0
     m = many_skins(model_path("map"), n_skins=3, rate_hz=50.0, duration_s=2.0, sinks=("ros2",))
     assert m["sinks"] == ["ros2"] and m["frames_processed"] > 0
+
+
+def test_skin_names_become_valid_ros_names(tmp_path):
+    from skinloc.sinks.ros2 import ros_name
+    from skinloc.sources.mcap_ros2 import McapReplaySource
+
+    assert ros_name("left-forearm") == "left_forearm" and ros_name("2nd.link") == "_2nd_link"
+    bag = tmp_path / "n.mcap"
+    sink = make_sink(f"mcap-ros2:{bag}")
+    sink.open([SkinInfo("left-forearm", n_tx=2, n_rx=2)])
+    sink.emit(_contact(skin="left-forearm"))
+    sink.emit_frame("left-forearm", np.ones(4), 1.0, 0)
+    with pytest.raises(ValueError, match="would share the ROS 2 topics"):
+        sink.open([SkinInfo("left_forearm")])
+    sink.close()
+    topics = _read_bag(bag)
+    (_, _, ps) = topics["/skinloc/left_forearm/contact"][0]
+    assert ps.header.frame_id == "skin/left-forearm"
+    assert McapReplaySource(bag, skin="left-forearm").n_tx == 2

@@ -1,6 +1,7 @@
 """ROS 2: contacts as standard ROS 2 messages, over DDS without a ROS install, or through rclpy.
 
-Per skin ``S`` (frame ``skin/S``, stamps from the frame timestamps, see ``Ros2Topics``):
+Per skin ``S`` (frame ``skin/S``, stamps from the frame timestamps, see ``Ros2Topics``; in
+topic names ``S`` has every character other than letters, digits and ``_`` replaced by ``_``):
 
 ==============================  ===================================  ===========================
 topic                           type                                 QoS
@@ -30,6 +31,7 @@ import json
 import logging
 import math
 import os
+import re
 import threading
 import time
 from collections.abc import Mapping, Sequence
@@ -47,6 +49,21 @@ log = logging.getLogger(__name__)
 __all__ = ["Ros2Sink", "Ros2Topics", "dds_available", "rclpy_available", "ros2_available"]
 
 _DEPTH = 10  # keep-last depth of the data topics (rclpy's default QoS profile)
+
+
+def ros_name(skin: str) -> str:
+    """The skin's name as a ROS 2 topic name token: ``left-forearm`` -> ``left_forearm``.
+
+    ROS 2 topic names allow letters, digits and underscores, not starting with a digit; frame
+    ids keep the skin's own name (``skin/left-forearm``).
+    """
+    token = re.sub(r"[^A-Za-z0-9_]", "_", skin) or "_"
+    return f"_{token}" if token[0].isdigit() else token
+
+
+def topic_base(skin: str) -> str:
+    """``/skinloc/<ros_name(skin)>``, the prefix of a skin's topics."""
+    return f"/skinloc/{ros_name(skin)}"
 
 
 def rclpy_available() -> bool:
@@ -141,9 +158,15 @@ class Ros2Topics(Sink):
     def _add_skin(self, info: SkinInfo) -> None:
         m = self._msgs
         name = info.name
+        base = topic_base(name)
+        clash = [n for n in self._skins if n != name and topic_base(n) == base]
+        if clash:
+            raise ValueError(
+                f"skins {clash[0]!r} and {name!r} would share the ROS 2 topics {base}/...; "
+                "rename one (ROS 2 names allow letters, digits and underscores)"
+            )
         self._skins[name] = info
         self._enc[name] = m.HeaderEncoder(f"skin/{name}")
-        base = f"/skinloc/{name}"
         self._advertise(f"{base}/contact", m.PointStamped, False)
         self._advertise(f"{base}/contacts", m.PoseArray, False)
         self._advertise(f"{base}/gestures", m.String, False)
@@ -232,7 +255,7 @@ class Ros2Topics(Sink):
             t = self.stamp_s(skin, timestamp_s)
             stamp = self._msgs.stamp_of(t)
             t_ns = stamp.sec * 1_000_000_000 + stamp.nanosec
-            base = f"/skinloc/{skin}"
+            base = topic_base(skin)
             if contacts:
                 best = max(contacts, key=lambda c: c.signal_z if c.signal_z == c.signal_z else -1)
                 self._write(f"{base}/contact", enc.point_stamped(stamp, best.position_m), t_ns)
@@ -258,7 +281,7 @@ class Ros2Topics(Sink):
             t = self.stamp_s(skin, timestamp_s)
             payload = json.dumps({**event, "skin": skin, "stamp": t}, separators=(",", ":"))
             data = self._msgs.String(payload).serialize()
-            self._write(f"/skinloc/{skin}/gestures", data, int(t * 1e9))
+            self._write(f"{topic_base(skin)}/gestures", data, int(t * 1e9))
 
     def emit_frame(self, skin: str, values: np.ndarray, timestamp_s: float, index: int) -> None:
         """Record a raw frame as ``sensor_msgs/Image`` ``32FC1``, TX rows by RX columns.
@@ -283,7 +306,7 @@ class Ros2Topics(Sink):
             stamp = self._msgs.stamp_of(self.stamp_s(skin, timestamp_s))
             t_ns = stamp.sec * 1_000_000_000 + stamp.nanosec
             data = self._enc[skin].image_32fc1(stamp, values, n_tx, n_rx)
-            self._write(f"/skinloc/{skin}/frames", data, t_ns, int(index) & 0xFFFFFFFF)
+            self._write(f"{topic_base(skin)}/frames", data, t_ns, int(index) & 0xFFFFFFFF)
 
 
 # -------------------------------------------------------------------------------- live sink

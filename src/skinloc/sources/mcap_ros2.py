@@ -65,7 +65,8 @@ class McapReplaySource(FrameSource):
     path : str or Path
         The ``.mcap`` bag.
     skin : str, optional
-        Pick the topic ``/skinloc/<skin>/frames`` when the bag has it.
+        Pick the topic ``/skinloc/<skin>/frames`` when the bag has it (``-`` and other
+        characters ROS 2 names do not allow read as ``_``).
     topic : str, optional
         The image topic to play (default: the skin's, else the bag's only image topic).
     loop : bool, default=False
@@ -82,12 +83,13 @@ class McapReplaySource(FrameSource):
         topic: str | None = None,
         loop: bool = False,
     ) -> None:
+        from skinloc.sinks.ros2 import topic_base
         from skinloc.sinks.ros2_msgs import Image
 
         self.path = Path(path)
         topics = image_topics(self.path)
         if topic is None:
-            own = f"/skinloc/{skin}/frames"
+            own = f"{topic_base(skin)}/frames" if skin is not None else None
             if skin is not None and own in topics:
                 topic = own
             elif len(topics) == 1:

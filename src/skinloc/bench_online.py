@@ -339,8 +339,13 @@ def many_skins(
         holder["t0"] = t0
         parent.send(t0)
         end = t0 + duration_s + 1.0
+        # CPU of the loop thread and of the whole process (Cyclone's own threads included):
+        # what the sinks cost, less sensitive than latency to other processes on the machine
+        cpu_thread0, cpu_proc0 = time.thread_time(), time.process_time()
         while time.monotonic() < end:
             runner._step(0.05)
+        cpu_thread = time.thread_time() - cpu_thread0
+        cpu_proc = time.process_time() - cpu_proc0
         report = parent.recv()
         for _ in range(20):
             runner._step(0.01)
@@ -374,6 +379,9 @@ def many_skins(
         "feeder_write_errors": report["write_errors"],
         "model": str(model_path),
         "sinks": list(sinks),
+        "loop_thread_cpu_s": cpu_thread,
+        "process_cpu_s": cpu_proc,
+        "loop_cpu_us_per_frame": cpu_thread / max(sum(frames_in), 1) * 1e6,
     }
 
 

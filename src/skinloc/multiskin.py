@@ -22,6 +22,9 @@ A TOML file lists the skins of a robot; each becomes a ``SkinSpec`` of one ``Run
     model = "right.h5"
     sinks = ["udp://127.0.0.1:9870"]
     pipeline = { drift_tracking = false }
+    parent_frame = "fr3_link7"   # ROS 2 /tf_static: fr3_link7 -> skin/right-forearm
+    translation = [0.0, 0.0, 0.107]   # m
+    rpy = [0.0, 0.0, -0.785]          # rad (or rotation = [x, y, z, w])
 
 Every key is checked: an unknown one is an error naming the skin, the key and the known keys.
 """
@@ -100,7 +103,7 @@ def load_skins(path: str | Path) -> tuple[list[SkinSpec], list[str]]:
             raise ValueError(f"{path}: skin {name!r}: sinks must be a list of strings")
         try:
             specs.append(SkinSpec(config=config, sinks=list(sinks), **merged))
-        except TypeError as exc:
+        except (TypeError, ValueError) as exc:
             raise ValueError(f"{path}: skin {name!r}: {exc}") from None
     sinks = raw.get("sinks", [])
     if not isinstance(sinks, list):

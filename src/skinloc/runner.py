@@ -41,7 +41,7 @@ log = logging.getLogger(__name__)
 
 __all__ = ["Pipeline", "Runner", "ScriptedFinger", "SkinSpec", "open_source"]
 
-_RECORDING_SUFFIXES = (".h5", ".hdf5", ".mat")
+_RECORDING_SUFFIXES = (".h5", ".hdf5", ".mat", ".mcap")
 _MAX_QUEUED = 256  # frames waiting for the loop before a fast source is held back
 
 
@@ -159,6 +159,15 @@ class SkinSpec:
         Frame rate of the simulated skin, Hz.
     baseline : str, Path or None
         A recording whose baseline capture to use instead of capturing one at start.
+    parent_frame : str or None
+        The robot frame (link) the skin is mounted on, for ROS 2 ``/tf_static``
+        (``parent_frame -> skin/<name>``); None: no transform is published.
+    translation : (3,) float
+        Origin of the skin's mesh frame in ``parent_frame``, m.
+    rotation : (4,) float or None
+        Orientation of the mesh frame in ``parent_frame``, quaternion ``x, y, z, w``.
+    rpy : (3,) float or None
+        The same as fixed-axis roll, pitch, yaw, rad (give ``rotation`` or ``rpy``, not both).
     """
 
     model: Any
@@ -176,6 +185,54 @@ class SkinSpec:
     loop: bool = False
     rate_hz: float = 100.0
     baseline: str | Path | None = None
+    parent_frame: str | None = None
+    translation: Sequence[float] = (0.0, 0.0, 0.0)
+    rotation: Sequence[float] | None = None
+    rpy: Sequence[float] | None = None
+
+    def __post_init__(self) -> None:
+        self._mount = _mount_pose(self)
+
+    @property
+    def mount(self) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
+        """The skin frame's pose in ``parent_frame``: translation (m), quaternion ``xyzw``."""
+        return self._mount
+
+
+def _vector(value: Any, n: int, what: str) -> tuple[float, ...]:
+    try:
+        out = tuple(float(v) for v in value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{what} must be {n} numbers, not {value!r}") from None
+    if len(out) != n or not all(math.isfinite(v) for v in out):
+        raise ValueError(f"{what} must be {n} finite numbers, not {value!r}")
+    return out
+
+
+def _mount_pose(
+    spec: SkinSpec,
+) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
+    """Check and normalise a spec's mounting pose (translation m, unit quaternion xyzw)."""
+    if spec.parent_frame is not None and (
+        not isinstance(spec.parent_frame, str) or not spec.parent_frame.strip()
+    ):
+        raise ValueError(f"parent_frame must be a frame name, not {spec.parent_frame!r}")
+    t = _vector(spec.translation, 3, "translation")
+    if spec.rotation is not None and spec.rpy is not None:
+        raise ValueError("give rotation (quaternion x, y, z, w) or rpy (rad), not both")
+    if spec.rpy is not None:
+        from skinloc.sinks.ros2 import quaternion_from_rpy
+
+        q = quaternion_from_rpy(*_vector(spec.rpy, 3, "rpy"))
+    elif spec.rotation is not None:
+        q = _vector(spec.rotation, 4, "rotation (quaternion x, y, z, w)")
+        norm = math.sqrt(sum(v * v for v in q))
+        if abs(norm - 1.0) > 1e-3:
+            raise ValueError(f"rotation must be a unit quaternion x, y, z, w (norm {norm:.4g})")
+        q = tuple(v / norm for v in q)
+    else:
+        q = (0.0, 0.0, 0.0, 1.0)
+    return (t[0], t[1], t[2]), (q[0], q[1], q[2], q[3])
 
 
 def _is_recording(source: str) -> bool:
@@ -199,10 +256,14 @@ def open_source(spec: SkinSpec, n_sensors: int) -> FrameSource:
         )
         return ScriptedFinger(skin, random_state=seed)
     if _is_recording(text):
-        from skinloc.sources.replay import ReplaySource
-
         if not Path(text).is_file():
             raise SkinlocError(f"recording not found: {text}")
+        if Path(text).suffix.lower() == ".mcap":
+            from skinloc.sources.mcap_ros2 import McapReplaySource
+
+            return McapReplaySource(text, skin=spec.name, loop=spec.loop)
+        from skinloc.sources.replay import ReplaySource
+
         return ReplaySource(text, loop=spec.loop)
     from skinloc.sources.serial import SerialSource, SerialSourceConfig
 
@@ -298,7 +359,7 @@ class _ThreadFeed:
     def _run(self) -> None:
         src = self.source
         stop = self.runner._stop_event
-        replay = type(src).__name__ == "ReplaySource"
+        replay = getattr(src, "is_replay", False) or type(src).__name__ == "ReplaySource"
         wall0 = ts0 = None
         try:
             if not src.is_connected:
@@ -440,6 +501,14 @@ class Runner:
         for info, sinks in zip(infos, self.skin_sinks, strict=True):
             for sink in sinks:
                 sink.open([info])
+        for slot, core in enumerate(self.cores):
+            recorders = [
+                s
+                for s in (*self.skin_sinks[slot], *self.global_sinks)
+                if getattr(s, "wants_frames", False)
+            ]
+            if recorders:
+                self._record_frames(core, recorders)
         for slot, (spec, core) in enumerate(zip(self.specs, self.cores, strict=True)):
             src = spec.source
             if (
@@ -472,9 +541,40 @@ class Runner:
         for feed_t in self._threads:
             feed_t.thread.start()
 
+    @staticmethod
+    def _record_frames(core: SkinCore, sinks: list[Sink]) -> None:
+        """Hand every raw frame of ``core`` to ``sinks`` (``emit_frame``) before processing.
+
+        The instance's ``process`` is wrapped, so frames parsed from a serial port's bytes
+        (``SkinCore.feed``) are recorded as well as frames from thread-fed sources; skins
+        without a recording sink keep the unwrapped method.
+        """
+        process = core.process
+        name = core.name
+
+        def recording_process(
+            values: np.ndarray, timestamp_s: float, index: int = -1, t_in: float | None = None
+        ) -> Contact | None:
+            for sink in sinks:
+                sink.emit_frame(name, values, timestamp_s, index)
+            return process(values, timestamp_s, index, t_in)
+
+        core.process = recording_process  # type: ignore[method-assign]
+
     def _skin_info(self, i: int) -> SkinInfo:
         fast = self.cores[i].fast
-        return SkinInfo(self.specs[i].name, fast.spec.vertices, fast.spec.faces)
+        spec = self.specs[i]
+        translation, rotation = spec.mount
+        return SkinInfo(
+            spec.name,
+            fast.spec.vertices,
+            fast.spec.faces,
+            n_tx=self.cores[i].n_tx,
+            n_rx=self.cores[i].n_rx,
+            parent_frame=spec.parent_frame,
+            translation_m=translation,
+            rotation_xyzw=rotation,
+        )
 
     def close(self) -> None:
         """Stop the loop, join every thread, close ports, sources and sinks. Idempotent."""

@@ -26,13 +26,14 @@ SINK_SPECS = (
     "foxglove://HOST:PORT[?mcap=FILE] (Foxglove live 3D scene; MCAP recording)",
     "mcap:FILE (Foxglove MCAP recording only)",
     "lsl[:NAME] (Lab Streaming Layer outlet)",
-    "ros2[:NODE] (ROS 2 PointStamped + Marker; needs rclpy)",
+    "ros2[:NODE] (ROS 2 topics over DDS, or through rclpy when present)",
+    "mcap-ros2:FILE (the ROS 2 topics and raw frames as a ROS 2 bag, MCAP)",
 )
 
 
 @dataclass(frozen=True)
 class SkinInfo:
-    """What a sink may want to know of a skin: its name and mesh.
+    """What a sink may want to know of a skin: its name, mesh, grid and pose on the robot.
 
     Attributes
     ----------
@@ -42,11 +43,24 @@ class SkinInfo:
         Mesh vertices, m.
     faces : (F, 3) int or None
         Mesh triangles.
+    n_tx, n_rx : int or None
+        Grid of the raw frames.
+    parent_frame : str or None
+        A robot frame (link) the skin is mounted on; None: not configured.
+    translation_m : (float, float, float)
+        Origin of the skin's mesh frame in ``parent_frame``, m.
+    rotation_xyzw : (float, float, float, float)
+        Orientation of the mesh frame in ``parent_frame``, unit quaternion.
     """
 
     name: str
     vertices: np.ndarray | None = None
     faces: np.ndarray | None = None
+    n_tx: int | None = None
+    n_rx: int | None = None
+    parent_frame: str | None = None
+    translation_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rotation_xyzw: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
 
 
 class Sink(abc.ABC):
@@ -65,6 +79,14 @@ class Sink(abc.ABC):
     @abc.abstractmethod
     def emit(self, contact: Contact) -> None:
         """Deliver one contact."""
+
+    def emit_gesture(  # noqa: B027 - optional hook
+        self, skin: str, timestamp_s: float, event: dict[str, Any]
+    ) -> None:
+        """Deliver a gesture event of ``skin`` (a JSON-ready dict); ignored unless overridden.
+
+        The ROS 2 sinks publish it on ``/skinloc/<skin>/gestures``.
+        """
 
     def close(self) -> None:  # noqa: B027 - optional hook
         """Flush and release everything; no thread may be left behind."""
@@ -121,7 +143,7 @@ def make_sink(spec: str | Sink) -> Sink:
     spec : str
         One of ``SINK_SPECS``: ``jsonl``, ``jsonl:out.jsonl``, ``ws://127.0.0.1:8765``,
         ``udp://127.0.0.1:9870``, ``foxglove://127.0.0.1:8766?mcap=run.mcap``,
-        ``mcap:run.mcap``, ``lsl``, ``lsl:skin``, ``ros2``.
+        ``mcap:run.mcap``, ``lsl``, ``lsl:skin``, ``ros2``, ``mcap-ros2:run.mcap``.
 
     Examples
     --------
@@ -167,4 +189,10 @@ def make_sink(spec: str | Sink) -> Sink:
         from skinloc.sinks.ros2 import Ros2Sink
 
         return Ros2Sink(rest or "skinloc")
+    if scheme == "mcap-ros2":
+        from skinloc.sinks.ros2_bag import Ros2BagSink
+
+        if not rest:
+            raise ValueError("sink 'mcap-ros2:FILE' needs a file name")
+        return Ros2BagSink(rest)
     raise ValueError(f"unknown sink {text!r}; use one of: {'; '.join(SINK_SPECS)}")

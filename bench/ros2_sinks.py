@@ -1,0 +1,52 @@
+"""ROS 2 sinks: publishing cost per contact beside JSON lines, and 100 skins at 100 Hz with the
+ROS 2 sink on, against the same run without it (docs/benchmarks.md, "ROS 2 sinks").
+
+    PYTHONPATH=src python bench/ros2_sinks.py --out bench/results/ros2_sinks.json
+
+DDS stays on the loopback interface (unicast) unless CYCLONEDDS_URI is set.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import tempfile
+import time
+from pathlib import Path
+
+from skinloc.bench_online import many_skins, sink_cost, train_bench_models
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--contacts", type=int, default=20000)
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--skins", type=int, default=100)
+    ap.add_argument("--duration", type=float, default=30.0, help="s per 100-skin run")
+    ap.add_argument("--out", type=Path, default=None)
+    args = ap.parse_args()
+    folder = Path(tempfile.gettempdir()) / "skinloc-bench" / "online-models"
+    model = train_bench_models(folder, ("default",))["default"]
+    res: dict = {
+        "machine": f"{platform.machine()}, {os.cpu_count()} cores, {platform.python_version()}",
+        "load_average_at_start": os.getloadavg(),
+        "started": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime()),
+    }
+    res["sink_cost"] = sink_cost(args.contacts, rounds=args.rounds)
+    print(json.dumps(res["sink_cost"], indent=1), flush=True)
+    for label, sinks in (("without sinks", ()), ("ros2 sink", ("ros2",))):
+        r = many_skins(model, args.skins, 100.0, args.duration, sinks=sinks)
+        res.setdefault("many_skins", {})[label] = r
+        print(label, json.dumps(r, indent=1), flush=True)
+    res["load_average_at_end"] = os.getloadavg()
+    text = json.dumps(res, indent=2)
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(text)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()

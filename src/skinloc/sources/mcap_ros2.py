@@ -1,0 +1,171 @@
+"""Replay the raw frames of a ROS 2 bag (MCAP): ``skinloc run --source FILE.mcap``.
+
+The frames are a ``sensor_msgs/msg/Image`` topic, as the ``mcap-ros2`` sink records them
+(``/skinloc/<skin>/frames``, ``32FC1``, TX rows by RX columns); a bag recorded by another ROS 2
+driver works too if its image holds one value per sensor (``32FC1``, ``64FC1``, ``16UC1``,
+``mono16``, ``8UC1``, ``mono8``). Timestamps are the header stamps (s, made relative to the
+first frame), frame counters the MCAP sequence numbers (a running count when a bag has none).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from skinloc.errors import FrameTimeoutError, RecordingError
+from skinloc.sources.base import Frame, FrameSource
+
+__all__ = ["McapReplaySource", "image_topics"]
+
+_IMAGE = "sensor_msgs/msg/Image"
+_DTYPES = {
+    "32FC1": "f4",
+    "64FC1": "f8",
+    "16UC1": "u2",
+    "mono16": "u2",
+    "8UC1": "u1",
+    "mono8": "u1",
+}
+
+
+def _reader(fh):
+    try:
+        from mcap.reader import make_reader
+    except ImportError:
+        raise ImportError(
+            "replaying a ROS 2 bag needs mcap: pip install 'skinloc[live]' (or pip install mcap)"
+        ) from None
+    return make_reader(fh)
+
+
+def image_topics(path: str | Path) -> list[str]:
+    """The ``sensor_msgs/msg/Image`` topics of a bag, sorted."""
+    try:
+        with open(path, "rb") as fh:
+            summary = _reader(fh).get_summary()
+    except Exception as exc:  # noqa: BLE001 - mcap raises many kinds on a broken file
+        raise RecordingError(f"cannot read the ROS 2 bag {path}: {exc}") from None
+    if summary is None:
+        raise RecordingError(f"{path} has no MCAP summary (not finished?)")
+    return sorted(
+        ch.topic
+        for ch in summary.channels.values()
+        if summary.schemas.get(ch.schema_id) is not None
+        and summary.schemas[ch.schema_id].name == _IMAGE
+        and ch.message_encoding == "cdr"
+    )
+
+
+class McapReplaySource(FrameSource):
+    """Play back the raw frames of a ROS 2 bag.
+
+    Parameters
+    ----------
+    path : str or Path
+        The ``.mcap`` bag.
+    skin : str, optional
+        Pick the topic ``/skinloc/<skin>/frames`` when the bag has it (``-`` and other
+        characters ROS 2 names do not allow read as ``_``).
+    topic : str, optional
+        The image topic to play (default: the skin's, else the bag's only image topic).
+    loop : bool, default=False
+        Start again at the end instead of timing out.
+    """
+
+    is_replay = True
+
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        skin: str | None = None,
+        topic: str | None = None,
+        loop: bool = False,
+    ) -> None:
+        from skinloc.sinks.ros2 import topic_base
+        from skinloc.sinks.ros2_msgs import Image
+
+        self.path = Path(path)
+        topics = image_topics(self.path)
+        if topic is None:
+            own = f"{topic_base(skin)}/frames" if skin is not None else None
+            if skin is not None and own in topics:
+                topic = own
+            elif len(topics) == 1:
+                topic = topics[0]
+            elif not topics:
+                raise RecordingError(f"{self.path} has no sensor_msgs/msg/Image topic to replay")
+            else:
+                raise RecordingError(
+                    f"{self.path} has several image topics ({', '.join(topics)}); name the "
+                    f"skin after one (/skinloc/<skin>/frames)"
+                )
+        elif topic not in topics:
+            raise RecordingError(f"{self.path} has no image topic {topic!r}")
+        self.topic = topic
+        frames, times, index = [], [], []
+        shape = None
+        try:
+            with open(self.path, "rb") as fh:
+                for _, _, msg in _reader(fh).iter_messages(topics=[topic]):
+                    img = Image.deserialize(msg.data)
+                    dtype = _DTYPES.get(img.encoding)
+                    if dtype is None:
+                        raise RecordingError(
+                            f"{topic}: image encoding {img.encoding!r} is not one value per "
+                            f"sensor ({', '.join(_DTYPES)})"
+                        )
+                    dt = np.dtype((">" if img.is_bigendian else "<") + dtype)
+                    values = np.frombuffer(bytes(img.data), dtype=dt)
+                    if values.size != img.height * img.width:
+                        raise RecordingError(f"{topic}: image data does not match its size")
+                    if shape is None:
+                        shape = (int(img.height), int(img.width))
+                    elif shape != (img.height, img.width):
+                        raise RecordingError(f"{topic}: the image size changes")
+                    frames.append(values.astype(np.float32))
+                    times.append(img.header.stamp.sec + img.header.stamp.nanosec * 1e-9)
+                    index.append(msg.sequence)
+        except RecordingError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - a corrupt bag fails in many ways
+            raise RecordingError(f"cannot read {topic} of {self.path}: {exc}") from None
+        if shape is None:
+            raise RecordingError(f"{self.path}: {topic} has no frames")
+        self.n_tx, self.n_rx = shape
+        self._frames = np.stack(frames)
+        t = np.asarray(times, dtype=np.float64)
+        self._times = t - t[0]
+        idx = np.asarray(index, dtype=np.int64)
+        self._index = idx if len(set(index)) == len(index) else np.arange(len(idx))
+        self.loop = loop
+        self._pos = 0
+        self._connected = False
+
+    @property
+    def name(self) -> str:
+        """The file and topic."""
+        return f"{self.path}:{self.topic}"
+
+    @property
+    def is_connected(self) -> bool:
+        """Whether ``read`` may be called."""
+        return self._connected
+
+    def _connect(self) -> None:
+        self._connected = True
+
+    def _disconnect(self) -> None:
+        self._connected = False
+
+    def _read(self, timeout_s: float) -> Frame:
+        if self._pos >= len(self._frames):
+            if not self.loop:
+                raise FrameTimeoutError(f"{self.name}: the bag has no more frames")
+            self._pos = 0
+        k = self._pos
+        self._pos += 1
+        return Frame(
+            values=self._frames[k], timestamp_s=float(self._times[k]), index=int(self._index[k])
+        )

@@ -79,6 +79,7 @@ def _on_signal(signum: int, frame: Any) -> None:
     _signals.append(signum)
     if frame is not None and frame.f_code.co_filename.endswith("weakref.py"):
         return
+    _signals.append(0)  # delivered here: check_interrupt stays quiet
     raise KeyboardInterrupt
 
 

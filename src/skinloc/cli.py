@@ -72,21 +72,24 @@ _signals: list[int] = []
 def _on_signal(signum: int, frame: Any) -> None:
     """Ctrl-C and SIGTERM both become ``KeyboardInterrupt``, so both take the clean path.
 
-    Raised inside a weakref callback (h5py frees its objects through a WeakValueDictionary
-    many times per write), the exception would be printed as "Exception ignored" and lost:
-    there the signal is only recorded, and the next ``check_interrupt`` raises it.
+    An exception raised here can still be lost: inside a weakref callback (h5py frees its
+    objects through a WeakValueDictionary many times per write) Python prints "Exception
+    ignored" and drops it, so there the signal is only recorded; and C code that clears errors
+    (optional attribute lookups, destructors) drops it silently. Either way the signal stays
+    recorded, and the next ``check_interrupt`` (every progress step) raises it again.
     """
     _signals.append(signum)
     if frame is not None and frame.f_code.co_filename.endswith("weakref.py"):
         return
-    _signals.append(0)  # delivered here: check_interrupt stays quiet
     raise KeyboardInterrupt
 
 
 def check_interrupt() -> None:
-    """Raise ``KeyboardInterrupt`` if a signal arrived that was not raised where it landed.
+    """Raise ``KeyboardInterrupt`` once if a signal arrived since the last time.
 
-    Called from every progress update, so a long job stops within one step.
+    Called from every progress update, so a long job stops within one step even when the
+    exception raised by the handler was lost. A job that handles the interruption itself
+    (``record`` keeps the stream so far) calls no progress step afterwards.
     """
     if _signals and _signals[-1] != 0:
         _signals.append(0)  # delivered: later checks stay quiet while the job unwinds

@@ -315,3 +315,35 @@ def test_one_signal_stops_a_long_job_cleanly(tmp_path, argv, sig, code, says):
         assert read_recording(tmp_path / "out.partial.h5").n_point_logs >= 1
     else:
         assert read_recording(out).n_point_logs >= 1
+
+
+# ------------------------------------------------------------------------ off a terminal
+def test_progress_off_a_terminal_prints_plain_lines(monkeypatch, capsys):
+    """A long job piped to a file is not silent: a line after 2 s, then every 10 s."""
+    from skinloc import cli
+
+    clock = iter([0.0, 1.0, 2.5, 5.0, 13.0, 14.0])
+    monkeypatch.setattr(time, "monotonic", lambda: next(clock))
+    monkeypatch.delenv("SKINLOC_PROGRESS", raising=False)
+    cli._signals.clear()
+    with cli.progress_steps() as step:
+        for done in range(1, 6):
+            step("work", done, 5)
+    err = capsys.readouterr().err
+    assert "work: 2/5 (2 s)" in err and "work: 4/5 (13 s)" in err and "work: 5/5" in err
+    assert "work: 3/5" not in err
+
+
+def test_wide_tables_are_not_cut_off_a_terminal(rec_wide, monkeypatch):
+    monkeypatch.delenv("COLUMNS", raising=False)
+    res = run("snr", rec_wide)
+    assert res.exit_code == 0, res.output
+    # At rich's default 80 columns the corner cell of this 21 x 12 grid wraps.
+    assert "TX \\ RX" in res.output and "…" not in res.output
+
+
+@pytest.fixture
+def rec_wide(tmp_path):
+    path = tmp_path / "wide.h5"
+    write_recording(make_recording(3, 4, n_tx=21, n_rx=12), path)
+    return path

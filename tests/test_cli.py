@@ -119,7 +119,7 @@ def test_sensor_count_mismatch(tmp_path):
     assert run("train", a, "--out", model, "--arch", "paper", "--epochs", "5").exit_code == 0
     res = run("evaluate", model, b)
     assert res.exit_code == 1 and "16 sensors" in res.output and "64" in res.output
-    res = run("train", a, b, "--out", model)
+    res = run("train", a, b, "--out", model, "--force")
     assert res.exit_code == 1 and "different sensor counts" in res.output
 
 

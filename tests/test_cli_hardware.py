@@ -126,7 +126,10 @@ def test_collect_sim_resumes(tmp_path):
     assert "Resuming" in res.output and "3/3" in res.output
     assert read_recording(out).n_point_logs == 3
     assert_one_line_error(run(*common), "already complete")
-    res = run(*common, "--new", "--points", "2")
+    # Starting over would destroy the complete recording: --new alone is refused.
+    assert_one_line_error(run(*common, "--new", "--points", "2"), "--force")
+    assert read_recording(out).n_point_logs == 3
+    res = run(*common, "--new", "--force", "--points", "2")
     assert res.exit_code == 0 and read_recording(out).n_point_logs == 2
 
 

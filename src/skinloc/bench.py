@@ -276,6 +276,7 @@ def timing(
                     samples_per_touch=samples_per_touch,
                     random_state=random_state,
                 ),
+                progress=lambda d, t: step("timing: simulating", d, t),
             )
     step("timing: training", 1, 3)
     t0 = time.perf_counter()

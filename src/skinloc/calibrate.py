@@ -8,6 +8,7 @@ every point log, so a crash loses at most the touch in progress, and ``resume`` 
 from __future__ import annotations
 
 import logging
+import os
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
@@ -17,8 +18,14 @@ from typing import Protocol
 import numpy as np
 
 from skinloc._typing import Points
-from skinloc.dataset import Recording, read_recording, write_recording
-from skinloc.errors import FrameTimeoutError, RecordingError
+from skinloc.dataset import (
+    Recording,
+    RecordingAppender,
+    read_recording,
+    side_path,
+    write_recording,
+)
+from skinloc.errors import FrameTimeoutError, Interrupted, RecordingError
 from skinloc.geometry import SamplingMode, sample_targets, surface_points
 from skinloc.sources.base import FrameSource
 
@@ -170,6 +177,10 @@ class CalibrationSession:
         Session settings.
     targets : (n, 3) float, optional
         Targets to use instead of sampling them (e.g. a loaded list).
+    incremental : bool
+        Create ``path`` (never replacing a file) and append each point log to it, instead of
+        rewriting it atomically after each one (time linear, not quadratic, in the session's
+        length); ``self.recording`` then holds the header only. ``close`` closes the file.
     """
 
     def __init__(
@@ -180,8 +191,11 @@ class CalibrationSession:
         config: SessionConfig | None = None,
         targets: Points | None = None,
         source_name: str | None = None,
+        incremental: bool = False,
     ) -> None:
         self.source = source
+        self.incremental = incremental
+        self._appender: RecordingAppender | None = None
         self.mesh = mesh
         self.path = Path(path)
         self.config = config or SessionConfig()
@@ -220,6 +234,8 @@ class CalibrationSession:
     @property
     def n_done(self) -> int:
         """Point logs recorded so far."""
+        if self._appender is not None:
+            return self._appender.n_point_logs
         return 0 if self.recording is None else self.recording.n_point_logs
 
     @property
@@ -256,7 +272,10 @@ class CalibrationSession:
         self.detector = TouchDetector(
             self.recording.baseline, self.recording.noise, cfg.threshold_sigma, cfg.min_active
         )
-        write_recording(self.recording, self.path)
+        if self.incremental:
+            self._appender = RecordingAppender(self.recording, self.path)
+        else:
+            write_recording(self.recording, self.path)
         return self.recording
 
     def _wait(self, touched: bool, n_consecutive: int) -> None:
@@ -285,8 +304,11 @@ class CalibrationSession:
         prober.prompt(index, target)
         self._wait(touched=True, n_consecutive=self.config.settle_frames)
         frames, times = self.source.read_many(self.config.samples_per_touch)
-        self.recording.append(target, frames, times)
-        write_recording(self.recording, self.path)
+        if self._appender is not None:
+            self._appender.append(target, frames, times)
+        else:
+            self.recording.append(target, frames, times)
+            write_recording(self.recording, self.path)
         prober.captured(index)
         self._wait(touched=False, n_consecutive=2)
 
@@ -301,6 +323,11 @@ class CalibrationSession:
         assert self.recording is not None
         return self.recording
 
+    def close(self) -> None:
+        """Close the file of an incremental session (a no-op otherwise)."""
+        if self._appender is not None:
+            self._appender.close()
+
 
 def simulate_session(
     skin,
@@ -309,22 +336,49 @@ def simulate_session(
     config: SessionConfig,
     targets: Points | None = None,
     progress: Callable[[int, int], None] | None = None,
+    partial: str | Path | None = None,
 ) -> Recording:
     """Record a whole session from a simulated skin with a scripted finger.
 
     ``skin`` is a ``SimulatedSkin`` (connected or not); the true contacts (targets plus probing
     error) are kept in ``meta["true_contacts"]`` for diagnosis; models never see them.
+
+    Point logs are appended to a side file (``partial``, default ``NAME.partial.h5`` next to
+    ``path``, or the next free name) that is renamed over ``path`` only when the session is
+    complete, so an existing ``path`` is never half replaced. On ``KeyboardInterrupt`` the side
+    file keeps the complete point logs (a valid recording) and ``Interrupted`` is raised with a
+    message naming it; on any other error it is removed.
     """
+    path = Path(path)
+    side = side_path(partial if partial is not None else path, "partial")
     finger = ScriptedFinger(skin, random_state=config.random_state + 1)
     was_connected = skin.is_connected
     if not was_connected:
         skin.connect()
+    session = CalibrationSession(
+        skin, mesh, side, config, targets=targets, source_name="sim", incremental=True
+    )
     try:
-        session = CalibrationSession(skin, mesh, path, config, targets=targets, source_name="sim")
-        rec = session.run(finger, progress)
-    finally:
-        if not was_connected:
-            skin.disconnect()
-    rec.meta["true_contacts"] = np.asarray(finger.contacts).tolist()
-    write_recording(rec, path)
-    return rec
+        try:
+            session.run(finger, progress)
+        finally:
+            if not was_connected:
+                skin.disconnect()
+            if session._appender is not None:
+                contacts = np.asarray(finger.contacts[: session.n_done]).tolist()
+                session._appender.update_meta(true_contacts=contacts)
+            session.close()
+    except KeyboardInterrupt:
+        n, total = session.n_done, len(session.targets)
+        target = f"{path} is unchanged" if path.exists() else f"{path} was not written"
+        if n == 0:
+            side.unlink(missing_ok=True)
+            raise Interrupted(f"no point log was complete; {target}") from None
+        raise Interrupted(
+            f"kept the {n} complete point logs (of {total}) in {side}; {target}"
+        ) from None
+    except BaseException:
+        side.unlink(missing_ok=True)
+        raise
+    os.replace(side, path)
+    return read_recording(path)

@@ -6,7 +6,7 @@ import functools
 import json
 import logging
 import sys
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from enum import StrEnum
 from pathlib import Path
@@ -64,28 +64,182 @@ class Units(StrEnum):
     mm = "mm"
 
 
+# ------------------------------------------------------------------------ signals and errors
+#: Signals received during the current command (SIGINT, SIGTERM), newest last.
+_signals: list[int] = []
+
+
+def _on_signal(signum: int, frame: Any) -> None:
+    """Ctrl-C and SIGTERM both become ``KeyboardInterrupt``, so both take the clean path.
+
+    An exception raised here can still be lost: inside a weakref callback (h5py frees its
+    objects through a WeakValueDictionary many times per write) Python prints "Exception
+    ignored" and drops it, so there the signal is only recorded; and C code that clears errors
+    (optional attribute lookups, destructors) drops it silently. Either way the signal stays
+    recorded, and the next ``check_interrupt`` (every progress step) raises it again.
+    """
+    _signals.append(signum)
+    if frame is not None and frame.f_code.co_filename.endswith("weakref.py"):
+        return
+    raise KeyboardInterrupt
+
+
+def check_interrupt() -> None:
+    """Raise ``KeyboardInterrupt`` once if a signal arrived since the last time.
+
+    Called from every progress update, so a long job stops within one step even when the
+    exception raised by the handler was lost. A job that handles the interruption itself
+    (``record`` keeps the stream so far) calls no progress step afterwards.
+    """
+    if _signals and _signals[-1] != 0:
+        _signals.append(0)  # delivered: later checks stay quiet while the job unwinds
+        raise KeyboardInterrupt
+
+
+@contextmanager
+def _signal_handlers() -> Iterator[None]:
+    import signal
+
+    _signals.clear()
+    old: dict[int, Any] = {}
+    try:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            current = signal.getsignal(sig)
+            if current is signal.SIG_IGN:  # started with nohup or in the background: keep it
+                continue
+            old[sig] = signal.signal(sig, _on_signal)
+    except ValueError:  # not the main thread (an embedding app, some tests): leave them alone
+        pass
+    try:
+        yield
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+
+
+def _exit_code_of_interrupt() -> int:
+    import signal
+
+    received = [s for s in _signals if s]
+    return 128 + (received[0] if received else signal.SIGINT)
+
+
 def friendly_errors(fn: F) -> F:
-    """Turn expected failures (bad files, bad values) into one line on stderr and exit 1."""
+    """Turn expected failures (bad files, bad values) into one line on stderr and exit 1.
+
+    Ctrl-C and SIGTERM end the command through ``KeyboardInterrupt`` (temporary files are
+    removed on the way out) with exit code 130 or 143; an ``Interrupted`` says what was kept.
+    """
 
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
-        try:
-            return fn(*args, **kwargs)
-        except (SkinlocError, ValueError, OSError) as exc:
-            err_console.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
-            raise typer.Exit(1) from None
-        except KeyboardInterrupt:
-            err_console.print("interrupted")
-            raise typer.Exit(130) from None
+        with _signal_handlers():
+            try:
+                return fn(*args, **kwargs)
+            except (SkinlocError, ValueError, OSError) as exc:
+                err_console.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
+                raise typer.Exit(1) from None
+            except MemoryError:
+                err_console.print(
+                    "[bold red]error:[/] out of memory: ask for less (fewer points, frames or "
+                    "files)",
+                    highlight=False,
+                    soft_wrap=True,
+                )
+                raise typer.Exit(1) from None
+            except KeyboardInterrupt as exc:
+                msg = f"interrupted: {exc}" if str(exc) else "interrupted"
+                err_console.print(msg, highlight=False, soft_wrap=True)
+                raise typer.Exit(_exit_code_of_interrupt()) from None
 
     return wrapper  # type: ignore[return-value]
 
 
+# ------------------------------------------------------------------------ output paths
+def _same_file(a: Path, b: Path) -> bool:
+    """Whether ``a`` and ``b`` name one file (same resolved path, or hard links of one)."""
+    import os
+
+    if a.resolve() == b.resolve():
+        return True
+    try:
+        return a.exists() and b.exists() and os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def check_output(
+    path: Path,
+    *,
+    option: str,
+    inputs: Iterable[Path | None] = (),
+    force: bool = False,
+    folder: bool = False,
+) -> None:
+    """Refuse an output path before any work is done; every command that writes calls this.
+
+    Parameters
+    ----------
+    path : Path
+        What the user asked to write.
+    option : str
+        How the user named it (``--out``, ``DST``), for the message.
+    inputs : iterable of Path or None
+        Files the command reads: writing over one of them is refused, with or without
+        ``--force``.
+    force : bool
+        Allow replacing an existing file (the replacement is atomic).
+    folder : bool
+        ``path`` is a folder the command fills (created if missing, its parent must exist).
+
+    Raises
+    ------
+    ValueError
+        Naming ``path`` and what to do.
+    """
+    import tempfile
+
+    for src in inputs:
+        if src is not None and _same_file(path, src):
+            raise ValueError(f"{option} {path} is also an input ({src}): write to another file")
+    if folder:
+        if path.exists() and not path.is_dir():
+            raise ValueError(f"{option} {path} is a file, not a folder")
+        parent = path if path.is_dir() else path.parent
+    else:
+        if path.is_dir():
+            raise ValueError(f"{option} {path} is a folder: give a file name")
+        if path.exists() and not force:
+            raise ValueError(
+                f"{path} exists: pass --force to replace it, or choose another {option}"
+            )
+        parent = path.parent
+    if not parent.exists():
+        raise ValueError(f"cannot write {path}: folder {parent} does not exist")
+    if not parent.is_dir():
+        raise ValueError(f"cannot write {path}: {parent} is not a folder")
+    # Try it: permission bits do not tell root about read-only or virtual file systems.
+    try:
+        with tempfile.NamedTemporaryFile(dir=parent, prefix=f".{path.name}.", suffix=".probe"):
+            pass
+    except OSError as exc:
+        why = (exc.strerror or str(exc)).lower()
+        raise ValueError(f"cannot write {path}: folder {parent} is not writable ({why})") from None
+
+
+# ------------------------------------------------------------------------ progress
 @contextmanager
 def progress_steps() -> Iterator[Callable[[str, int, int], None]]:
-    """A ``step(label, done, total)`` callback drawing one rich progress bar per label."""
+    """A ``step(label, done, total)`` callback drawing one rich progress bar per label.
+
+    Off a terminal (a pipe, a log file) it prints a plain line per label at most every 10 s,
+    the first after 2 s, so a long job is never silent. Every call checks for Ctrl-C/SIGTERM.
+    """
+    import time
+
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+    live = err_console.is_terminal or _force_progress()
     with Progress(
         TextColumn("{task.description}"),
         BarColumn(),
@@ -93,14 +247,27 @@ def progress_steps() -> Iterator[Callable[[str, int, int], None]]:
         TimeElapsedColumn(),
         console=err_console,
         transient=False,
-        disable=not err_console.is_terminal and not _force_progress(),
+        disable=not live,
     ) as bar:
         tasks: dict[str, Any] = {}
+        started: dict[str, float] = {}
+        printed: dict[str, float] = {}
 
         def step(label: str, done: int, total: int) -> None:
+            check_interrupt()
             if label not in tasks:
                 tasks[label] = bar.add_task(label, total=total)
+                started[label] = printed[label] = time.monotonic()
             bar.update(tasks[label], completed=done, total=total)
+            now = time.monotonic()
+            gap = 2.0 if printed[label] == started[label] else 10.0
+            if not live and (
+                now - printed[label] >= gap or (done >= total and printed[label] > started[label])
+            ):
+                printed[label] = now
+                err_console.print(
+                    f"{label}: {done}/{total} ({now - started[label]:.0f} s)", highlight=False
+                )
 
         yield step
 
@@ -115,10 +282,33 @@ def _force_progress() -> bool:
 def _main(
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Log what happens.")] = False,
 ) -> None:
+    import os
+
+    # Off a terminal rich assumes 80 columns and cuts wide tables (bench): give them room.
+    for c in (console, err_console):
+        if not c.is_terminal and "COLUMNS" not in os.environ:
+            c.width = 200
     logging.basicConfig(
         level=logging.INFO if verbose else logging.WARNING,
         format="%(levelname)s %(name)s: %(message)s",
     )
+
+
+#: Fewer point logs than this make a poor model (one gives ~77 mm): train warns.
+FEW_POINT_LOGS = 10
+#: Largest simulated recording the command line makes, bytes of float32 frames.
+MAX_SIM_BYTES = 4 * 2**30
+
+
+def _check_size(points: int, samples: int, sensors: int = 64) -> None:
+    """Refuse a simulated session whose frames would not fit in memory or on a disk."""
+    size = points * samples * sensors * 4
+    if size > MAX_SIM_BYTES:
+        raise ValueError(
+            f"{points} point logs x {samples} frames x {sensors} sensors is "
+            f"{size / 2**30:.0f} GiB of frames; the limit is {MAX_SIM_BYTES / 2**30:.0f} GiB: "
+            "ask for fewer --points or --samples"
+        )
 
 
 def _read_all(paths: list[Path]) -> list:
@@ -138,14 +328,27 @@ def demo(
     out: Annotated[Path, typer.Option(help="Report folder to write.")] = Path("skinloc-demo"),
     points: Annotated[int, typer.Option(min=2, help="Calibration point logs.")] = 80,
     validation: Annotated[int, typer.Option(min=1, help="Fresh validation touches.")] = 20,
-    seed: Annotated[int, typer.Option(help="Seed of the simulated skin and session.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="Seed of the simulated skin and session.")] = 0,
     arch: Annotated[Arch, typer.Option(help="Localiser configuration.")] = Arch.default,
+    force: Annotated[
+        bool, typer.Option("--force", help="Replace the recordings and model of an earlier demo.")
+    ] = False,
 ) -> None:
     """Simulate the paper's skin, calibrate with 80 touches, train, validate on 20, report.
 
     Example: skinloc demo --out skinloc-demo
     """
     from skinloc.demo import DemoConfig, run_demo
+
+    check_output(out, option="--out", folder=True)
+    earlier = [out / n for n in ("calibration.h5", "validation.h5", "model.h5")]
+    if not force and any(p.exists() for p in earlier):
+        raise ValueError(
+            f"{out} holds an earlier demo's recordings and model: pass --force to replace "
+            "them, or choose another --out"
+        )
+    _check_size(points + validation, 50)
+    out.mkdir(exist_ok=True)
 
     cfg = DemoConfig(
         out_dir=out,
@@ -177,16 +380,20 @@ def simulate(
     points: Annotated[int, typer.Option(min=1, help="Point logs to record.")] = 80,
     mode: Annotated[Mode, typer.Option(help="Target sampling.")] = Mode.even,
     samples: Annotated[int, typer.Option(min=1, help="Frames per touch.")] = 50,
-    seed: Annotated[int, typer.Option(help="Seed of the session (targets, touches).")] = 0,
-    skin_seed: Annotated[int, typer.Option(help="Seed of the skin (wiring, gains).")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="Seed of the session (targets, touches).")] = 0,
+    skin_seed: Annotated[int, typer.Option(min=0, help="Seed of the skin (wiring, gains).")] = 0,
     mesh: Annotated[
         Path | None, typer.Option(help="Skin mesh (OBJ/STL/PLY); default: the paper's cone.")
     ] = None,
     units: Annotated[Units, typer.Option(help="Units of --mesh.")] = Units.auto,
     tx: Annotated[int, typer.Option(min=1, max=21, help="TX lines.")] = 8,
     rx: Annotated[int, typer.Option(min=1, max=12, help="RX lines.")] = 8,
+    force: Annotated[bool, typer.Option("--force", help="Replace an existing --out.")] = False,
 ) -> None:
     """Record a whole calibration session from the simulated skin.
+
+    Point logs go to a side file (OUT's name with .partial.h5) renamed over --out when the
+    session is complete; Ctrl-C keeps the complete point logs there.
 
     Example: skinloc simulate --points 80 --mode even --samples 50 --seed 0 --out cal.h5
     """
@@ -197,6 +404,10 @@ def simulate(
     from skinloc.geometry import cone_skin, load_mesh
     from skinloc.sources.sim import SimulatedSkin
 
+    if out.suffix.lower() not in (".h5", ".hdf5", ".mat"):
+        raise ValueError(f"--out must name an .h5 or .mat file, got {out}")
+    check_output(out, option="--out", inputs=[mesh], force=force)
+    _check_size(points, samples, tx * rx)
     surface = cone_skin() if mesh is None else load_mesh(mesh, units.value)
     skin = SimulatedSkin(surface, n_tx=tx, n_rx=rx, random_state=skin_seed)
     skin.reseed(seed)
@@ -211,7 +422,12 @@ def simulate(
     with progress_steps() as step, tempfile.TemporaryDirectory() as tmp:
         target = Path(tmp) / "session.h5" if as_mat else out
         rec = simulate_session(
-            skin, surface, target, cfg, progress=lambda d, t: step("simulating touches", d, t)
+            skin,
+            surface,
+            target,
+            cfg,
+            progress=lambda d, t: step("simulating touches", d, t),
+            partial=out,  # an interrupted .mat session is kept next to --out, as an .h5
         )
         if as_mat:
             write_mat(read_recording(target), out)
@@ -231,7 +447,7 @@ def train(
         Arch, typer.Option(help="'paper' is the paper's 64-32-3 network.")
     ] = Arch.default,
     constraint: Annotated[Constraint, typer.Option(help="Output constraint.")] = Constraint.snap,
-    seed: Annotated[int, typer.Option(help="Training seed.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="Training seed.")] = 0,
     mesh: Annotated[Path | None, typer.Option(help="Skin mesh; default: the recording's.")] = None,
     units: Annotated[Units, typer.Option(help="Units of --mesh.")] = Units.auto,
     epochs: Annotated[int | None, typer.Option(min=1, help="Override the training epochs.")] = None,
@@ -242,6 +458,7 @@ def train(
             "instead of training from scratch."
         ),
     ] = None,
+    force: Annotated[bool, typer.Option("--force", help="Replace an existing --out.")] = False,
 ) -> None:
     """Train a localiser on one or more calibration recordings, or recalibrate one.
 
@@ -252,7 +469,18 @@ def train(
     from skinloc.geometry import load_mesh
     from skinloc.model import ContactLocalizer
 
+    check_output(out, option="--out", inputs=[*data, init, mesh], force=force)
     recs = _read_all(data)
+    n_logs = sum(r.n_point_logs for r in recs)
+    if n_logs == 0:
+        raise ValueError("the recordings hold no point logs: record a calibration session first")
+    if n_logs < FEW_POINT_LOGS and init is None:
+        err_console.print(
+            f"[bold yellow]warning:[/] training on {n_logs} point log(s) only: expect a poor "
+            f"model (the paper uses 20 to 100)",
+            highlight=False,
+            soft_wrap=True,
+        )
     if init is not None:
         old = ContactLocalizer.load(init)
         with progress_steps() as step:
@@ -421,6 +649,7 @@ def info(
 def convert(
     src: Annotated[Path, typer.Argument(help="Recording to read (.h5 or .mat).")],
     dst: Annotated[Path, typer.Argument(help="File to write: .mat (MATLAB touchData) or .h5.")],
+    force: Annotated[bool, typer.Option("--force", help="Replace an existing DST.")] = False,
 ) -> None:
     """Convert between skinloc HDF5 and the paper's MATLAB touchData layout.
 
@@ -428,14 +657,15 @@ def convert(
     """
     from skinloc.dataset import write_mat, write_recording
 
-    (rec,) = _read_all([src])
     suffix = dst.suffix.lower()
+    if suffix not in (".mat", ".h5", ".hdf5"):
+        raise ValueError(f"cannot tell the format of {dst}: name it .mat or .h5")
+    check_output(dst, option="DST", inputs=[src], force=force)
+    (rec,) = _read_all([src])
     if suffix == ".mat":
         write_mat(rec, dst)
-    elif suffix in (".h5", ".hdf5"):
-        write_recording(rec, dst)
     else:
-        raise ValueError(f"cannot tell the format of {dst}: name it .mat or .h5")
+        write_recording(rec, dst)
     console.print(f"Wrote {dst} ({rec.n_point_logs} point logs)")
 
 
@@ -467,6 +697,7 @@ def bench(
 
     Example: skinloc bench --seeds 3 --real ../shared/data/hiro-cone-skin --timing
     """
+    check_output(out, option="--out", folder=True)
     if online:  # skinloc.cli_live: the live pipeline's figures (docs/benchmarks.md)
         return __import__("skinloc.cli_live", fromlist=["bench_online"]).bench_online(out, as_json)
     import numpy as np
@@ -482,7 +713,7 @@ def bench(
         raise ValueError(f"--sizes must list point-log counts of at least 2, got {sizes!r}")
     if real is not None and not real.is_dir():
         raise ValueError(f"--real {real} is not a folder of recordings")
-    out.mkdir(parents=True, exist_ok=True)
+    out.mkdir(exist_ok=True)
     results: dict[str, Any] = {}
     with progress_steps() as step:
         if sim:

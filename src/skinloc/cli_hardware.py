@@ -82,7 +82,8 @@ TxMaskOpt = Annotated[
     str | None, typer.Option(help="TX lines to keep, e.g. 11111111000 (default: all).")
 ]
 RxMaskOpt = Annotated[str | None, typer.Option(help="RX lines to keep, e.g. 111111110000.")]
-SeedOpt = Annotated[int, typer.Option(help="Seed of the simulated skin (--source sim).")]
+SeedOpt = Annotated[int, typer.Option(min=0, help="Seed of the simulated skin (--source sim).")]
+ForceOpt = Annotated[bool, typer.Option("--force", help="Replace an existing --out.")]
 
 
 def _open_source(
@@ -187,7 +188,7 @@ class TerminalProber:
 
 def register(app: typer.Typer) -> None:
     """Add the hardware commands to the main ``skinloc`` app."""
-    from skinloc.cli import console, err_console, friendly_errors, progress_steps
+    from skinloc.cli import check_output, console, err_console, friendly_errors, progress_steps
 
     # -------------------------------------------------------------------------------- ports
     @app.command()
@@ -336,6 +337,7 @@ def register(app: typer.Typer) -> None:
         timeout: Annotated[float, typer.Option(min=0.01, help="Longest wait for a frame, s.")] = 2,
         seed: SeedOpt = 0,
         allow_url: AllowUrlOpt = False,
+        force: ForceOpt = False,
     ) -> None:
         """Record a no-touch baseline, then the raw stream for --seconds, to an HDF5 recording.
 
@@ -348,6 +350,7 @@ def register(app: typer.Typer) -> None:
 
         if out.suffix.lower() not in (".h5", ".hdf5"):
             raise ValueError(f"--out must be an .h5 file, got {out}")
+        check_output(out, option="--out", inputs=[mesh], force=force)
         surface = _load_surface(mesh, units)
         src = _open_source(
             port,
@@ -368,16 +371,20 @@ def register(app: typer.Typer) -> None:
             base, _ = src.read_many(baseline_frames, timeout)
             step("baseline", baseline_frames, baseline_frames)
             t0 = None
-            while True:
-                f = src.read(timeout)
-                t0 = f.timestamp_s if t0 is None else t0
-                if f.timestamp_s - t0 > seconds:
-                    break
-                frames.append(f.values)
-                times.append(f.timestamp_s - t0)
-                index.append(f.index)
-                if len(frames) % 25 == 0:
-                    step("streaming (s)", int(f.timestamp_s - t0), int(np.ceil(seconds)))
+            interrupted = False
+            try:
+                while True:
+                    f = src.read(timeout)
+                    t0 = f.timestamp_s if t0 is None else t0
+                    if f.timestamp_s - t0 > seconds:
+                        break
+                    frames.append(f.values)
+                    times.append(f.timestamp_s - t0)
+                    index.append(f.index)
+                    if len(frames) % 25 == 0:
+                        step("streaming (s)", int(f.timestamp_s - t0), int(np.ceil(seconds)))
+            except KeyboardInterrupt:  # Ctrl-C ends the stream early: keep what came
+                interrupted = True
             summary = _stats_line(src)
         n = src.n_sensors
         write_stream_recording(
@@ -396,6 +403,10 @@ def register(app: typer.Typer) -> None:
             f"frames, {src.n_tx} TX x {src.n_rx} RX"
         )
         err_console.print(summary, highlight=False)
+        if interrupted:
+            from skinloc.errors import Interrupted
+
+            raise Interrupted(f"the stream was cut short; {out} holds the frames up to then")
 
     # -------------------------------------------------------------------------------- collect
     @app.command()
@@ -434,8 +445,13 @@ def register(app: typer.Typer) -> None:
         rx: RxOpt = 8,
         tx_mask: TxMaskOpt = None,
         rx_mask: RxMaskOpt = None,
-        seed: Annotated[int, typer.Option(help="Seed of the targets (and of --source sim).")] = 0,
         allow_url: AllowUrlOpt = False,
+        seed: Annotated[
+            int, typer.Option(min=0, help="Seed of the targets (and of --source sim).")
+        ] = 0,
+        force: Annotated[
+            bool, typer.Option("--force", help="With --new: replace an existing --out.")
+        ] = False,
     ) -> None:
         """Record a calibration session on the skin, resumable after a crash.
 
@@ -446,7 +462,15 @@ def register(app: typer.Typer) -> None:
         """
         from skinloc.calibrate import CalibrationSession, ScriptedFinger, SessionConfig
 
+        if out.suffix.lower() not in (".h5", ".hdf5"):
+            raise ValueError(f"--out must be an .h5 file, got {out}")
         resume = out.exists() and not new
+        if new and out.exists() and not force:
+            raise ValueError(
+                f"{out} exists: --new would replace it; pass --force too, or choose another --out"
+            )
+        # Resuming appends to --out on purpose; anything else must not clobber a file.
+        check_output(out, option="--out", inputs=[mesh], force=resume or force)
         surface = None if resume else _load_surface(mesh, units)
         if resume and mesh is not None:
             raise ValueError(
@@ -508,10 +532,18 @@ def register(app: typer.Typer) -> None:
             stop_at = (
                 n_targets if max_touches is None else min(n_targets, session.n_done + max_touches)
             )
-            with progress_steps() as step:
-                while session.n_done < stop_at:
-                    session.record_point(session.n_done, prober)
-                    step("point logs", session.n_done, n_targets)
+            try:
+                with progress_steps() as step:
+                    while session.n_done < stop_at:
+                        session.record_point(session.n_done, prober)
+                        step("point logs", session.n_done, n_targets)
+            except KeyboardInterrupt:
+                from skinloc.errors import Interrupted
+
+                raise Interrupted(
+                    f"{session.n_done}/{n_targets} point logs are saved in {out}; rerun the "
+                    "same command to resume"
+                ) from None
             summary = _stats_line(src)
         done = session.n_done
         state = "complete" if done >= n_targets else "saved; rerun the same command to resume"
@@ -541,6 +573,9 @@ def register(app: typer.Typer) -> None:
         truth: Annotated[
             Path | None, typer.Option(help="On exit, save the ground truth per frame (.npz).")
         ] = None,
+        force: Annotated[
+            bool, typer.Option("--force", help="Replace an existing --truth.")
+        ] = False,
     ) -> None:
         """Expose the simulated skin as a serial port; prints the port's path first.
 
@@ -555,6 +590,10 @@ def register(app: typer.Typer) -> None:
         from skinloc.sources.sim import SimulatedSkin
         from skinloc.virtual_skin import FaultConfig, VirtualSkin
 
+        if truth is not None:
+            if truth.suffix.lower() != ".npz":
+                raise ValueError(f"--truth must name an .npz file, got {truth}")
+            check_output(truth, option="--truth", force=force)
         skin = SimulatedSkin(n_tx=tx, n_rx=rx, random_state=seed, rate_hz=rate)
         fault_cfg = (
             FaultConfig(disconnect_every_s=disconnect_every, random_state=seed + 1)
@@ -590,7 +629,15 @@ def register(app: typer.Typer) -> None:
             for sig, handler in old.items():
                 signal.signal(sig, handler)
         if truth is not None:
-            np.savez_compressed(truth, **dev.truth())
+            from skinloc.dataset import _atomic_write
+
+            data = dev.truth()
+
+            def write(tmp: Path) -> None:
+                with open(tmp, "wb") as fh:  # a file object: numpy adds no second .npz
+                    np.savez_compressed(fh, **data)
+
+            _atomic_write(truth, write)
         c = dev.counts
         err_console.print(
             f"frames sent intact {c['sent']}, destroyed by faults {c['destroyed']}, "

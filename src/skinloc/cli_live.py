@@ -54,9 +54,21 @@ def _check_sources(specs: list[Any], allow_url: bool) -> None:
             check_source(src, allow_urls=allow_url, allow_sim=False, opt_in="pass --allow-url")
 
 
+def _sink_files(spec: str) -> list[Path]:
+    """Files a ``--sink`` writes: ``jsonl:F``, ``mcap:F``, ``mcap-ros2:F``, ``...?mcap=F``."""
+    from urllib.parse import parse_qs, urlsplit
+
+    for scheme in ("jsonl:", "mcap:", "mcap-ros2:"):
+        if spec.startswith(scheme) and len(spec) > len(scheme):
+            return [Path(spec[len(scheme) :])]
+    if "://" in spec:
+        return [Path(p) for p in parse_qs(urlsplit(spec).query).get("mcap", [])]
+    return []
+
+
 def register(app: typer.Typer) -> None:
     """Add ``run`` and ``export`` to the main ``skinloc`` app."""
-    from skinloc.cli import err_console, friendly_errors
+    from skinloc.cli import check_output, err_console, friendly_errors
 
     @app.command()
     @friendly_errors
@@ -139,6 +151,11 @@ def register(app: typer.Typer) -> None:
         from skinloc.runner import Runner, SkinSpec
 
         sinks = list(sink) if sink else ["jsonl"]
+        inputs = [model, baseline, config, Path(source)]
+        for spec_text in sinks:
+            for path in _sink_files(spec_text):
+                # Sink files are logs that may be appended to; only an input is off limits.
+                check_output(path, option="--sink", inputs=inputs, force=True)
         if config is not None:
             from skinloc.multiskin import load_skins
 
@@ -219,11 +236,13 @@ def register(app: typer.Typer) -> None:
             typer.Option("--surface/--no-surface", help="Include the snap to the surface points."),
         ] = True,
         prefix: Annotated[str, typer.Option(help="Prefix of the C names.")] = "skinloc",
+        force: Annotated[bool, typer.Option("--force", help="Replace existing files.")] = False,
     ) -> None:
         """Export a model to ONNX (robot computer) or a C header (Arduino, ESP32).
 
         Example: skinloc export model.h5 --onnx model.onnx --c-header skinloc_model.h
         """
+        from skinloc.dataset import _atomic_write
         from skinloc.export import export_c_header, export_onnx
         from skinloc.inference import InferenceSpec
 
@@ -231,12 +250,21 @@ def register(app: typer.Typer) -> None:
             raise ValueError("nothing to do: give --onnx FILE and/or --c-header FILE")
         if not model.is_file():
             raise ValueError(f"model not found: {model}")
+        if onnx is not None and c_header is not None and onnx.resolve() == c_header.resolve():
+            raise ValueError("--onnx and --c-header name the same file")
+        if onnx is not None:
+            check_output(onnx, option="--onnx", inputs=[model], force=force)
+        if c_header is not None:
+            check_output(c_header, option="--c-header", inputs=[model], force=force)
         spec = InferenceSpec.load(model)
         if onnx is not None:
-            export_onnx(spec, onnx, include_surface=surface)
+            _atomic_write(onnx, lambda tmp: export_onnx(spec, tmp, include_surface=surface))
             err_console.print(f"wrote {onnx}", highlight=False)
         if c_header is not None:
-            export_c_header(spec, c_header, include_surface=surface, prefix=prefix)
+            _atomic_write(
+                c_header,
+                lambda tmp: export_c_header(spec, tmp, include_surface=surface, prefix=prefix),
+            )
             size = c_header.stat().st_size
             err_console.print(
                 f"wrote {c_header} ({size / 1024:.0f} KiB of source)", highlight=False

@@ -35,3 +35,7 @@ class FrameTimeoutError(SkinlocError, TimeoutError):
 
 class FrameFormatError(SkinlocError, ValueError):
     """A frame has the wrong size or non-finite values."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C or SIGTERM stopped a long job; the message says what was kept, and where."""

@@ -210,6 +210,8 @@ def load_mesh(path: str | Path, units: str = "auto") -> trimesh.Trimesh:
     mesh = trimesh.Trimesh(loaded.vertices, loaded.faces, process=False)
     if not np.all(np.isfinite(mesh.vertices)):
         raise MeshError(f"mesh {path} has non-finite vertex coordinates")
+    if not mesh.area > 0:  # every triangle degenerate: nothing to touch, nothing to sample
+        raise MeshError(f"mesh {path} has zero area: all its triangles are degenerate")
     if units == "mm" or (units == "auto" and mesh.extents.max() > tol.auto_mm_extent):
         mesh.apply_scale(1e-3)
     log.debug("loaded %s: %d vertices, %d faces", path, len(mesh.vertices), len(mesh.faces))

@@ -68,7 +68,7 @@ def register(app: typer.Typer) -> None:
         fmt: Annotated[
             str, typer.Option("--format", help="Wire format of the port: auto, text, binary.")
         ] = "auto",
-        seed: Annotated[int, typer.Option(help="Seed of the simulated skin.")] = 0,
+        seed: Annotated[int, typer.Option(min=0, help="Seed of the simulated skin.")] = 0,
         no_browser: Annotated[
             bool, typer.Option("--no-browser", help="Do not open a browser tab.")
         ] = False,
@@ -91,6 +91,8 @@ def register(app: typer.Typer) -> None:
 
         if fmt not in ("auto", "text", "binary"):
             raise ValueError(f"unknown --format {fmt!r}; choose one of: auto, text, binary")
+        if data.exists() and not data.is_dir():
+            raise ValueError(f"--data {data} is a file: give a folder of sessions")
         surface = None if mesh is None else load_mesh(mesh, units)
         if not _is_loopback(host):
             err_console.print(

@@ -12,6 +12,29 @@ from skinloc.dataset import Recording
 from skinloc.geometry import cone_skin, sample_targets
 
 REAL_DIR = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "hiro-cone-skin"
+#: Skips that must not pass unnoticed: the only test of the app in a real browser.
+LOUD_SKIPS = ("tests/test_app_browser.py",)
+
+
+def _skip_reason(report) -> str:
+    longrepr = report.longrepr
+    if isinstance(longrepr, tuple) and len(longrepr) == 3:
+        return str(longrepr[2]).removeprefix("Skipped: ")
+    return str(longrepr)
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus, config) -> None:
+    """A banner when the browser test was skipped, with its reason (``-ra`` lists it too)."""
+    loud = [
+        r
+        for r in terminalreporter.stats.get("skipped", [])
+        if r.nodeid.replace("\\", "/").startswith(LOUD_SKIPS)
+    ]
+    if not loud:
+        return
+    terminalreporter.section("BROWSER TEST SKIPPED: the app was not tested in a browser", sep="!")
+    for r in loud:
+        terminalreporter.write_line(f"{r.nodeid}: {_skip_reason(r)}", yellow=True, bold=True)
 
 
 @pytest.fixture(scope="session")

@@ -7,9 +7,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, settings
 
 from skinloc.dataset import Recording
 from skinloc.geometry import cone_skin, sample_targets
+
+# A busy machine may stall any example for seconds: no per-example deadline, and slow data
+# generation is no failure. Tests' own @settings override only what they name.
+settings.register_profile("skinloc", deadline=None, suppress_health_check=[HealthCheck.too_slow])
+settings.load_profile("skinloc")
 
 REAL_DIR = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "hiro-cone-skin"
 #: Skips that must not pass unnoticed: the only test of the app in a real browser.

@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import atexit
 import functools
+import shutil
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
-_DIR = Path(tempfile.mkdtemp(prefix="skinloc-live-tests-"))
+_DIR = Path(tempfile.mkdtemp(prefix="skinloc-live-tests-"))  # per process: runs never share
+atexit.register(shutil.rmtree, _DIR, ignore_errors=True)
 
 
 @functools.lru_cache(maxsize=1)

@@ -7,11 +7,40 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, settings
 
 from skinloc.dataset import Recording
 from skinloc.geometry import cone_skin, sample_targets
 
+# A busy machine may stall any example for seconds: no per-example deadline, and slow data
+# generation is no failure. Tests' own @settings override only what they name.
+settings.register_profile("skinloc", deadline=None, suppress_health_check=[HealthCheck.too_slow])
+settings.load_profile("skinloc")
+
 REAL_DIR = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "hiro-cone-skin"
+#: Skips that must not pass unnoticed: the only test of the app in a real browser.
+LOUD_SKIPS = ("tests/test_app_browser.py",)
+
+
+def _skip_reason(report) -> str:
+    longrepr = report.longrepr
+    if isinstance(longrepr, tuple) and len(longrepr) == 3:
+        return str(longrepr[2]).removeprefix("Skipped: ")
+    return str(longrepr)
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus, config) -> None:
+    """A banner when the browser test was skipped, with its reason (``-ra`` lists it too)."""
+    loud = [
+        r
+        for r in terminalreporter.stats.get("skipped", [])
+        if r.nodeid.replace("\\", "/").startswith(LOUD_SKIPS)
+    ]
+    if not loud:
+        return
+    terminalreporter.section("BROWSER TEST SKIPPED: the app was not tested in a browser", sep="!")
+    for r in loud:
+        terminalreporter.write_line(f"{r.nodeid}: {_skip_reason(r)}", yellow=True, bold=True)
 
 
 @pytest.fixture(scope="session")

@@ -53,7 +53,7 @@ def stream(client: TestClient, tab: str):
     )
 
 
-def wait_for(client: TestClient, check, what: str, timeout_s: float = 60.0) -> dict:
+def wait_for(client: TestClient, check, what: str, timeout_s: float = 180.0) -> dict:
     """Poll the state until ``check(state)``; fails naming ``what`` after ``timeout_s``."""
     deadline = time.monotonic() + timeout_s
     while True:

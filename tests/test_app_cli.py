@@ -34,7 +34,12 @@ def free_port() -> int:
 
 def test_bad_serial_port(tmp_path):
     tty = str(tmp_path / "ttyNONE")
-    result = run("--source", tty, "--data", str(tmp_path), "--port", str(free_port()))
+    # The app checks its TCP port before the serial port (and rejects --port 0), so it needs a
+    # free one; another process may take it between free_port() and the check: try again.
+    for _ in range(5):
+        result = run("--source", tty, "--data", str(tmp_path), "--port", str(free_port()))
+        if "pass another --port" not in result.output:
+            break
     assert result.exit_code == 1 and "Traceback" not in result.output
     assert f"cannot open serial port {tty}" in result.output
 

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import re
+import socket
 
 import pytest
 from typer.testing import CliRunner
@@ -37,6 +39,29 @@ def test_run_replays_a_recording_to_json_lines(tmp_path):
     assert states.count("start") == states.count("end") > 3
     for key in ("timestamp_s", "position_m", "confidence", "state", "latency_us"):
         assert key in lines[0]
+
+
+def test_run_says_which_port_a_port_zero_server_got(tmp_path):
+    res = run(
+        "run", "--model", model_path("map"), "--source", stream_recording(), "--fast",
+        "--sink", f"jsonl:{tmp_path / 'c.jsonl'}", "--sink", "ws://127.0.0.1:0",
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    found = re.findall(r"serving contacts on ws://127\.0\.0\.1:(\d+)", res.output)
+    assert len(found) == 1 and int(found[0]) > 0, res.output
+
+
+def test_run_with_a_port_in_use_is_one_line(tmp_path):
+    with socket.create_server(("127.0.0.1", 0)) as busy:
+        port = busy.getsockname()[1]
+        res = run(
+            "run", "--model", model_path("map"), "--source", stream_recording(), "--fast",
+            "--sink", f"ws://127.0.0.1:{port}",
+        )  # fmt: skip
+    assert res.exit_code == 1 and "Traceback" not in res.output
+    assert res.output.strip() == (
+        f"error: WebSocket sink cannot listen on 127.0.0.1:{port}: Address already in use"
+    )
 
 
 def test_run_with_a_skins_file(tmp_path):

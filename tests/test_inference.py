@@ -18,6 +18,22 @@ from skinloc.inference import (
 from skinloc.model import ContactLocalizer
 from tests._live import calibration, model_path
 
+#: Two computations of the same contact agree when within this, m: a micrometre, a thousandth
+#: of the localiser's millimetre accuracy; float32 networks summed in a different order (BLAS
+#: blocking, thread count, batch size) differ by ~1e-8 m, never by this much.
+SAME_M = 1e-6
+
+
+def same_on_surface(a: np.ndarray, b: np.ndarray, raw: np.ndarray, tol_m: float = SAME_M):
+    """Rows where surface points ``a`` and ``b`` (n, 3) m agree for ``raw`` (n, 3) m.
+
+    They agree when within ``tol_m`` of each other, or when the raw prediction is equally near
+    both (within ``tol_m``): a snap near a tie may pick either neighbour and both are right.
+    """
+    close = np.linalg.norm(a - b, axis=1) <= tol_m
+    tie = np.abs(np.linalg.norm(a - raw, axis=1) - np.linalg.norm(b - raw, axis=1)) <= 2 * tol_m
+    return close | tie
+
 
 @pytest.mark.parametrize("kind", ["map", "mlp", "paper", "gelu"])
 def test_fast_path_matches_predict_full(kind):
@@ -26,13 +42,16 @@ def test_fast_path_matches_predict_full(kind):
     X = calibration().deltas.reshape(-1, 64)
     ref = model.predict_full(X)
     points, raw, spread = fast.predict_batch(X.astype(np.float32))
-    np.testing.assert_allclose(raw, ref.raw, atol=1e-6)
-    assert np.mean(np.abs(points - ref.points).max(axis=1) < 1e-9) > 0.99
+    np.testing.assert_allclose(raw, ref.raw, atol=SAME_M)
+    if kind == "map":  # candidates a float rounding apart in match distance may swap
+        assert np.mean(np.linalg.norm(points - ref.points, axis=1) <= SAME_M) > 0.99
+    else:
+        assert same_on_surface(points, ref.points, ref.raw).all()
     out = np.empty(7)
     for x, r, p in zip(X[:40], ref.raw[:40], ref.points[:40], strict=True):
         fast.localise_into(x.astype(np.float32), out)
-        np.testing.assert_allclose(out[:3], r, atol=1e-6)
-        assert np.abs(out[3:6] - p).max() < 1e-9 or kind == "map"
+        np.testing.assert_allclose(out[:3], r, atol=SAME_M)
+        assert kind == "map" or same_on_surface(out[None, 3:6], p[None], r[None]).all()
     if fast.n_members > 1 or kind == "map":
         np.testing.assert_allclose(spread, ref.uncertainty_mm, atol=1e-3)
     assert check_against(fast, model) < 1e-6
@@ -44,10 +63,13 @@ def test_batches_larger_than_a_block_give_the_same_rows():
     X = calibration().deltas.reshape(-1, 64).astype(np.float32)
     big = np.tile(X, (70_000 // len(X) + 1, 1))[:70_000]
     points, raw, spread = fast.predict_batch(big)
-    p2, r2, s2 = fast.predict_batch(big[65_530:65_540])
-    np.testing.assert_array_equal(points[65_530:65_540], p2)
-    np.testing.assert_allclose(raw[65_530:65_540], r2, atol=1e-9)
-    np.testing.assert_allclose(spread[65_530:65_540], s2, atol=1e-6)
+    edge = slice(65_530, 65_540)
+    p2, r2, s2 = fast.predict_batch(big[edge])
+    # The same rows in another batch size sum in another order (BLAS blocking and threads):
+    # the same contact to within a micrometre, the same surface point, not the same bits.
+    np.testing.assert_allclose(raw[edge], r2, rtol=0, atol=SAME_M)
+    assert same_on_surface(points[edge], p2, r2).all()
+    np.testing.assert_allclose(spread[edge], s2, rtol=0, atol=1e-3)  # mm: a micrometre
 
 
 def test_spec_from_file_equals_spec_from_model():

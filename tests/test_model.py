@@ -32,6 +32,14 @@ def toy():
 
 
 FAST = dict(arch="mlp", epochs=150, n_members=2, hidden=(64,))
+#: Predictions of the same model agree to a nanometre (m). Not bit for bit: BLAS may sum a
+#: single frame and a batch, or another thread count, in a different order.
+SAME_M = 1e-9
+
+
+def assert_same_points(a: np.ndarray, b: np.ndarray, tol_m: float = SAME_M) -> None:
+    """Points ``a`` and ``b`` (n, 3) m are the same contacts to within ``tol_m``."""
+    np.testing.assert_allclose(a, b, rtol=0, atol=tol_m)
 
 
 def test_learns_toy_skin(toy):
@@ -55,8 +63,10 @@ def test_deterministic_under_seed(toy):
     a = ContactLocalizer(**FAST, random_state=3).fit(X, y).predict(Xt)
     b = ContactLocalizer(**FAST, random_state=3).fit(X, y).predict(Xt)
     c = ContactLocalizer(**FAST, random_state=4).fit(X, y).predict(Xt)
-    np.testing.assert_array_equal(a, b)
-    assert not np.array_equal(a, c)
+    # Same seed, same model: to a micrometre (a trained model, not bits; training summed in
+    # another order on another machine may drift by more than a single prediction does).
+    assert_same_points(a, b, tol_m=1e-6)
+    assert np.abs(a - c).max() > 1e-4  # another seed: another model, 0.1 mm and more apart
 
 
 def test_single_frame_and_batch_agree(toy):
@@ -64,7 +74,7 @@ def test_single_frame_and_batch_agree(toy):
     m = ContactLocalizer(**FAST).fit(X, y, mesh=mesh)
     batch = m.predict(Xt)
     single = np.concatenate([m.predict(x) for x in Xt])
-    np.testing.assert_allclose(single, batch, atol=1e-12)
+    assert_same_points(single, batch)
 
 
 @pytest.mark.parametrize("constraint", ["snap", "project"])
@@ -92,7 +102,9 @@ def test_save_load_roundtrip(toy, tmp_path):
     m = ContactLocalizer(**FAST).fit(X, y, mesh=mesh)
     m.save(tmp_path / "m.h5")
     back = ContactLocalizer.load(tmp_path / "m.h5")
-    np.testing.assert_array_equal(back.predict(Xt), m.predict(Xt))
+    for W, V in zip(back.coefs_, m.coefs_, strict=True):
+        np.testing.assert_array_equal(W, V)  # the file keeps every weight exactly
+    assert_same_points(back.predict(Xt), m.predict(Xt))
     assert back.config_ == m.config_
     assert back.meta_["skinloc_version"]
 
@@ -217,7 +229,7 @@ def test_map_save_load_roundtrip(toy, tmp_path):
     m = ContactLocalizer().fit(X, y, mesh=mesh)
     m.save(tmp_path / "m.h5")
     back = ContactLocalizer.load(tmp_path / "m.h5")
-    np.testing.assert_array_equal(back.predict(Xt), m.predict(Xt))
+    assert_same_points(back.predict(Xt), m.predict(Xt))
     assert back.config_ == m.config_
 
 
@@ -239,9 +251,7 @@ def test_recalibration_recovers_a_moved_response(toy, tmp_path):
     assert err(re) < 0.7 * err(m)
     assert len(re.map_.layers) == 2 and len(m.map_.layers) == 1  # the original is untouched
     re.save(tmp_path / "re.h5")
-    np.testing.assert_array_equal(
-        ContactLocalizer.load(tmp_path / "re.h5").predict(Xt), re.predict(Xt)
-    )
+    assert_same_points(ContactLocalizer.load(tmp_path / "re.h5").predict(Xt), re.predict(Xt))
 
 
 def test_network_recalibration_fine_tunes(toy):

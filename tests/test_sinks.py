@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import socket
+import time
 
 import numpy as np
 import pytest
@@ -12,6 +13,7 @@ import pytest
 from skinloc.geometry import cone_skin
 from skinloc.pipeline import Contact
 from skinloc.sinks import CallbackSink, SkinInfo, make_sink
+from skinloc.sinks.websocket import WebSocketSink
 
 
 def _contact(state: str = "move", k: int = 0) -> Contact:
@@ -56,7 +58,7 @@ def test_jsonl_stdout(capsys):
 def test_udp_datagrams():
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     rx.bind(("127.0.0.1", 0))
-    rx.settimeout(5.0)
+    rx.settimeout(30.0)  # generous: a busy machine; a lost datagram still fails
     port = rx.getsockname()[1]
     sink = make_sink(f"udp://127.0.0.1:{port}")
     assert sink.address == ("127.0.0.1", port)
@@ -67,28 +69,83 @@ def test_udp_datagrams():
     assert json.loads(data)["position_m"] == [0.01, 0.02, 0.03]
 
 
+def _wait_until(check, what: str, timeout_s: float = 30.0) -> None:
+    """Poll ``check()`` until true; fail naming ``what`` after ``timeout_s`` (a busy machine)."""
+    deadline = time.monotonic() + timeout_s
+    while not check():
+        if time.monotonic() > deadline:
+            pytest.fail(f"timed out after {timeout_s:g} s waiting for {what}")
+        time.sleep(0.01)
+
+
 def test_websocket_hello_then_contacts():
     from websockets.sync.client import connect
 
     sink = make_sink("ws://127.0.0.1:0")
+    assert isinstance(sink, WebSocketSink)
+    assert sink.port == 0  # port 0 is kept, not replaced by the default
     sink.open(_skins())
     try:
-        with connect(sink.url, open_timeout=5) as ws:
-            hello = json.loads(ws.recv(timeout=5))
+        assert sink.port > 0 and sink.url == f"ws://127.0.0.1:{sink.port}"
+        with connect(sink.url, open_timeout=30) as ws:
+            hello = json.loads(ws.recv(timeout=30))
             assert hello["type"] == "hello" and hello["skins"][0]["name"] == "arm"
+            assert hello["url"] == sink.url
             assert len(hello["skins"][0]["faces"]) == len(cone_skin().faces)
-            for _ in range(100):  # the server learns of the client asynchronously
-                if sink.n_clients:
-                    break
-                import time
-
-                time.sleep(0.02)
+            # The server learns of the client on its own thread.
+            _wait_until(lambda: sink.n_clients == 1, "the server to see the client")
             sink.emit(_contact("start"))
-            msg = json.loads(ws.recv(timeout=5))
+            msg = json.loads(ws.recv(timeout=30))
         assert msg["type"] == "contact" and msg["state"] == "start"
     finally:
         sink.close()
     assert sink._thread is None
+
+
+def test_port_zero_means_any_free_port_for_every_server_sink(tmp_path):
+    """``:0`` used to become the default port (a falsy-zero test), so two sinks collided."""
+    specs = ["ws://127.0.0.1:0", "ws://127.0.0.1:0", "foxglove://127.0.0.1:0", "foxglove://:0"]
+    sinks = [make_sink(s) for s in specs]
+    assert [s.port for s in sinks] == [0, 0, 0, 0]
+    try:
+        for sink in sinks:
+            sink.open(_skins())
+        ports = [s.port for s in sinks]
+        assert all(p > 0 for p in ports) and len(set(ports)) == len(ports)
+        assert [s.url for s in sinks] == [f"ws://127.0.0.1:{p}" for p in ports]
+    finally:
+        for sink in sinks:
+            sink.close()
+    with pytest.raises(ValueError, match="1-65535"):
+        make_sink("udp://127.0.0.1:0")  # datagrams need a real destination port
+
+
+def test_default_ports_differ_from_the_app():
+    """``skinloc app`` serves on 8765; the sinks' defaults must not take it."""
+    import typer.main
+
+    from skinloc.cli import app
+
+    command = typer.main.get_command(app).commands["app"]
+    app_port = next(p.default for p in command.params if p.name == "port")
+    ws, fox, udp = make_sink("ws://127.0.0.1"), make_sink("foxglove://"), make_sink("udp://")
+    assert ws.port == 8767 and fox.port == 8766 and udp.address[1] == 9870
+    assert app_port not in (ws.port, fox.port)
+
+
+def test_websocket_port_in_use_is_one_clear_error():
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen(1)
+        port = busy.getsockname()[1]
+        sink = make_sink(f"ws://127.0.0.1:{port}")
+        with pytest.raises(OSError, match=f"cannot listen on 127.0.0.1:{port}"):
+            sink.open(_skins())
+    assert sink._thread is None and sink._sock is None
+    with pytest.raises(ValueError, match="0-65535"):
+        make_sink("ws://127.0.0.1:70000")
+    with pytest.raises(ValueError, match="0 \\(any free port\\) or 1-65535"):
+        WebSocketSink(port=-1)
 
 
 def test_foxglove_live_and_mcap(tmp_path):

@@ -27,7 +27,16 @@ def crc(values: np.ndarray) -> int:
 
 
 def read_n(src, n: int) -> list:
-    return [src.read(timeout_s=10.0) for _ in range(n)]
+    return [src.read(timeout_s=30.0) for _ in range(n)]
+
+
+def wait_until(check, what: str, timeout_s: float = 30.0) -> None:
+    """Poll ``check()`` until true; fail naming ``what`` after ``timeout_s`` (a busy machine)."""
+    deadline = time.monotonic() + timeout_s
+    while not check():
+        if time.monotonic() > deadline:
+            pytest.fail(f"timed out after {timeout_s:g} s waiting for {what}")
+        time.sleep(0.01)
 
 
 @pytest.mark.parametrize("fmt", ["binary", "text"])
@@ -71,17 +80,18 @@ def test_commands_and_scripted_finger():
             base = np.mean([f.values for f in read_n(src, 10)], axis=0)
             x, y, z = skin.sensor_positions[9]
             src.write(f"touch {x} {y} {z}\n".encode())
-            while dev.counts["touches"] == 0:
-                time.sleep(0.01)
+            wait_until(lambda: dev.counts["touches"] > 0, "the device to take the touch")
             src.clear()
-            touched = src.read(10.0).values - base
+            touched = src.read(30.0).values - base
             assert touched[9] > 50
             src.write(b"lift\nf text\n")
-            while dev.fmt.value != "text":
-                time.sleep(0.01)
+            wait_until(lambda: dev.fmt.value == "text", "the device to switch to text")
+            # Frames sent before the lift may still be in the pty on a busy machine: the
+            # promise is that the sensor comes back to its baseline, not when.
             src.clear()
-            after = read_n(src, 5)[-1]
-            assert abs(after.values[9] - base[9]) < 40
+            deadline = time.monotonic() + 30
+            while abs(src.read(30.0).values[9] - base[9]) >= 40:
+                assert time.monotonic() < deadline, "sensor 9 did not return to its baseline"
     assert dev.handle_command("v").startswith("skinloc_muca 1.0.0 grid 8x8 format text")
     assert dev.handle_command("g 300").startswith("error")
     assert dev.handle_command("g 20") == "ok gain 20"
@@ -107,16 +117,20 @@ def test_reconnects_after_unplug_and_never_delivers_a_wrong_frame():
         got = []
         while dev.counts["disconnects"] < 3 or src.stats().n_reconnects < 3:
             try:
-                got.append(src.read(timeout_s=10.0))
+                got.append(src.read(timeout_s=30.0))
             except FrameTimeoutError:
                 pytest.fail(f"the source did not recover: {src.stats()}")
         got += read_n(src, 5)  # frames flow again after the last reconnect
         dev.stop()
-        while True:
+        # Drain: once the reader has seen the port go, it has delivered all it read before.
+        # Not "1 s without a frame": a busy machine may pause longer than that.
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
             try:
                 got.append(src.read(timeout_s=1.0))
             except FrameTimeoutError:
-                break
+                if not src.stats().link_up:
+                    break
         stats = src.stats()
         src.disconnect()
     truth = dev.truth()

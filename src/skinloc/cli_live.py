@@ -31,6 +31,12 @@ class FilterChoice(StrEnum):
     none = "none"
 
 
+def _served_urls(runner: Any) -> list[str]:
+    """``ws://host:port`` of every server sink of ``runner`` (after ``open``: ports bound)."""
+    sinks = [*runner.global_sinks, *(s for per_skin in runner.skin_sinks for s in per_skin)]
+    return [url for url in (getattr(s, "url", None) for s in sinks) if url]
+
+
 def _sigterm_as_interrupt() -> Any:
     def handler(signum: int, frame: Any) -> None:
         raise KeyboardInterrupt
@@ -145,7 +151,7 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Run the live pipeline: frames -> baseline -> touch -> localiser -> surface -> sinks.
 
-        Example: skinloc run --model model.h5 --source /dev/ttyACM0 --sink jsonl --sink ws://127.0.0.1:8765
+        Example: skinloc run --model model.h5 --source /dev/ttyACM0 --sink jsonl --sink ws://127.0.0.1:8767
         """
         from skinloc.pipeline import PipelineConfig
         from skinloc.runner import Runner, SkinSpec
@@ -200,6 +206,9 @@ def register(app: typer.Typer) -> None:
                     + ", ".join(f"{s.name} <- {s.source}" for s in runner.specs),
                     highlight=False,
                 )
+                # Servers asked for port 0 got a free one: say which.
+                for url in _served_urls(runner):
+                    err_console.print(f"serving contacts on {url}", highlight=False)
                 try:
                     runner.run(duration)
                 except KeyboardInterrupt:

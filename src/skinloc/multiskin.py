@@ -2,7 +2,7 @@
 
 A TOML file lists the skins of a robot; each becomes a ``SkinSpec`` of one ``Runner``::
 
-    sinks = ["jsonl", "ws://127.0.0.1:8765"]   # receive the contacts of every skin
+    sinks = ["jsonl", "ws://127.0.0.1:8767"]   # receive the contacts of every skin
 
     [defaults]                 # any SkinSpec field, for every skin
     model = "arm.h5"           # paths are relative to this file

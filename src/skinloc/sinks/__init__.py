@@ -1,6 +1,6 @@
 """Where contacts go: JSON lines, WebSocket, UDP, Foxglove (live and MCAP), LSL and ROS 2.
 
-``make_sink("ws://127.0.0.1:8765")`` builds a sink from a short spec (see ``make_sink``);
+``make_sink("ws://127.0.0.1:8767")`` builds a sink from a short spec (see ``make_sink``);
 backends with optional dependencies are imported only when used.
 """
 

@@ -21,9 +21,9 @@ __all__ = ["SINK_SPECS", "CallbackSink", "ListSink", "Sink", "SkinInfo", "make_s
 #: The spec forms ``make_sink`` understands, for help texts and error messages.
 SINK_SPECS = (
     "jsonl (stdout) | jsonl:FILE",
-    "ws://HOST:PORT (WebSocket server)",
+    "ws://HOST:PORT (WebSocket server; port 0: any free port)",
     "udp://HOST:PORT (one JSON datagram per contact)",
-    "foxglove://HOST:PORT[?mcap=FILE] (Foxglove live 3D scene; MCAP recording)",
+    "foxglove://HOST:PORT[?mcap=FILE] (Foxglove live 3D scene, port 0: any free port; MCAP)",
     "mcap:FILE (Foxglove MCAP recording only)",
     "lsl[:NAME] (Lab Streaming Layer outlet)",
     "ros2[:NODE] (ROS 2 topics over DDS, or through rclpy when present)",
@@ -126,13 +126,17 @@ class ListSink(Sink):
 
 
 def _host_port(spec: str, default_port: int) -> tuple[str, int]:
+    """Host and port of ``scheme://host:port``; a missing port is ``default_port``.
+
+    ``:0`` stays 0 (servers then bind any free port), so no truthiness test on the port.
+    """
     parts = urlsplit(spec)
     host = parts.hostname or "127.0.0.1"
     try:
-        port = parts.port or default_port
+        port = parts.port
     except ValueError:
-        raise ValueError(f"bad port in sink {spec!r}") from None
-    return host, port
+        raise ValueError(f"bad port in sink {spec!r} (ports are 0-65535)") from None
+    return host, default_port if port is None else port
 
 
 def make_sink(spec: str | Sink) -> Sink:
@@ -141,7 +145,7 @@ def make_sink(spec: str | Sink) -> Sink:
     Parameters
     ----------
     spec : str
-        One of ``SINK_SPECS``: ``jsonl``, ``jsonl:out.jsonl``, ``ws://127.0.0.1:8765``,
+        One of ``SINK_SPECS``: ``jsonl``, ``jsonl:out.jsonl``, ``ws://127.0.0.1:8767``,
         ``udp://127.0.0.1:9870``, ``foxglove://127.0.0.1:8766?mcap=run.mcap``,
         ``mcap:run.mcap``, ``lsl``, ``lsl:skin``, ``ros2``, ``mcap-ros2:run.mcap``.
 
@@ -160,9 +164,9 @@ def make_sink(spec: str | Sink) -> Sink:
 
         return JsonLinesSink(rest or None)
     if scheme in ("ws", "websocket"):
-        from skinloc.sinks.websocket import WebSocketSink
+        from skinloc.sinks.websocket import DEFAULT_PORT, WebSocketSink
 
-        return WebSocketSink(*_host_port(text, 8765))
+        return WebSocketSink(*_host_port(text, DEFAULT_PORT))
     if scheme == "udp":
         from skinloc.sinks.udp import UdpSink
 

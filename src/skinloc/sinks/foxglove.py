@@ -64,6 +64,8 @@ class FoxgloveSink(Sink):
     ) -> None:
         if not live and mcap_path is None:
             raise ValueError("a Foxglove sink needs a live server or an MCAP file (or both)")
+        if not 0 <= int(port) < 65536:
+            raise ValueError(f"Foxglove port must be 0 (any free port) or 1-65535, got {port}")
         self.host, self.port = host, int(port)
         self.mcap_path = None if mcap_path is None else Path(mcap_path)
         self.live = live
@@ -76,6 +78,14 @@ class FoxgloveSink(Sink):
         self._points: dict[str, Any] = {}
         self._last_mesh = 0.0
         self.n_sent = 0
+
+    @property
+    def url(self) -> str | None:
+        """``ws://host:port`` of the live server (after ``open``: the port bound), else None."""
+        if not self.live:
+            return None
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"ws://{host}:{self.port}"
 
     def open(self, skins: list[SkinInfo]) -> None:
         """Start the server and/or open the MCAP file; publish the meshes."""
@@ -100,7 +110,7 @@ class FoxgloveSink(Sink):
                     f"Foxglove server cannot listen on {self.host}:{self.port}: {exc}"
                 ) from None
             self.port = self._server.port
-            log.info("Foxglove live view on ws://%s:%d", self.host, self.port)
+            log.info("Foxglove live view on %s", self.url)
         self._scene = channels.SceneUpdateChannel("/skinloc/scene", context=self._ctx)
         self._json = fg.Channel("/skinloc/contacts", message_encoding="json", context=self._ctx)
         for s in self._skins:

@@ -27,7 +27,7 @@ class UdpSink(Sink):
 
     def __init__(self, host: str = "127.0.0.1", port: int = 9870) -> None:
         if not 0 < int(port) < 65536:
-            raise ValueError(f"UDP port must be 1-65535, got {port!r}")
+            raise ValueError(f"UDP port must be 1-65535 (where datagrams go), got {port!r}")
         self.address = (host, int(port))
         self._sock: socket.socket | None = None
         self.n_sent = 0

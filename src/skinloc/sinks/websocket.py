@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import socket
 import threading
 from typing import TYPE_CHECKING, Any
 
@@ -21,7 +22,29 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-__all__ = ["WebSocketSink"]
+__all__ = ["DEFAULT_PORT", "WebSocketSink"]
+
+#: The sink's default TCP port: not 8765, which ``skinloc app`` serves on, nor Foxglove's 8766.
+DEFAULT_PORT = 8767
+
+
+def _listen(host: str, port: int) -> socket.socket:
+    """A listening TCP socket on ``host:port`` (``port=0``: a free port the kernel picks).
+
+    Bound here, not by ``websockets``, so that a host with several addresses (``localhost``)
+    gets one socket and one port, and a port in use fails in ``open`` itself.
+    """
+    infos = socket.getaddrinfo(host or None, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    family, _, _, _, address = infos[0]
+    sock = socket.socket(family, socket.SOCK_STREAM)
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.bind(address)
+        sock.listen(64)
+    except OSError:
+        sock.close()
+        raise
+    return sock
 
 
 class WebSocketSink(Sink):
@@ -31,15 +54,21 @@ class WebSocketSink(Sink):
     ----------
     host : str, default="127.0.0.1"
         Address to bind; the loopback by default (use 0.0.0.0 deliberately).
-    port : int, default=8765
-        TCP port.
+    port : int, default=DEFAULT_PORT (8767)
+        TCP port; 0 asks the system for a free one. After ``open``, ``port`` and ``url`` hold
+        the port actually bound (logged, and sent in the hello message).
     """
 
     name = "websocket"
 
-    def __init__(self, host: str = "127.0.0.1", port: int = 8765) -> None:
+    def __init__(self, host: str = "127.0.0.1", port: int = DEFAULT_PORT) -> None:
+        port = int(port)
+        if not 0 <= port < 65536:
+            raise ValueError(f"WebSocket port must be 0 (any free port) or 1-65535, got {port}")
         self.host = host
-        self.port = int(port)
+        self.port = port
+        self._want_port = port  # what to bind on every open (0: a fresh free port)
+        self._sock: socket.socket | None = None
         self._thread: threading.Thread | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._stop: asyncio.Future | None = None
@@ -51,8 +80,9 @@ class WebSocketSink(Sink):
 
     @property
     def url(self) -> str:
-        """``ws://host:port`` of the running server."""
-        return f"ws://{self.host}:{self.port}"
+        """``ws://host:port`` of the server (after ``open``: the port actually bound)."""
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"ws://{host}:{self.port}"
 
     def open(self, skins: list[SkinInfo]) -> None:
         """Start the server thread; raises ``OSError`` when the port cannot be bound."""
@@ -62,9 +92,19 @@ class WebSocketSink(Sink):
             raise ImportError(
                 "the WebSocket sink needs 'websockets': pip install websockets"
             ) from None
+        if self._thread is None:
+            try:
+                self._sock = _listen(self.host, self._want_port)
+            except OSError as exc:
+                raise OSError(
+                    f"WebSocket sink cannot listen on {self.host}:{self._want_port}: "
+                    f"{exc.strerror or exc}"
+                ) from None
+            self.port = self._sock.getsockname()[1]
         self._hello = json.dumps(
             {
                 "type": "hello",
+                "url": self.url,
                 "skins": [
                     {
                         "name": s.name,
@@ -85,6 +125,7 @@ class WebSocketSink(Sink):
             err, self._error = self._error, None
             self._thread.join(2.0)
             self._thread = None
+            self._close_socket()
             raise OSError(f"WebSocket sink cannot listen on {self.host}:{self.port}: {err}")
         log.info("WebSocket sink on %s", self.url)
 
@@ -109,9 +150,8 @@ class WebSocketSink(Sink):
             except Exception:  # noqa: BLE001 - a client going away is normal
                 pass
 
-        async with serve(handler, self.host, self.port, max_queue=16, write_limit=2**16) as srv:
+        async with serve(handler, sock=self._sock, max_queue=16, write_limit=2**16) as srv:
             self._server = srv
-            self.port = srv.sockets[0].getsockname()[1]
             self._ready.set()
             await self._stop
 
@@ -150,4 +190,11 @@ class WebSocketSink(Sink):
         if self._thread is not None:
             self._thread.join(5.0)
             self._thread = None
+        self._close_socket()
         self._loop = self._stop = self._server = None
+
+    def _close_socket(self) -> None:
+        # The server closes the socket it serves; this covers a server that never started.
+        if self._sock is not None:
+            self._sock.close()
+            self._sock = None

@@ -1,0 +1,105 @@
+"""The suite's own promises: Chromium's installer waits for apt and never fails `make test`,
+and a skipped browser test is announced loudly with its reason."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPT = ROOT / "scripts" / "ensure-chromium.sh"
+#: What ensure-chromium.sh and the fake apt-get below run (linked from the real PATH).
+TOOLS = (
+    "sh",
+    "mkdir",
+    "rm",
+    "mktemp",
+    "date",
+    "grep",
+    "sleep",
+    "tail",
+    "cat",
+    "touch",
+    "chmod",
+    "dirname",
+)
+
+pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="a POSIX shell script")
+
+
+def fake_bin(tmp_path: Path, apt_get: str) -> Path:
+    """A PATH with the script's tools, a fake ``apt-get`` and ``id`` (root), and no Chromium."""
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir(parents=True)
+    for tool in TOOLS:
+        (bin_dir / tool).symlink_to(shutil.which(tool))
+    for name, body in (("apt-get", apt_get), ("id", "echo 0\n")):
+        (bin_dir / name).write_text("#!/bin/sh\n" + body)
+        (bin_dir / name).chmod(0o755)
+    return bin_dir
+
+
+def ensure_chromium(tmp_path: Path, bin_dir: Path, wait_s: int) -> subprocess.CompletedProcess:
+    env = {"PATH": str(bin_dir), "SKINLOC_APT_WAIT_S": str(wait_s), "HOME": str(tmp_path)}
+    return subprocess.run(
+        ["sh", str(SCRIPT)], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120
+    )
+
+
+# A fake apt-get that reports apt's lock busy until the file `free` exists (then "installs").
+APT_BUSY = """
+if [ ! -e free ]; then
+    n=$(cat tries 2>/dev/null || echo 0); echo $((n + 1)) > tries
+    [ "$n" -ge 1 ] && touch free
+    echo "E: Could not get lock /var/lib/dpkg/lock-frontend. It is held by process 42 (apt-get)"
+    exit 100
+fi
+case "$*" in *install*) printf '#!/bin/sh\\n' > "$(dirname "$0")/chromium"
+    chmod +x "$(dirname "$0")/chromium";; esac
+"""
+
+
+def test_installer_waits_for_apt_lock(tmp_path):
+    bin_dir = fake_bin(tmp_path, APT_BUSY)
+    res = ensure_chromium(tmp_path, bin_dir, wait_s=120)
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert "waiting" in res.stdout and "chromium installed" in res.stdout
+    assert (bin_dir / "chromium").exists()
+    assert int((tmp_path / "tries").read_text()) == 2  # it retried instead of giving up
+    assert not (tmp_path / "build" / "chromium-status.txt").exists()
+
+
+def test_installer_gives_up_after_its_bound_and_says_why(tmp_path):
+    busy_forever = 'echo "E: Could not get lock /var/lib/apt/lists/lock"; exit 100\n'
+    res = ensure_chromium(tmp_path, fake_bin(tmp_path, busy_forever), wait_s=1)
+    assert res.returncode == 0  # best effort: make test goes on
+    status = (tmp_path / "build" / "chromium-status.txt").read_text()
+    assert "lock was still held after 1 s" in status and "/var/lib/apt/lists/lock" in status
+    assert "the browser test will skip" in res.stdout
+
+    broken = 'echo "E: Unable to locate package chromium"; exit 100\n'
+    res = ensure_chromium(tmp_path, fake_bin(tmp_path / "b", broken), wait_s=60)
+    assert res.returncode == 0 and "Unable to locate package chromium" in res.stdout
+
+
+def test_a_skipped_browser_test_is_announced_loudly(tmp_path):
+    """Without Chromium on PATH the browser test skips, with a banner and its reason."""
+    pytest.importorskip("playwright.sync_api")
+    env = {
+        **os.environ,
+        "PATH": str(Path(sys.executable).parent),
+        "PYTHONPATH": os.pathsep.join([str(ROOT / "src"), str(ROOT)]),
+    }
+    res = subprocess.run(
+        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+         str(ROOT / "tests" / "test_app_browser.py")],
+        cwd=ROOT, env=env, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert "BROWSER TEST SKIPPED" in res.stdout
+    assert "no Chromium (chromium, chromium-browser, google-chrome) on PATH" in res.stdout

@@ -382,7 +382,9 @@ def test_every_tab_is_told_when_the_link_drops_and_comes_back(tmp_path):
                     assert "link lost" in lost["message"]
                     beat = _stream_until(ws, lambda m: m["type"] == "heartbeat", "heartbeat")
                     assert beat["device"] and not beat["link_up"]
-                assert client.get("/api/state").json()["device"]["link_up"] is False
+                device = client.get("/api/state").json()["device"]
+                # No stale "200 Hz" from before the stop.
+                assert device["link_up"] is False and device["rate_hz"] == 0
                 dev.start()  # the same port path: the serial source reopens it
                 for ws in (ws_a, ws_b):
                     back = _stream_until(

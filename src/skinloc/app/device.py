@@ -112,6 +112,13 @@ class SensorMonitor:
         self.zero, self._zero_frames = None, []
         self.peak = np.zeros(self.n_tx * self.n_rx)
 
+    def restart_rate(self) -> None:
+        """Measure the frame rate afresh (after a gap in the stream)."""
+        last = self._times[-1] if self._times else None
+        self._times.clear()
+        if last is not None:
+            self._times.append(last)
+
     def add(self, values: np.ndarray, wall_s: float) -> None:
         """Take one frame of raw counts."""
         self.n_frames += 1
@@ -272,7 +279,9 @@ class DeviceLink:
         if up == self.link_up:
             return
         self.link_up = up
-        if not up:
+        if up:
+            self.monitor.restart_rate()  # the gap is not part of the frame rate
+        else:
             self.link_losses += 1
             log.warning("%s: no frame for %.1f s", self.name, self.frame_age_s)
         if self.on_link is not None and not self.detached:
@@ -287,7 +296,8 @@ class DeviceLink:
             "name": self.name,
             "tx": self.source.n_tx,
             "rx": self.source.n_rx,
-            "rate_hz": round(self.monitor.rate_hz, 1),
+            # A stalled link streams nothing: no stale rate from the frames before it stopped.
+            "rate_hz": round(self.monitor.rate_hz, 1) if self.link_now() else 0.0,
             "frames": self.monitor.n_frames,
             "error": self.error,
             "sim": self.spec.is_sim,

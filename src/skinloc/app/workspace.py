@@ -567,7 +567,13 @@ class Workspace:
             if a.val is not None and a.folder.validation.is_file():
                 # Starting again: the old validation is kept, renamed.
                 stamp = time.strftime("%Y%m%d-%H%M%S")
-                a.folder.validation.rename(a.folder.path / f"validation-{stamp}.h5")
+                kept = f"validation-{stamp}.h5"
+                a.folder.validation.rename(a.folder.path / kept)
+                # Its result is the previous one now, said so, not the new run's.
+                old = a.info.pop("validation", None)
+                if old:
+                    a.info["validation_previous"] = {**old, "file": kept}
+                a.folder.write_info(a.info)
             base = a.info["config"]
             cfg = SessionConfig(
                 n_points=n,
@@ -849,8 +855,8 @@ class Workspace:
                 self._stop_capture_finger()
                 self._setup_finger()
                 self.message = (
-                    f"link lost: no frame from {device.name} for {device.frame_age_s:.1f} s; "
-                    "waiting for it to come back (everything recorded is kept)"
+                    f"link lost: no frame from {device.name}; waiting for it to come back "
+                    "(everything recorded is kept)"
                 )
             else:
                 self.message = f"link back: {device.name} is streaming again"
@@ -990,7 +996,8 @@ class Workspace:
         a.folder.write_info(a.info)
         if not errors:
             return
-        note = f"; {len(taken_back)} touches retaken" if taken_back else ""
+        k = len(taken_back)
+        note = f"; {k} touch{'es' if k > 1 else ''} retaken" if k else ""
         self.message = (
             f"validation: {stats['mean_mm']:.1f} +- {stats['std_mm']:.1f} mm over {stats['n']} "
             f"touches{note}"
@@ -1175,6 +1182,7 @@ class Workspace:
                     "has_model": a.model is not None,
                     "holdout": a.info.get("holdout"),
                     "validation": a.info.get("validation"),
+                    "validation_previous": a.info.get("validation_previous"),
                     "n_validation": a.info.get("n_validation", 20),
                     "mesh": a.info.get("mesh"),
                 },

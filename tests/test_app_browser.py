@@ -319,6 +319,10 @@ def link_lost(browser, page, url, wait_state, shot, tmp_path, errors) -> None:
         other.goto(url)
         other.click("#nav button[data-page=connect]")
         wait_state("s.device && s.device.link_up", on=other)
+        other.wait_for_function(
+            "() => document.querySelector('#source-select option:checked')"
+            ".textContent.includes('connected')"
+        )
 
         dev.stop()
         for tab in (page, other):
@@ -331,6 +335,7 @@ def link_lost(browser, page, url, wait_state, shot, tmp_path, errors) -> None:
         shot("08-link-lost")
         # The Connect page keeps its shape with the long error of a lost port.
         wait_state("s.device && s.device.error", on=other)
+        assert dev.path in other.locator("#source-select option:checked").inner_text()
         other.wait_for_timeout(600)
         assert other.evaluate("document.documentElement.scrollWidth") <= 1440
         grow = other.locator("#page-connect .card.grow").bounding_box()

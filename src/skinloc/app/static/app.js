@@ -334,11 +334,12 @@ async function loadPorts() {
 function markConnected(rebuilt = false) {
   // The Source selector names the skin that is connected, and selects it.
   const sel = $("#source-select");
-  const d = app.state?.device;
-  const source = d?.spec?.source;
+  const source = app.state?.device?.spec?.source;
+  const mark = " ● connected";
   for (const o of [...sel.options]) {
+    if (o.value === source) continue;
     if (o.dataset.extra) o.remove();
-    else o.textContent = o.textContent.replace(/ ● connected$/, "");
+    else if (o.textContent.endsWith(mark)) o.textContent = o.textContent.slice(0, -mark.length);
   }
   if (!source) return;
   let opt = [...sel.options].find((o) => o.value === source);
@@ -349,7 +350,7 @@ function markConnected(rebuilt = false) {
     opt.dataset.extra = "1";
     sel.appendChild(opt);
   }
-  opt.textContent += " ● connected";
+  if (!opt.textContent.endsWith(mark)) opt.textContent += mark;
   // What is connected is selected, unless the person picked another source to connect.
   if (!app.pickedSource && (rebuilt || app.shownSource !== source)) {
     app.shownSource = source;
@@ -528,8 +529,8 @@ function renderGuided(kind) {
   const rows = (rec?.done || []).map((p, i) => {
     const flags = rec.flags?.[i] || [];
     const err = rec.errors_mm?.[i];
-    return `<tr><td>${i + 1}</td><td>${mm(p)}</td>${kind === "validate" ? `<td>${err != null ? err.toFixed(1) : ""}</td>` : ""}
-      <td>${flags.map((f) => `<span class="flag ${f}">${f}</span>`).join("")}</td>
+    return `<tr><td>${i + 1}</td><td>${p.map((x) => (x * 1000).toFixed(0)).join(", ")}</td>${kind === "validate" ? `<td>${err != null ? err.toFixed(1) : ""}</td>` : ""}
+      <td class="flags">${flags.map((f) => `<span class="flag ${f}">${f}</span>`).join("")}</td>
       <td>${flags.length || kind === "validate" ? `<button data-retake="${i}">Retake</button>` : ""}</td></tr>`;
   }).reverse();
   $(".touches tbody", el).innerHTML = rows.join("") || `<tr><td colspan="5" class="hint">No touch recorded yet.</td></tr>`;

@@ -161,7 +161,8 @@ export class Viewer {
     this.radius = geo.boundingSphere.radius;
     this.controls.target.copy(this.center);
     this.fitAspect = this.camera.aspect;
-    this.camera.position.copy(this.center).add(new THREE.Vector3(0.9, -1.6, 1.4).normalize().multiplyScalar(this.fitDistance()));
+    this.homeDir = this._outside();
+    this.camera.position.copy(this.center).add(this.homeDir.clone().multiplyScalar(this.fitDistance()));
     this.controls.update();
     this.setAxes(geo);
   }
@@ -175,23 +176,27 @@ export class Viewer {
     const len = niceLength(Math.max(size.x, size.y, size.z) * 0.4);
     const origin = box.min.clone();
     const axes = new THREE.AxesHelper(len);
+    axes.material.depthTest = false; // a scale is read, never hidden
+    axes.renderOrder = 10;
     axes.position.copy(origin);
     this.groups.axes.add(axes);
     const names = [["x", "#d13b3b"], ["y", "#1e9e5a"], ["z", "#2f6fde"]];
     names.forEach(([name, colour], k) => {
       const end = origin.clone();
       end.setComponent(k, end.getComponent(k) + len * 1.12);
-      this.groups.axes.add(this._label(k === 0 ? `${name}: ${len} mm` : name, colour, end));
+      this.groups.axes.add(this._label(k === 0 ? `${name}: ${len} mm` : name, colour, end, true));
     });
     this.axesLength = len;
   }
 
-  _label(text, colour, at) {
-    // A label facing the camera, the same size on screen at any zoom (about 16 px tall).
+  _label(text, colour, at, onTop = false) {
+    // A label facing the camera, the same size on screen at any zoom (about 12 px tall);
+    // ``onTop`` ones are never hidden by the skin (the axes), the others are behind it.
     const wide = text.length > 3;
     const map = wide ? wideTexture(text, colour) : labelTexture(text, colour);
-    const sprite = new THREE.Sprite(new THREE.SpriteMaterial({ map, depthWrite: false, sizeAttenuation: false }));
-    const h = wide ? 0.05 : 0.045;
+    const sprite = new THREE.Sprite(new THREE.SpriteMaterial({ map, depthWrite: false, depthTest: !onTop, sizeAttenuation: false }));
+    if (onTop) sprite.renderOrder = 10;
+    const h = wide ? 0.034 : 0.026;
     sprite.scale.set(h * (wide ? 4 : 2), h, 1);
     if (wide) sprite.center.set(0.1, 0.5); // starts where it points (an axis end)
     sprite.position.copy(at);
@@ -272,8 +277,25 @@ export class Viewer {
     return n;
   }
 
+  _outside() {
+    // The whole skin seen from its outside: along the normal of the skin point nearest its
+    // centre, turned away from the centre, a little from above.
+    const pos = this.skinGeometry.attributes.position, nor = this.skinGeometry.attributes.normal;
+    const q = new THREE.Vector3();
+    let best = 0, bestD = Infinity;
+    for (let i = 0; i < pos.count; i++) {
+      const d = q.fromBufferAttribute(pos, i).distanceToSquared(this.center);
+      if (d < bestD) { bestD = d; best = i; }
+    }
+    const out = q.fromBufferAttribute(pos, best).clone().sub(this.center);
+    const n = new THREE.Vector3().fromBufferAttribute(nor, best).normalize();
+    if (out.lengthSq() > 1e-9 && n.dot(out) < 0) n.negate();
+    if (!Number.isFinite(n.x) || n.lengthSq() < 0.5) return new THREE.Vector3(0.9, -1.6, 1.4).normalize();
+    return n.add(new THREE.Vector3(0, 0, 0.4)).normalize();
+  }
+
   overview() {
-    const to = this.center.clone().add(new THREE.Vector3(0.9, -1.6, 1.4).normalize().multiplyScalar(this.fitDistance()));
+    const to = this.center.clone().add((this.homeDir || new THREE.Vector3(0, -1, 1).normalize()).clone().multiplyScalar(this.fitDistance()));
     this.fly = { from: this.camera.position.clone(), to, t0: performance.now(), ms: 700 };
   }
 

@@ -248,6 +248,7 @@ def test_full_session_in_the_browser(server, tmp_path):
         page.wait_for_selector('.guided[data-kind="calibrate"] .reopen:not(.hidden)')
         assert panel.locator(".count").inner_text() == ""
         assert "browser test" in panel.locator(".reopen-select option:checked").inner_text()
+        page.wait_for_timeout(400)  # the progress bar's transition
         shot("09-reopen")
         panel.locator(".reopen-btn").click()
         wait_state("s.session && s.session.name === 'browser test'")

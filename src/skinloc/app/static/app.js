@@ -590,6 +590,10 @@ function renderLive(msg) {
   } else {
     el.textContent = "not touched";
     el.className = "big-state idle";
+    // No stale numbers from the last touch.
+    $("#live-point").textContent = "-";
+    $("#live-unc").textContent = "-";
+    $("#live-conf").style.width = "0";
     app.viewer.setLive(null);
   }
 }

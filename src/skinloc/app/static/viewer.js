@@ -318,8 +318,10 @@ export class Viewer {
       pos.setUsage(THREE.DynamicDrawUsage);
       geo.setAttribute("position", pos);
       geo.setDrawRange(0, 0);
-      this.trailLine = new THREE.Line(geo, new THREE.LineBasicMaterial({ color: 0x2f6fde }));
+      // Predictions lie a little inside or outside the surface: the trail is drawn over the skin.
+      this.trailLine = new THREE.Line(geo, new THREE.LineBasicMaterial({ color: 0x2f6fde, depthTest: false }));
       this.trailLine.frustumCulled = false;
+      this.trailLine.renderOrder = 5;
       this.groups.live.add(this.liveDot, this.liveHalo, this.trailLine);
     }
     if (!point) {

@@ -367,3 +367,45 @@ def link_lost(browser, page, url, wait_state, shot, tmp_path, errors) -> None:
         errors[:] = [e for e in errors if "ERR_CONNECTION" not in e]
     finally:
         dev.stop()
+
+
+def test_a_tab_notices_a_silent_link_by_itself(server):
+    """The tab's own watchdog: frames stop reaching it while the server still says the link
+    is up (a stalled connection, not a port the server saw close): link lost, then back."""
+    url, app = server
+    chromium = find_chromium()
+    from skinloc.app.device import SourceSpec
+
+    app.state.workspace.connect(SourceSpec(source="sim"))
+    errors: list[str] = []
+    drop = threading.Event()
+    with sync_api.sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
+        page = browser.new_page(viewport={"width": 1440, "height": 900})
+        watch(page, errors)
+
+        def relay(ws) -> None:
+            server_side = ws.connect_to_server()
+
+            def forward(message) -> None:
+                text = message if isinstance(message, str) else ""
+                if drop.is_set() and ('"type":"frame"' in text or '"type":"sensors"' in text):
+                    return  # lost on the way: the server keeps streaming
+                ws.send(message)
+
+            server_side.on_message(forward)
+
+        page.route_web_socket("**/ws*", relay)
+        page.goto(url)
+        page.wait_for_function(
+            "() => document.querySelector('#pill-device').textContent.includes('Hz')"
+        )
+        assert page.locator("#linklost").is_hidden()
+        drop.set()
+        page.wait_for_selector("#linklost:not(.hidden)", timeout=10_000)
+        assert "link lost" in page.inner_text("#pill-device")
+        assert app.state.workspace.device.link_up  # the server saw nothing wrong
+        drop.clear()
+        page.wait_for_selector("#linklost", state="hidden", timeout=10_000)
+        browser.close()
+    assert not errors, f"the page logged errors: {errors}"

@@ -151,6 +151,11 @@ function linkLost() {
 
 function checkLink() {
   const now = performance.now();
+  if (ws !== link.ws) {
+    // A new connection: it has said nothing yet, and that is not silence.
+    link.ws = ws;
+    link.msgAt = now;
+  }
   const offline = !ws || ws.readyState !== WebSocket.OPEN;
   if (ws && ws.readyState === WebSocket.OPEN && now - link.msgAt > APP_SILENT_MS) {
     ws.close(); // a connection that went silent: reconnect (onclose says so)

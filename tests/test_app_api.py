@@ -117,6 +117,30 @@ def test_full_session_calibrate_train_validate_live(tmp_path):
         assert state["session"]["validation"]["n"] == 3
         val = read_recording(tmp_path / sid / "validation.h5")
         assert val.n_point_logs == 3 and len(val.meta["app"]["errors_mm"]) == 3
+        assert state["session"]["validation"]["retaken"] == 0
+
+        # Retaking a validation touch is recorded: the result keeps the attempt taken back.
+        first_error = val.meta["app"]["errors_mm"][0]
+        r = client.post(
+            "/api/capture/retake", json={"index": 0, "recording": "validation"}, headers=A
+        )
+        assert r.status_code == 200, r.text
+        state = wait_for(
+            client,
+            lambda s: (
+                s["session"]["validation"]["retaken"] == 1 and s["session"]["validation"]["n"] == 3
+            ),
+            "the retaken validation touch",
+        )
+        result = state["session"]["validation"]
+        assert result["n_attempts"] == 4 and result["complete"]
+        assert result["all_attempts"]["n"] == 4
+        assert result["taken_back"][0]["reason"] == "retake"
+        assert result["taken_back"][0]["error_mm"] == pytest.approx(first_error, abs=1e-2)
+        val = read_recording(tmp_path / sid / "validation.h5")
+        assert val.n_point_logs == 3 and len(val.meta["app"]["taken_back"]) == 1
+        listed = client.get("/api/sessions").json()["sessions"][0]["validation"]
+        assert listed["retaken"] == 1 and listed["n_attempts"] == 4
 
         assert client.post("/api/finger", json={"on": False}, headers=A).status_code == 200
         assert client.post("/api/live/start", headers=A).status_code == 200
@@ -319,3 +343,72 @@ def test_reconnecting_the_skin_mid_session_carries_on(tmp_path):
         assert client.post("/api/connect", json=body, headers=A).status_code == 200
         calibrate(client)
         assert read_recording(tmp_path / sid / "calibration.h5").n_point_logs == 5
+
+
+def _stream_until(ws, check, what: str, timeout_s: float = 20.0) -> dict:
+    """Read messages from ``ws`` until ``check(msg)``; fails naming ``what`` after ``timeout_s``.
+
+    The WebSocket never goes quiet for long (the server sends a heartbeat when there is nothing
+    else), so the deadline is checked between messages.
+    """
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        msg = ws.receive_json()
+        if check(msg):
+            return msg
+    pytest.fail(f"no {what} within {timeout_s} s")
+
+
+def test_heartbeat_when_nothing_else_is_sent(tmp_path):
+    with make_client(tmp_path, source=False) as client:
+        client.headers.update({"X-Skinloc-Token": getattr(client.app.state, "token", "") or ""})
+        with client.websocket_connect("/ws?client=tab-a") as ws:
+            assert ws.receive_json()["type"] == "state"
+            beat = _stream_until(ws, lambda m: m["type"] == "heartbeat", "heartbeat")
+            assert beat["device"] is False and beat["link_up"] is False
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "openpty"), reason="needs a POSIX pty")
+def test_every_tab_is_told_when_the_link_drops_and_comes_back(tmp_path):
+    """The virtual skin stops: both tabs get a link-lost state; it starts again: link back."""
+    from skinloc.sources.sim import SimulatedSkin
+    from skinloc.virtual_skin import VirtualSkin
+
+    dev = VirtualSkin(SimulatedSkin(random_state=0), rate_hz=200, link_dir=tmp_path / "port")
+    dev.start()
+    try:
+        config = AppConfig(data_dir=tmp_path / "data", finger_delay_s=0.05)
+        app = create_app(config, SourceSpec(source=dev.path))
+        with TestClient(app) as client:
+            client.headers.update({"X-Skinloc-Token": getattr(app.state, "token", "") or ""})
+            with (
+                client.websocket_connect("/ws?client=tab-a") as ws_a,
+                client.websocket_connect("/ws?client=tab-b") as ws_b,
+            ):
+                for ws in (ws_a, ws_b):
+                    _stream_until(ws, lambda m: m["type"] == "frame", "frame")
+                dev.stop()
+                for ws in (ws_a, ws_b):
+                    lost = _stream_until(
+                        ws,
+                        lambda m: m["type"] == "state" and not m["device"]["link_up"],
+                        "link-lost state",
+                    )
+                    assert "link lost" in lost["message"]
+                    beat = _stream_until(ws, lambda m: m["type"] == "heartbeat", "heartbeat")
+                    assert beat["device"] and not beat["link_up"]
+                device = client.get("/api/state").json()["device"]
+                # No stale "200 Hz" from before the stop.
+                assert device["link_up"] is False and device["rate_hz"] == 0
+                dev.start()  # the same port path: the serial source reopens it
+                for ws in (ws_a, ws_b):
+                    back = _stream_until(
+                        ws,
+                        lambda m: m["type"] == "state" and m["device"]["link_up"],
+                        "link-back state",
+                    )
+                    assert "link back" in back["message"]
+                state = client.get("/api/state").json()["device"]
+                assert state["link_losses"] == 1 and state["reconnects"] >= 1
+    finally:
+        dev.stop()

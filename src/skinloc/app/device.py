@@ -24,7 +24,10 @@ from skinloc.sources.base import Frame, FrameSource, make_source
 
 log = logging.getLogger(__name__)
 
-__all__ = ["DeviceLink", "SensorMonitor", "SourceSpec"]
+__all__ = ["LINK_TIMEOUT_S", "DeviceLink", "SensorMonitor", "SourceSpec"]
+
+#: Seconds without a frame after which the link counts as down (the tabs say so within 1 s).
+LINK_TIMEOUT_S = 0.8
 
 
 @dataclass
@@ -115,6 +118,13 @@ class SensorMonitor:
         self.zero, self._zero_frames = None, []
         self.peak = np.zeros(self.n_tx * self.n_rx)
 
+    def restart_rate(self) -> None:
+        """Measure the frame rate afresh (after a gap in the stream)."""
+        last = self._times[-1] if self._times else None
+        self._times.clear()
+        if last is not None:
+            self._times.append(last)
+
     def add(self, values: np.ndarray, wall_s: float) -> None:
         """Take one frame of raw counts."""
         self.n_frames += 1
@@ -200,15 +210,27 @@ class DeviceLink:
         Called on the reader thread for every frame, with this link.
     mesh : trimesh.Trimesh, optional
         Surface of the simulated skin.
+    on_link : callable(bool, DeviceLink), optional
+        Called on the reader thread when the link goes down (no frame for ``LINK_TIMEOUT_S``,
+        or the port lost) and when frames come again.
     """
 
     def __init__(
-        self, spec: SourceSpec, on_frame: Callable[[Frame, DeviceLink], None], mesh: Any = None
+        self,
+        spec: SourceSpec,
+        on_frame: Callable[[Frame, DeviceLink], None],
+        mesh: Any = None,
+        on_link: Callable[[bool, DeviceLink], None] | None = None,
     ):
         self.spec = spec
         self.mesh = mesh
         self.source = spec.build(mesh)
         self.on_frame = on_frame
+        self.on_link = on_link
+        self.last_frame_s = time.monotonic()
+        self.link_up = True
+        self.link_losses = 0
+        self._in_job = False
         self.monitor = SensorMonitor(self.source.n_tx, self.source.n_rx)
         self.error = ""
         self.detached = False
@@ -244,13 +266,44 @@ class DeviceLink:
         self._jobs.append((fn, fut))
         return fut
 
+    @property
+    def frame_age_s(self) -> float:
+        """Seconds since the last frame (0 while an exclusive job reads the stream)."""
+        return 0.0 if self._in_job else max(0.0, time.monotonic() - self.last_frame_s)
+
+    def _source_link_up(self) -> bool:
+        link_stats = getattr(self.source, "stats", None)
+        return bool(link_stats().link_up) if callable(link_stats) else True
+
+    def link_now(self) -> bool:
+        """Whether the link is up now: the port is open and frames keep coming."""
+        return self._source_link_up() and self.frame_age_s < LINK_TIMEOUT_S
+
+    def _check_link(self) -> None:
+        """Tell ``on_link`` when the link goes down or comes back (reader thread)."""
+        up = self.link_now()
+        if up == self.link_up:
+            return
+        self.link_up = up
+        if up:
+            self.monitor.restart_rate()  # the gap is not part of the frame rate
+        else:
+            self.link_losses += 1
+            log.warning("%s: no frame for %.1f s", self.name, self.frame_age_s)
+        if self.on_link is not None and not self.detached:
+            try:
+                self.on_link(up, self)
+            except Exception:  # a bug in a handler must not stop the stream
+                log.exception("link handler failed")
+
     def stats(self) -> dict[str, Any]:
         """Frame rate and link counters (drops, corruption, reconnects) for the UI."""
         out: dict[str, Any] = {
             "name": self.name,
             "tx": self.source.n_tx,
             "rx": self.source.n_rx,
-            "rate_hz": round(self.monitor.rate_hz, 1),
+            # A stalled link streams nothing: no stale rate from the frames before it stopped.
+            "rate_hz": round(self.monitor.rate_hz, 1) if self.link_now() else 0.0,
             "frames": self.monitor.n_frames,
             "error": self.error,
             "sim": self.spec.is_sim,
@@ -265,7 +318,7 @@ class DeviceLink:
                 lost=s["n_lost"],
                 overflow=s["n_overflow"],
                 reconnects=s["n_reconnects"],
-                link_up=s["link_up"],
+                link_up=s["link_up"] and self.link_up,
                 format=s["format"],
             )
         else:
@@ -276,9 +329,11 @@ class DeviceLink:
                 lost=0,
                 overflow=0,
                 reconnects=0,
-                link_up=True,
+                link_up=self.link_up,
                 format="sim",
             )
+        out["link_losses"] = self.link_losses
+        out["frame_age_s"] = round(self.frame_age_s, 2)
         return out
 
     def _run(self) -> None:
@@ -286,22 +341,32 @@ class DeviceLink:
             while self._jobs:
                 fn, fut = self._jobs.popleft()
                 if fut.set_running_or_notify_cancel():
+                    self._in_job = True
                     try:
                         fut.set_result(fn(self.source))
                     except BaseException as exc:  # handed to whoever waits on the future
                         fut.set_exception(exc)
+                    finally:
+                        # The job read the stream: its frames count as signs of life.
+                        self._in_job = False
+                        self.last_frame_s = time.monotonic()
             try:
-                frame = self.source.read(timeout_s=0.5)
+                # A short wait, so a stalled link is noticed well within a second.
+                frame = self.source.read(timeout_s=0.2)
             except FrameTimeoutError as exc:
                 self.error = str(exc)
+                self._check_link()
                 continue
             except SourceNotConnectedError as exc:
                 self.error = str(exc)
+                self._check_link()
                 if not self.source.is_connected:
                     return
                 time.sleep(0.1)
                 continue
             self.error = ""
+            self.last_frame_s = time.monotonic()
+            self._check_link()
             self.monitor.add(frame.values, time.monotonic())
             try:
                 self.on_frame(frame, self)

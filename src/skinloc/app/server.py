@@ -57,6 +57,8 @@ SAFE_METHODS = frozenset({"GET", "HEAD"})
 RAW_BODY_PATHS = frozenset({"/api/meshes"})
 #: Longest ``detail`` sent back, characters (no request is ever echoed at length).
 MAX_DETAIL = 300
+#: Seconds of silence on a tab's WebSocket after which the server sends it a heartbeat.
+HEARTBEAT_S = 0.25
 ClientHeader = Header(default=None, alias="X-Skinloc-Client")
 
 
@@ -484,7 +486,12 @@ def create_app(
 
         async def send() -> None:
             while True:
-                for text in await hub.drain(tab):
+                try:
+                    texts = await asyncio.wait_for(hub.drain(tab), HEARTBEAT_S)
+                except TimeoutError:
+                    # Nothing to send: a heartbeat, so the tab knows the app and the link live.
+                    texts = [to_json(workspace.link_status())]
+                for text in texts:
                     await websocket.send_text(text)
 
         async def receive() -> None:

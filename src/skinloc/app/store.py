@@ -113,6 +113,7 @@ class SessionFolder:
             "has_model": self.model.is_file(),
             "holdout": info.get("holdout"),
             "validation": info.get("validation"),
+            "validation_previous": info.get("validation_previous"),
             "calibration_file": str(self.calibration) if self.calibration.is_file() else None,
         }
         if self.calibration.is_file():

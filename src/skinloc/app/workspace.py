@@ -213,7 +213,9 @@ class Workspace:
         with self._lock:
             self._stop_device(self._detach_device())
             mesh = self.active.mesh if self.active is not None else self.default_mesh
-            link = DeviceLink(spec, self.on_frame, mesh=mesh if spec.is_sim else None)
+            link = DeviceLink(
+                spec, self.on_frame, mesh=mesh if spec.is_sim else None, on_link=self.on_link
+            )
             link.start()
             self.device = link
             self._update_session_snr()
@@ -395,7 +397,7 @@ class Workspace:
                 # The simulated skin takes the session's shape.
                 spec = device.spec
                 self._stop_device(self._detach_device())
-                link = DeviceLink(spec, self.on_frame, mesh=active.mesh)
+                link = DeviceLink(spec, self.on_frame, mesh=active.mesh, on_link=self.on_link)
                 link.start()
                 self.device = link
             self._update_session_snr()
@@ -493,6 +495,7 @@ class Workspace:
                 "errors_mm": [],
                 "skipped": [],
                 "baseline_checks": [],
+                "taken_back": [],
                 "started": False,
             }
         meta = _app_meta(rec)
@@ -505,6 +508,7 @@ class Workspace:
             "errors_mm": meta.get("errors_mm", []),
             "skipped": meta.get("skipped", []),
             "baseline_checks": meta.get("baseline_checks", []),
+            "taken_back": meta.get("taken_back", []),
             "started": True,
         }
 
@@ -563,7 +567,13 @@ class Workspace:
             if a.val is not None and a.folder.validation.is_file():
                 # Starting again: the old validation is kept, renamed.
                 stamp = time.strftime("%Y%m%d-%H%M%S")
-                a.folder.validation.rename(a.folder.path / f"validation-{stamp}.h5")
+                kept = f"validation-{stamp}.h5"
+                a.folder.validation.rename(a.folder.path / kept)
+                # Its result is the previous one now, said so, not the new run's.
+                old = a.info.pop("validation", None)
+                if old:
+                    a.info["validation_previous"] = {**old, "file": kept}
+                a.folder.write_info(a.info)
             base = a.info["config"]
             cfg = SessionConfig(
                 n_points=n,
@@ -686,7 +696,7 @@ class Workspace:
         if self._finger_down and self._finger is not None:
             try:
                 self._finger.captured(-1)
-            except SkinlocError:  # the port may be gone already
+            except (SkinlocError, OSError):  # the port may be gone already
                 pass
         self._finger, self._finger_due, self._finger_down = None, None, False
 
@@ -744,6 +754,20 @@ class Workspace:
         # The history first: the touch must exist somewhere at every instant.
         a.folder.archive("touch", arrays, {"reason": reason, "recording": which, "index": index})
         removed = _pop_point_log(rec, index)
+        if which == "validation":
+            # A validation touch taken back is still an attempt: the result keeps it, so
+            # retaking the worst touches cannot quietly improve the reported error.
+            err = removed["meta"].get("errors_mm")
+            _app_meta(rec).setdefault("taken_back", []).append(
+                {
+                    "index": int(index),
+                    "reason": reason,
+                    "target": removed["target"].tolist(),
+                    "predicted": removed["meta"].get("predicted"),
+                    "error_mm": None if err is None else round(float(err), 3),
+                    "time": time.strftime("%Y-%m-%dT%H:%M:%S"),
+                }
+            )
         planned = rec.planned_targets if rec.planned_targets is not None else rec.targets
         rec.planned_targets = np.concatenate([rec.targets, removed["target"][None], planned[n:]])
         sess.targets = rec.planned_targets
@@ -753,6 +777,8 @@ class Workspace:
             self.capture.restart(touched_now=True)
         self._stop_capture_finger()
         self._setup_finger()
+        if which == "validation":
+            self._summarise_validation()
         self.message = f"{reason}: touch target {rec.n_point_logs + 1} again"
         self._update_session_snr()
         self._publish_state()
@@ -816,6 +842,37 @@ class Workspace:
             if now - self._last_report >= 1.0:
                 self._last_report = now
                 self._push_report()
+
+    def on_link(self, up: bool, device: DeviceLink) -> None:
+        """The link went down or came back (reader thread): tell every tab at once."""
+        with self._locked_for(device) as ok:
+            if not ok:
+                return
+            if not up:
+                if self.capture is not None and self.capture.phase is CapturePhase.CAPTURING:
+                    # Frames from before and after a gap are not one steady touch.
+                    self.capture.restart(touched_now=True)
+                self._stop_capture_finger()
+                self._setup_finger()
+                self.message = (
+                    f"link lost: no frame from {device.name}; waiting for it to come back "
+                    "(everything recorded is kept)"
+                )
+            else:
+                self.message = f"link back: {device.name} is streaming again"
+            self._publish_state()
+
+    def link_status(self) -> dict[str, Any]:
+        """The heartbeat the server sends each tab when nothing else goes to it (no lock)."""
+        device = self.device
+        if device is None:
+            return {"type": "heartbeat", "device": False, "link_up": False}
+        return {
+            "type": "heartbeat",
+            "device": True,
+            "link_up": device.link_up and device.link_now(),
+            "frame_age_s": round(device.frame_age_s, 2),
+        }
 
     def _guided_frame(self, frame: Frame, now: float) -> bool:
         cap = self.capture
@@ -909,17 +966,41 @@ class Workspace:
         a = self.active
         if a is None or a.val is None or a.val.recording is None:
             return
-        errors = _app_meta(a.val.recording).get("errors_mm", [])
-        if not errors:
+        rec = a.val.recording
+        meta = _app_meta(rec)
+        errors = meta.get("errors_mm", [])
+        taken_back = meta.get("taken_back", [])
+        if not errors and not taken_back:
             return
         from skinloc.metrics import error_stats
 
-        stats = error_stats(np.asarray(errors)).as_dict()
+        stats: dict[str, Any] = (
+            error_stats(np.asarray(errors)).as_dict() if errors else {"n": 0, "mean_mm": None}
+        )
+        every = list(errors) + [t["error_mm"] for t in taken_back if t.get("error_mm") is not None]
+        planned = rec.planned_targets if rec.planned_targets is not None else rec.targets
+        stats.update(
+            complete=rec.n_point_logs >= len(planned),
+            n_planned=len(planned),
+            retaken=len(taken_back),
+            skipped=len(meta.get("skipped", [])),
+            n_attempts=len(errors) + len(taken_back),
+            # Every attempt, the ones taken back included: the honest figure next to the mean.
+            all_attempts=error_stats(np.asarray(every)).as_dict() if every else None,
+            taken_back=[
+                {"index": t["index"], "reason": t["reason"], "error_mm": t.get("error_mm")}
+                for t in taken_back
+            ],
+        )
         a.info["validation"] = stats
         a.folder.write_info(a.info)
+        if not errors:
+            return
+        k = len(taken_back)
+        note = f"; {k} touch{'es' if k > 1 else ''} retaken" if k else ""
         self.message = (
             f"validation: {stats['mean_mm']:.1f} +- {stats['std_mm']:.1f} mm over {stats['n']} "
-            "touches"
+            f"touches{note}"
         )
 
     def _update_session_snr(self) -> None:
@@ -1101,6 +1182,7 @@ class Workspace:
                     "has_model": a.model is not None,
                     "holdout": a.info.get("holdout"),
                     "validation": a.info.get("validation"),
+                    "validation_previous": a.info.get("validation_previous"),
                     "n_validation": a.info.get("n_validation", 20),
                     "mesh": a.info.get("mesh"),
                 },

@@ -6,7 +6,19 @@ const $ = (sel, root = document) => root.querySelector(sel);
 const $$ = (sel, root = document) => [...root.querySelectorAll(sel)];
 const esc = (s) => String(s ?? "").replace(/[&<>"']/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;", "'": "&#39;" }[c]));
 const mm = (p) => (p ? p.map((x) => (x * 1000).toFixed(1)).join(", ") : "-");
-const fmtErr = (s) => (s ? `${s.mean_mm.toFixed(1)} ± ${s.std_mm.toFixed(1)} mm` : "-");
+const fmtErr = (s) => (s && s.mean_mm != null ? `${s.mean_mm.toFixed(1)} ± ${s.std_mm.toFixed(1)} mm` : "-");
+// What a validation result says about touches taken back (retaken or undone) and skipped.
+function retakenNote(v) {
+  if (!v) return "";
+  const parts = [];
+  if (v.retaken) {
+    const all = v.all_attempts ? `; all ${v.n_attempts} attempts: ${fmtErr(v.all_attempts)}` : "";
+    parts.push(`${v.retaken} touch${v.retaken > 1 ? "es" : ""} retaken${all}`);
+  }
+  if (v.skipped) parts.push(`${v.skipped} skipped`);
+  if (v.complete === false) parts.push(`incomplete: ${v.n} of ${v.n_planned}`);
+  return parts.join(" · ");
+}
 
 // A tab keeps its id across reloads (sessionStorage), so a reload keeps control.
 let clientId = sessionStorage.getItem("skinloc-client");
@@ -24,6 +36,16 @@ const app = {
   viewer: null,
 };
 window.skinloc = app; // for the end-to-end test and for debugging
+
+function validationCell(s) {
+  // The result, what was retaken; while a new validation runs, the previous one, named so.
+  const v = s.validation, prev = s.validation_previous;
+  if (v && v.mean_mm != null) {
+    const note = retakenNote(v);
+    return `${fmtErr(v)}${note ? `<br><span class="flag retaken">${esc(note)}</span>` : ""}`;
+  }
+  return prev ? `<span class="hint">previous: ${fmtErr(prev)}${prev.retaken ? ` (${prev.retaken} retaken)` : ""}</span>` : "-";
+}
 
 // ------------------------------------------------------------------ talking to the server
 // The launch secret the server put in the page: every action and the stream send it back.
@@ -78,9 +100,20 @@ const handlers = {
   state(msg) {
     const prev = app.state;
     app.state = msg;
+    if (msg.device?.link_up) link.aliveAt = performance.now();
+    if (msg.session?.id) localStorage.setItem("skinloc-last-session", msg.session.id);
     renderState(prev);
+    checkLink();
+  },
+  heartbeat(msg) {
+    // Sent by the server when nothing else is: the app lives; the skin's link is as it says.
+    if (msg.link_up) link.aliveAt = performance.now();
+    if (app.state?.device) app.state.device.frame_age_s = msg.frame_age_s;
+    checkLink();
+    if (link.lost) renderLink(); // the time since the last frame grows
   },
   frame(msg) {
+    link.aliveAt = performance.now();
     app.frame = msg;
     if (app.state?.device && msg.stats) Object.assign(app.state.device, msg.stats);
     later("frame", () => renderFrame(app.frame));
@@ -98,6 +131,75 @@ const handlers = {
     later("live", () => renderLive(app.lastLiveMsg));
   },
 };
+
+// Every message shows that the app is there; frames (and heartbeats saying so) that the skin is.
+for (const [k, f] of Object.entries(handlers)) {
+  handlers[k] = (msg) => { link.msgAt = performance.now(); f(msg); };
+}
+
+// ------------------------------------------------------------------ the skin's link
+// The server pushes a state when the link drops or comes back; this watchdog does not wait for
+// it: a tab that has heard no frame (or heartbeat saying the link is up) for a second, or
+// nothing at all from the app, shows the link as lost by itself.
+const LINK_LOST_MS = 1000;
+const APP_SILENT_MS = 2500;
+const link = { aliveAt: performance.now(), msgAt: performance.now(), lost: false, offline: false };
+
+function linkLost() {
+  const d = app.state?.device;
+  if (!d) return false;
+  return link.offline || d.link_up === false || performance.now() - link.aliveAt > LINK_LOST_MS;
+}
+
+function checkLink() {
+  const now = performance.now();
+  if (ws !== link.ws) {
+    // A new connection: it has said nothing yet, and that is not silence.
+    link.ws = ws;
+    link.msgAt = now;
+  }
+  const offline = !ws || ws.readyState !== WebSocket.OPEN;
+  if (ws && ws.readyState === WebSocket.OPEN && now - link.msgAt > APP_SILENT_MS) {
+    ws.close(); // a connection that went silent: reconnect (onclose says so)
+  }
+  link.offline = offline;
+  const lost = linkLost();
+  if (lost === link.lost) return;
+  link.lost = lost;
+  renderLink();
+  if (app.page === "calibrate" || app.page === "validate") renderGuided(app.page);
+}
+setInterval(checkLink, 200);
+
+function renderLink() {
+  const d = app.state?.device;
+  document.body.classList.toggle("link-lost", link.lost);
+  const banner = $("#linklost");
+  banner.classList.toggle("hidden", !link.lost || link.offline);
+  if (link.lost && d) {
+    const age = d.frame_age_s ? ` for ${d.frame_age_s.toFixed(1)} s` : "";
+    $("#linklost-text").textContent = `No frame from ${d.name}${age}. Waiting for it to come back` +
+      `${d.sim ? "" : " (reconnecting to the port)"}; touches are not prompted meanwhile, and nothing recorded is lost.`;
+  }
+  renderPill();
+  if (app.page === "connect") renderDeviceStats(d);
+}
+
+function renderPill() {
+  const d = app.state?.device;
+  const pd = $("#pill-device");
+  if (!d) {
+    pd.textContent = "no skin";
+    pd.className = "pill off";
+  } else if (link.lost) {
+    pd.textContent = `${d.name} · link lost`;
+    pd.className = "pill bad";
+  } else {
+    pd.textContent = `${d.name} · ${d.rate_hz.toFixed(0)} Hz${d.reconnects ? ` · ${d.reconnects} reconnect${d.reconnects > 1 ? "s" : ""}` : ""}`;
+    pd.className = "pill";
+  }
+  pd.title = pd.textContent;
+}
 
 const pending = new Map();
 function later(key, fn) {
@@ -147,6 +249,9 @@ function showPage(page) {
   for (const b of $$("#nav button")) b.classList.toggle("active", b.dataset.page === page);
   for (const s of $$(".page")) s.classList.toggle("active", s.id === `page-${page}`);
   const slot = $(`.viewer-slot[data-for="${page}"]`);
+  // The 3D view lives on the pages that have a place for it, never under the others.
+  $("#viewer").classList.toggle("hidden", !slot);
+  $("#viewer-legend").classList.toggle("hidden", page !== "validate");
   if (slot) {
     slot.appendChild($("#viewer"));
     app.viewer.resize();
@@ -167,7 +272,7 @@ async function loadSessions() {
       <td><b>${esc(s.name)}</b><br><span class="hint">${esc(s.id)}</span>${s.error ? `<br><span class="flag">${esc(s.error)}</span>` : ""}</td>
       <td>${s.n_done ?? 0} / ${s.n_planned ?? "?"}</td>
       <td>${s.has_model ? fmtErr(s.holdout) : "-"}</td>
-      <td>${fmtErr(s.validation)}</td>
+      <td>${validationCell(s)}</td>
       <td class="hint">${esc((s.modified || s.created || "").replace("T", " ").slice(0, 16))}</td>
       <td><button data-open="${esc(s.id)}">${s.id === current ? "Opened" : "Open"}</button></td>
     </tr>`);
@@ -239,8 +344,37 @@ async function loadPorts() {
   sel.innerHTML = `<option value="sim">simulated skin</option>` + ports.map((p) =>
     `<option value="${esc(p.device)}">${esc(p.device)} ${p.likely_arduino ? "(Arduino?)" : p.virtual ? "(virtual skin)" : ""} ${esc(p.description || "")}</option>`).join("");
   if ([...sel.options].some((o) => o.value === keep)) sel.value = keep;
+  markConnected(true);
+}
+
+function markConnected(rebuilt = false) {
+  // The Source selector names the skin that is connected, and selects it.
+  const sel = $("#source-select");
+  const source = app.state?.device?.spec?.source;
+  const mark = " ● connected";
+  for (const o of [...sel.options]) {
+    if (o.value === source) continue;
+    if (o.dataset.extra) o.remove();
+    else if (o.textContent.endsWith(mark)) o.textContent = o.textContent.slice(0, -mark.length);
+  }
+  if (!source) return;
+  let opt = [...sel.options].find((o) => o.value === source);
+  if (!opt) {
+    opt = document.createElement("option");
+    opt.value = source;
+    opt.textContent = source;
+    opt.dataset.extra = "1";
+    sel.appendChild(opt);
+  }
+  if (!opt.textContent.endsWith(mark)) opt.textContent += mark;
+  // What is connected is selected, unless the person picked another source to connect.
+  if (!app.pickedSource && (rebuilt || app.shownSource !== source)) {
+    app.shownSource = source;
+    sel.value = source;
+  }
 }
 $("#refresh-ports").addEventListener("click", loadPorts);
+$("#source-select").addEventListener("change", () => { app.pickedSource = true; });
 $("#connect-form").addEventListener("submit", async (ev) => {
   ev.preventDefault();
   const f = Object.fromEntries(new FormData(ev.target).entries());
@@ -249,6 +383,7 @@ $("#connect-form").addEventListener("submit", async (ev) => {
     tx: Number(f.tx), rx: Number(f.rx), baud: Number(f.baud), format: f.format,
   };
   await api("/api/connect", body);
+  app.pickedSource = false;
 });
 $("#disconnect-btn").addEventListener("click", () => api("/api/disconnect"));
 $("#rezero").addEventListener("click", () => api("/api/rezero"));
@@ -256,8 +391,8 @@ $("#rezero").addEventListener("click", () => api("/api/rezero"));
 function renderSensors() {
   const s = app.sensors, st = app.state?.device;
   if (!s || !st) return;
-  drawHeat($("#heat-noise"), s.noise, st.tx, st.rx, { status: s.status, labels: true, fmt: (v) => v.toFixed(1), minScale: 10 });
-  drawHeat($("#heat-snr"), s.snr_db, st.tx, st.rx, { status: s.status, labels: true, scale: 25, offset: 20 });
+  drawHeat($("#heat-noise"), s.noise, st.tx, st.rx, { status: s.status, labels: true, fmt: (v) => v.toFixed(1), minScale: 10, unit: "counts", signed: false });
+  drawHeat($("#heat-snr"), s.snr_db, st.tx, st.rx, { status: s.status, labels: true, fmt: (v) => v.toFixed(0), scale: 25, offset: 20, unit: "dB" });
   $("#snr-from").textContent = s.snr_from === "session" ? "from the session's touches" : "peak since zero / noise";
   const lines = [...s.tx_lines.map((l) => `TX ${l.index}: ${l.status}`), ...s.rx_lines.map((l) => `RX ${l.index}: ${l.status}`)];
   const sensors = s.status.map((v, k) => (v !== "ok" ? `T${Math.floor(k / st.rx)} R${k % st.rx}: ${v}` : null)).filter(Boolean);
@@ -267,11 +402,13 @@ function renderSensors() {
 }
 
 function renderDeviceStats(d) {
+  const lost = link.lost;
   const rows = d ? [
-    ["Skin", esc(d.name)], ["Grid", `${d.tx} TX x ${d.rx} RX`], ["Frame rate", `${d.rate_hz.toFixed(1)} Hz`],
-    ["Received", d.received], ["Dropped", d.dropped], ["Corrupted", d.corrupted], ["Lost", d.lost],
-    ["Overflow", d.overflow], ["Reconnects", d.reconnects], ["Link", d.link_up ? "up" : "<b>DOWN</b>"],
-    ...(d.error ? [["Error", esc(d.error)]] : []),
+    ["Skin", esc(d.name)], ["Grid", `${d.tx} TX x ${d.rx} RX`], ["Frame rate", lost ? "-" : `${d.rate_hz.toFixed(1)} Hz`],
+    ["Received", d.received], ["Dropped", d.dropped], ["Corrupted", d.corrupted], ["Lost frames", d.lost],
+    ["Overflow", d.overflow], ["Reconnects", d.reconnects], ["Link losses", d.link_losses ?? 0],
+    ["Link", lost ? `<b class="bad">LOST</b>${d.frame_age_s ? ` (no frame for ${d.frame_age_s.toFixed(1)} s)` : ""}` : "up"],
+    ...(d.error && lost ? [["Error", `<span class="error-text">${esc(d.error)}</span>`]] : []),
   ] : [["Skin", "not connected"]];
   $("#device-stats").innerHTML = rows.map(([k, v]) => `<tr><th>${k}</th><td>${v}</td></tr>`).join("");
 }
@@ -284,6 +421,10 @@ function guidedPanel(kind) {
   const isCal = kind === "calibrate";
   el.innerHTML = `
     <h2>${isCal ? "Calibrate" : "Validate"}</h2>
+    <div class="reopen hidden">
+      <p class="hint">No session is open (the app may have restarted). Open one to go on where it stopped:</p>
+      <div class="buttons"><select class="reopen-select"></select><button class="primary reopen-btn">Open</button></div>
+    </div>
     ${isCal ? "" : `<label class="check">Touches <input type="number" class="n-val" min="1" max="500" value="20" style="width:70px"></label>`}
     <div class="buttons">
       <button class="primary start">${isCal ? "Start / resume" : "Start"}</button>
@@ -301,8 +442,10 @@ function guidedPanel(kind) {
     <label class="check"><input type="checkbox" class="finger"> scripted finger touches each target</label>
     <div class="target-info hint"></div>
     ${isCal ? `<div class="hint sheets">Printable targets: <a class="svg" target="_blank">SVG</a> · <a class="pdf" target="_blank">PDF</a></div>` : `<div class="val-result"></div>`}
-    <div class="touches"><table></table></div>
-    <canvas class="heat guided-heat"></canvas>`;
+    <canvas class="heat guided-heat"></canvas>
+    <div class="touches"><table>
+      <thead><tr><th>#</th><th>Position (mm)</th>${isCal ? "" : "<th>Error (mm)</th>"}<th>Flags</th><th></th></tr></thead>
+      <tbody></tbody></table></div>`;
   if (!isCal) $(".n-val", el).addEventListener("input", (ev) => { ev.target.dataset.touched = "1"; });
   $(".start", el).addEventListener("click", () => (isCal ? api("/api/calibrate/start")
     : api("/api/validate/start", { n_points: Number($(".n-val", el).value) })));
@@ -311,6 +454,16 @@ function guidedPanel(kind) {
   $(".undo", el).addEventListener("click", () => api("/api/capture/undo"));
   $(".skip", el).addEventListener("click", () => api("/api/capture/skip"));
   $(".finger", el).addEventListener("change", (ev) => api("/api/finger", { on: ev.target.checked }));
+  // A clicked button or box must not keep the keyboard: Space, Z and S drive the capture.
+  el.addEventListener("click", (ev) => {
+    if (ev.target.matches("button, input[type=checkbox]")) ev.target.blur();
+  });
+  $(".reopen-btn", el).addEventListener("click", async () => {
+    const id = $(".reopen-select", el).value;
+    if (!id) return;
+    await api(`/api/sessions/${encodeURIComponent(id)}/open`);
+    await refreshSession();
+  });
   $(".touches", el).addEventListener("click", (ev) => {
     const i = ev.target.dataset?.retake;
     if (i !== undefined) api("/api/capture/retake", { index: Number(i), recording: isCal ? "calibration" : "validation" });
@@ -324,22 +477,45 @@ const PHASE_TEXT = {
   wait_release: ["Lift your finger", "lift"],
 };
 
+async function offerSessions(el) {
+  // After a restart nothing is open: offer the sessions, the last one this browser used first.
+  if (el.dataset.offered && performance.now() - Number(el.dataset.offered) < 5000) return;
+  el.dataset.offered = String(performance.now());
+  const data = await get("/api/sessions");
+  const last = localStorage.getItem("skinloc-last-session");
+  const list = [...data.sessions].filter((s) => !s.error)
+    .sort((a, b) => (b.id === last) - (a.id === last) || String(b.modified || "").localeCompare(String(a.modified || "")));
+  $(".reopen-select", el).innerHTML = list.map((s) =>
+    `<option value="${esc(s.id)}">${esc(s.name)} (${s.n_done ?? 0} / ${s.n_planned ?? "?"})</option>`).join("")
+    || `<option value="">no session yet: create one on the Sessions page</option>`;
+  $(".reopen-btn", el).disabled = !list.length;
+}
+
 function renderGuided(kind) {
   const el = guidedPanel(kind);
   const st = app.state;
   const mode = kind === "calibrate" ? "calibrate" : "validate";
   const active = st?.mode === mode;
   const g = active ? st.guided : null;
-  const rec = app.session?.[kind === "calibrate" ? "calibration" : "validation"];
+  // Only the open session's progress: never what a tab remembers from before a restart.
+  const current = app.session && app.session.id === st?.session?.id ? app.session : null;
+  const rec = current?.[kind === "calibrate" ? "calibration" : "validation"];
+  $(".reopen", el).classList.toggle("hidden", !!st?.session || !st);
+  if (st && !st.session) offerSessions(el);
+  else delete el.dataset.offered;
   const total = g ? g.total : rec?.planned?.length ?? 0;
   const done = g ? g.index : rec?.done?.length ?? 0;
   $(".count", el).textContent = total ? `${done} of ${total} touches recorded` : "";
   $(".bar-total", el).style.width = total ? `${(100 * done) / total}%` : "0";
   $(".finger", el).checked = !!st?.finger;
-  for (const b of $$(".now, .undo, .skip, .stop", el)) b.disabled = !active;
-  $(".start", el).disabled = !st?.session || !st?.device || st?.mode === "baseline";
+  for (const b of $$(".now, .undo, .skip", el)) b.disabled = !active || link.lost;
+  $(".stop", el).disabled = !active;
+  $(".start", el).disabled = !st?.session || !st?.device || st?.mode === "baseline" || link.lost;
   const state = $(".big-state", el);
-  if (st?.mode === "baseline") {
+  if (st?.device && link.lost) {
+    state.textContent = link.offline ? "The app is not answering: reconnecting" : "Link lost: waiting for the skin";
+    state.className = "big-state lost";
+  } else if (st?.mode === "baseline") {
     state.textContent = "Keep the skin untouched: baseline";
     state.className = "big-state lift";
   } else if (!active) {
@@ -351,7 +527,8 @@ function renderGuided(kind) {
     state.className = `big-state ${cls}`;
   }
   $(".target-info", el).textContent = g?.target ? `Target ${g.index + 1} at ${mm(g.target)} mm` : "";
-  if (kind === "calibrate" && app.session) {
+  if (kind === "calibrate") $(".sheets", el).classList.toggle("hidden", !current);
+  if (kind === "calibrate" && current) {
     $(".svg", el).href = `/api/sessions/${app.session.id}/targets.svg`;
     $(".pdf", el).href = `/api/sessions/${app.session.id}/targets.pdf`;
   }
@@ -359,20 +536,26 @@ function renderGuided(kind) {
     const input = $(".n-val", el);
     if (!input.dataset.touched && st?.session?.n_validation) input.value = st.session.n_validation;
     const v = app.state?.session?.validation;
-    $(".val-result", el).innerHTML = v ? `<div class="result">${fmtErr(v)}</div><div class="hint">mean ± std over ${v.n} touches (median ${v.median_mm.toFixed(1)}, p95 ${v.p95_mm.toFixed(1)} mm)</div>` : "";
+    const note = retakenNote(v);
+    const prev = st?.session?.validation_previous;
+    $(".val-result", el).innerHTML = v && v.mean_mm != null ? `<div class="result">${fmtErr(v)}</div><div class="hint">mean ± std over ${v.n} touches (median ${v.median_mm.toFixed(1)}, p95 ${v.p95_mm.toFixed(1)} mm)</div>` +
+      (note ? `<div class="flag retaken">${esc(note)}</div>` : "")
+      : prev ? `<div class="hint">Previous validation (kept as ${esc(prev.file)}): ${fmtErr(prev)}${prev.retaken ? `, ${prev.retaken} retaken` : ""}</div>` : "";
   }
   const rows = (rec?.done || []).map((p, i) => {
     const flags = rec.flags?.[i] || [];
     const err = rec.errors_mm?.[i];
-    return `<tr><td>${i + 1}</td><td>${mm(p)}</td><td>${err != null ? `${err.toFixed(1)} mm` : ""}</td>
-      <td>${flags.map((f) => `<span class="flag ${f}">${f}</span>`).join("")}</td>
+    return `<tr><td>${i + 1}</td><td>${p.map((x) => (x * 1000).toFixed(0)).join(", ")}</td>${kind === "validate" ? `<td>${err != null ? err.toFixed(1) : ""}</td>` : ""}
+      <td class="flags">${flags.map((f) => `<span class="flag ${f}">${f}</span>`).join("")}</td>
       <td>${flags.length || kind === "validate" ? `<button data-retake="${i}">Retake</button>` : ""}</td></tr>`;
   }).reverse();
-  $(".touches table", el).innerHTML = rows.join("");
+  $(".touches tbody", el).innerHTML = rows.join("") || `<tr><td colspan="5" class="hint">No touch recorded yet.</td></tr>`;
 }
 
 document.addEventListener("keydown", (ev) => {
-  if (!["calibrate", "validate"].includes(app.state?.mode) || ev.target.closest("input, textarea, select")) return;
+  // Typing in a text field keeps its keys; a checkbox or button that has focus does not.
+  const typing = ev.target.closest?.("textarea, select, input:not([type=checkbox]):not([type=radio]):not([type=button]):not([type=submit])");
+  if (!["calibrate", "validate"].includes(app.state?.mode) || typing || link.lost) return;
   if (ev.code === "Space") { ev.preventDefault(); api("/api/capture/now"); }
   if (ev.key === "z" || ev.key === "Z" || ev.key === "Backspace") { ev.preventDefault(); api("/api/capture/undo"); }
   if (ev.key === "s" || ev.key === "S") { ev.preventDefault(); api("/api/capture/skip"); }
@@ -423,6 +606,10 @@ function renderLive(msg) {
   } else {
     el.textContent = "not touched";
     el.className = "big-state idle";
+    // No stale numbers from the last touch.
+    $("#live-point").textContent = "-";
+    $("#live-unc").textContent = "-";
+    $("#live-conf").style.width = "0";
     app.viewer.setLive(null);
   }
 }
@@ -435,14 +622,17 @@ function renderState(prev) {
   $("#busy").classList.toggle("hidden", mine);
   showMessage(st.message);
   const d = st.device;
-  const pd = $("#pill-device");
-  pd.textContent = d ? `${d.name} · ${d.rate_hz.toFixed(0)} Hz` : "no skin";
-  pd.className = `pill ${d ? (d.link_up ? "" : "bad") : "off"}`;
+  link.lost = linkLost();
+  renderLink();
+  markConnected();
+  if (!d?.sim && $("#mouse-touch").checked) {
+    $("#mouse-touch").checked = false; // only the simulated skin can be touched with the mouse
+    $("#mouse-touch").dispatchEvent(new Event("change"));
+  }
   const ps = $("#pill-session");
   ps.textContent = st.session ? st.session.name : "no session";
   ps.className = `pill ${st.session ? "" : "off"}`;
   $("#touch-toggle").classList.toggle("hidden", !d?.sim);
-  renderDeviceStats(d);
   if (st.session?.id !== prev?.session?.id || st.mode !== prev?.mode || st.guided?.index !== prev?.guided?.index) {
     refreshSession();
   }
@@ -457,20 +647,28 @@ function renderState(prev) {
     app.viewer.setTarget(wanted, true);
   }
   if (st.mode !== "live" && prev?.mode === "live") app.viewer.clearLive();
-  $("#live-rate").textContent = d ? `${d.rate_hz.toFixed(1)} Hz` : "-";
+  $("#live-rate").textContent = d && !link.lost ? `${d.rate_hz.toFixed(1)} Hz` : "-";
 }
 
 function renderSession() {
   const s = app.session, v = app.viewer;
-  if (!s) return;
   const page = app.page;
+  if (!s) {
+    // Nothing open (or the app restarted): no old progress, no old dots.
+    for (const g of ["planned", "done", "errors", "target"]) v.clear(g);
+    app.meshFor = null;
+    app.targetKey = "";
+    if (page === "calibrate") renderGuided("calibrate");
+    if (page === "validate") renderGuided("validate");
+    return;
+  }
   if (page === "validate" && s.validation.error) {
     showMessage(s.validation.error, true);
   } else if (page === "validate") {
     const val = s.validation;
     const pred = val.predicted || [];
     v.setErrors(val.done.slice(0, pred.length), pred, val.errors_mm || []);
-    v.setPlanned(val.planned.slice(val.done.length));
+    v.setPlanned(val.planned.slice(val.done.length), val.done.length);
     v.show(["errors", "planned", "target"]);
   } else if (page === "live") {
     v.show(["live"]);
@@ -478,7 +676,7 @@ function renderSession() {
     showMessage(s.calibration.error, true);
   } else {
     const cal = s.calibration;
-    v.setPlanned(cal.planned.slice(cal.done.length));
+    v.setPlanned(cal.planned.slice(cal.done.length), cal.done.length);
     v.setDone(cal.done, cal.flags || []);
     v.show(["planned", "done", "target"]);
   }
@@ -488,10 +686,10 @@ function renderSession() {
 
 function renderFrame(msg) {
   const opts = { status: app.sensors?.status, txLines: app.sensors?.tx_lines, rxLines: app.sensors?.rx_lines };
-  if (app.page === "connect") drawHeat($("#heat-connect"), msg.delta, msg.tx, msg.rx, { ...opts, labels: true });
+  if (app.page === "connect") drawHeat($("#heat-connect"), msg.delta, msg.tx, msg.rx, { ...opts, labels: true, unit: "counts" });
   if (app.page === "calibrate" || app.page === "validate") {
     const el = guidedPanel(app.page);
-    drawHeat($(".guided-heat", el), msg.delta, msg.tx, msg.rx, opts);
+    drawHeat($(".guided-heat", el), msg.delta, msg.tx, msg.rx, { ...opts, unit: "counts" });
     const c = msg.capture;
     $(".bar-capture", el).style.width = c ? `${c.phase === "capturing" ? (100 * c.n) / c.of : c.phase === "wait_touch" ? 0 : 100}%` : "0";
     app.viewer.setTargetState(c?.phase === "capturing" ? "capturing" : msg.touched ? "touched" : "waiting");
@@ -502,12 +700,12 @@ function renderFrame(msg) {
       state.className = `big-state ${cls}`;
     }
   }
-  if (app.page === "live") drawHeat($("#heat-live"), msg.delta, msg.tx, msg.rx, opts);
+  if (app.page === "live") drawHeat($("#heat-live"), msg.delta, msg.tx, msg.rx, { ...opts, unit: "counts" });
   const d = app.state?.device;
   if (d && performance.now() - (app.lastPill || 0) > 500) {
     app.lastPill = performance.now();
-    $("#pill-device").textContent = `${d.name} · ${d.rate_hz.toFixed(0)} Hz`;
-    $("#live-rate").textContent = `${d.rate_hz.toFixed(1)} Hz`;
+    renderPill();
+    $("#live-rate").textContent = link.lost ? "-" : `${d.rate_hz.toFixed(1)} Hz`;
     if (app.page === "connect") renderDeviceStats(d);
   }
 }

@@ -1,4 +1,7 @@
-// A TX x RX heat map on a canvas, with flagged sensors and lines marked.
+// A TX x RX heat map on a canvas, with flagged sensors and lines marked, its colour scale with
+// units underneath, and the value of the cell under the mouse.
+
+const LEGEND_H = 30;
 
 function colour(t) {
   // t in [-1, 1]: blue below zero, white at zero, yellow -> red above.
@@ -21,7 +24,7 @@ export function drawHeat(canvas, values, tx, rx, opts = {}) {
   const cssW = canvas.clientWidth || 300;
   const pad = 26;
   const cell = (cssW - pad - 4) / rx;
-  const cssH = pad + cell * tx + 4;
+  const cssH = pad + cell * tx + 4 + LEGEND_H;
   if (canvas.width !== Math.round(cssW * dpr) || canvas.height !== Math.round(cssH * dpr)) {
     canvas.width = Math.round(cssW * dpr);
     canvas.height = Math.round(cssH * dpr);
@@ -39,6 +42,7 @@ export function drawHeat(canvas, values, tx, rx, opts = {}) {
     scale = opts.minScale ?? 40;
     for (const v of values || []) if (Number.isFinite(v)) scale = Math.max(scale, Math.abs(v));
   }
+  const off = opts.offset ?? 0;
   g.font = `${Math.max(9, Math.min(12, cell / 3.2))}px system-ui, sans-serif`;
   g.textAlign = "center";
   g.textBaseline = "middle";
@@ -55,7 +59,6 @@ export function drawHeat(canvas, values, tx, rx, opts = {}) {
       const k = i * rx + j;
       const v = values ? values[k] : null;
       const x = pad + j * cell, y = pad + i * cell;
-      const off = opts.offset ?? 0;
       g.fillStyle = v == null || !Number.isFinite(v) ? "#eceef2" : colour((v - off) / scale);
       g.fillRect(x + 1, y + 1, cell - 2, cell - 2);
       if (opts.labels && v != null && Number.isFinite(v) && cell > 26) {
@@ -78,6 +81,9 @@ export function drawHeat(canvas, values, tx, rx, opts = {}) {
       }
     }
   }
+  legend(g, pad, pad + cell * tx + 8, cell * rx, off, scale, opts);
+  canvas._heat = { values, tx, rx, pad, cell, status, unit: opts.unit || "", fmt: opts.fmt };
+  hover(canvas);
   for (const [i] of badTx) {
     g.strokeStyle = "#d13b3b"; g.lineWidth = 1.5;
     g.strokeRect(pad, pad + i * cell, cell * rx, cell);
@@ -86,4 +92,60 @@ export function drawHeat(canvas, values, tx, rx, opts = {}) {
     g.strokeStyle = "#d13b3b"; g.lineWidth = 1.5;
     g.strokeRect(pad + j * cell, pad, cell, cell * tx);
   }
+}
+
+function legend(g, x, y, w, off, scale, opts) {
+  // The colour bar: what a colour means, in the map's unit.
+  const signed = opts.signed !== false;
+  const lo = signed ? off - scale : off, hi = off + scale;
+  const n = 60;
+  for (let k = 0; k < n; k++) {
+    const v = lo + ((k + 0.5) / n) * (hi - lo);
+    g.fillStyle = colour((v - off) / scale);
+    g.fillRect(x + (k * w) / n, y, w / n + 0.5, 8);
+  }
+  g.strokeStyle = "#c5cad4";
+  g.lineWidth = 1;
+  g.strokeRect(x + 0.5, y + 0.5, w - 1, 8);
+  const f = (v) => (Math.abs(hi - lo) >= 20 ? Math.round(v) : v.toFixed(1));
+  g.fillStyle = "#6b7385";
+  g.font = "11px system-ui, sans-serif";
+  g.textBaseline = "top";
+  g.textAlign = "left";
+  g.fillText(`${f(lo)}`, x, y + 11);
+  g.textAlign = "right";
+  g.fillText(`≥ ${f(hi)} ${opts.unit || ""}`.trim(), x + w, y + 11);
+  if (signed) {
+    g.textAlign = "center";
+    g.fillText(`${f(off)}`, x + w / 2, y + 11);
+  }
+}
+
+let tip = null;
+function hover(canvas) {
+  if (canvas.dataset.hover) return;
+  canvas.dataset.hover = "1";
+  const hide = () => tip && tip.classList.add("hidden");
+  canvas.addEventListener("mouseleave", hide);
+  canvas.addEventListener("mousemove", (ev) => {
+    const h = canvas._heat;
+    if (!h) return;
+    const r = canvas.getBoundingClientRect();
+    const j = Math.floor((ev.clientX - r.left - h.pad) / h.cell);
+    const i = Math.floor((ev.clientY - r.top - h.pad) / h.cell);
+    if (i < 0 || j < 0 || i >= h.tx || j >= h.rx) { hide(); return; }
+    const k = i * h.rx + j;
+    const v = h.values ? h.values[k] : null;
+    const text = v == null || !Number.isFinite(v) ? "-" : h.fmt ? h.fmt(v) : String(Math.round(v * 10) / 10);
+    const s = h.status[k];
+    if (!tip) {
+      tip = document.createElement("div");
+      tip.className = "heat-tip hidden";
+      document.body.appendChild(tip);
+    }
+    tip.textContent = `TX ${i}, RX ${j}: ${text} ${h.unit}${s && s !== "ok" ? ` (${s})` : ""}`;
+    tip.style.left = `${ev.clientX + 12}px`;
+    tip.style.top = `${ev.clientY + 12}px`;
+    tip.classList.remove("hidden");
+  });
 }

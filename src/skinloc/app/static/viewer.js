@@ -11,6 +11,58 @@ export function errorColor(mm) {
   return new THREE.Color().setHSL((1 - t) * 0.33, 0.8, 0.45);
 }
 
+const TRAIL = 40;
+const labelTextures = new Map();
+
+function labelTexture(text, colour) {
+  // A number drawn once on a small canvas, kept for every sprite that shows it.
+  const key = `${text}|${colour}`;
+  if (labelTextures.has(key)) return labelTextures.get(key);
+  const c = document.createElement("canvas");
+  c.width = 96;
+  c.height = 48;
+  const g = c.getContext("2d");
+  g.font = "bold 30px system-ui, sans-serif";
+  g.textAlign = "center";
+  g.textBaseline = "middle";
+  g.lineWidth = 6;
+  g.strokeStyle = "rgba(255,255,255,0.9)";
+  g.strokeText(text, 48, 25);
+  g.fillStyle = colour;
+  g.fillText(text, 48, 25);
+  const tex = new THREE.CanvasTexture(c);
+  tex.colorSpace = THREE.SRGBColorSpace;
+  labelTextures.set(key, tex);
+  return tex;
+}
+
+function wideTexture(text, colour) {
+  const key = `wide|${text}|${colour}`;
+  if (labelTextures.has(key)) return labelTextures.get(key);
+  const c = document.createElement("canvas");
+  c.width = 256;
+  c.height = 64;
+  const g = c.getContext("2d");
+  g.font = "bold 34px system-ui, sans-serif";
+  g.textAlign = "center";
+  g.textBaseline = "middle";
+  g.lineWidth = 6;
+  g.strokeStyle = "rgba(255,255,255,0.9)";
+  g.strokeText(text, 128, 33);
+  g.fillStyle = colour;
+  g.fillText(text, 128, 33);
+  const tex = new THREE.CanvasTexture(c);
+  tex.colorSpace = THREE.SRGBColorSpace;
+  labelTextures.set(key, tex);
+  return tex;
+}
+
+function niceLength(mm) {
+  // 1, 2 or 5 times a power of ten, not over mm.
+  const p = 10 ** Math.floor(Math.log10(mm));
+  return [5, 2, 1].map((k) => k * p).find((v) => v <= mm) || p;
+}
+
 export class Viewer {
   constructor(el) {
     this.el = el;
@@ -30,7 +82,7 @@ export class Viewer {
     sun.position.set(200, -300, 400);
     this.scene.add(sun);
     this.groups = {};
-    for (const name of ["skin", "planned", "done", "target", "live", "errors"]) {
+    for (const name of ["skin", "axes", "planned", "done", "target", "live", "errors"]) {
       this.groups[name] = new THREE.Group();
       this.scene.add(this.groups[name]);
     }
@@ -53,10 +105,26 @@ export class Viewer {
 
   resize() {
     this.dirty = true;
-    const w = this.el.clientWidth || 600, h = this.el.clientHeight || 500;
+    const w = this.el.clientWidth, h = this.el.clientHeight;
+    if (!w || !h) return; // hidden: fit when shown
+    const aspect = w / h;
     this.renderer.setSize(w, h, false);
-    this.camera.aspect = w / h;
+    this.camera.aspect = aspect;
     this.camera.updateProjectionMatrix();
+    if (this.skin && Math.abs(aspect - (this.fitAspect || 0)) > 0.02) {
+      // A narrower or wider view: keep the direction, move so the whole skin fits again.
+      this.fitAspect = aspect;
+      const dir = this.camera.position.clone().sub(this.controls.target).normalize();
+      this.camera.position.copy(this.controls.target).add(dir.multiplyScalar(this.fitDistance()));
+      this.controls.update();
+    }
+  }
+
+  fitDistance() {
+    // Distance at which the bounding sphere fits the narrower of the two fields of view.
+    const vfov = THREE.MathUtils.degToRad(this.camera.fov);
+    const hfov = 2 * Math.atan(Math.tan(vfov / 2) * this.camera.aspect);
+    return (1.0 * this.radius) / Math.sin(Math.min(vfov, hfov) / 2);
   }
 
   clear(name) {
@@ -65,6 +133,7 @@ export class Viewer {
     while (g.children.length) {
       const c = g.children.pop();
       c.geometry?.dispose?.();
+      if (c.isSprite) c.material.dispose();
     }
   }
 
@@ -91,32 +160,82 @@ export class Viewer {
     this.center.copy(geo.boundingSphere.center);
     this.radius = geo.boundingSphere.radius;
     this.controls.target.copy(this.center);
-    this.camera.position.copy(this.center).add(new THREE.Vector3(0.9, -1.6, 1.4).normalize().multiplyScalar(this.radius * 3));
+    this.fitAspect = this.camera.aspect;
+    this.homeDir = this._outside();
+    this.camera.position.copy(this.center).add(this.homeDir.clone().multiplyScalar(this.fitDistance()));
     this.controls.update();
+    this.setAxes(geo);
   }
 
-  _dots(name, points, color, size, opacity = 1) {
+  setAxes(geo) {
+    // Axes at the skin's lowest corner, a round number of mm long, labelled: scale and frame.
+    this.clear("axes");
+    geo.computeBoundingBox();
+    const box = geo.boundingBox;
+    const size = box.getSize(new THREE.Vector3());
+    const len = niceLength(Math.max(size.x, size.y, size.z) * 0.4);
+    const origin = box.min.clone();
+    const axes = new THREE.AxesHelper(len);
+    axes.material.depthTest = false; // a scale is read, never hidden
+    axes.renderOrder = 10;
+    axes.position.copy(origin);
+    this.groups.axes.add(axes);
+    const names = [["x", "#d13b3b"], ["y", "#1e9e5a"], ["z", "#2f6fde"]];
+    names.forEach(([name, colour], k) => {
+      const end = origin.clone();
+      end.setComponent(k, end.getComponent(k) + len * 1.12);
+      this.groups.axes.add(this._label(k === 0 ? `${name}: ${len} mm` : name, colour, end, true));
+    });
+    this.axesLength = len;
+  }
+
+  _label(text, colour, at, onTop = false) {
+    // A label facing the camera, the same size on screen at any zoom (about 12 px tall);
+    // ``onTop`` ones are never hidden by the skin (the axes), the others are behind it.
+    const wide = text.length > 3;
+    const map = wide ? wideTexture(text, colour) : labelTexture(text, colour);
+    const sprite = new THREE.Sprite(new THREE.SpriteMaterial({ map, depthWrite: false, depthTest: !onTop, sizeAttenuation: false }));
+    if (onTop) sprite.renderOrder = 10;
+    const h = wide ? 0.034 : 0.026;
+    sprite.scale.set(h * (wide ? 4 : 2), h, 1);
+    if (wide) sprite.center.set(0.1, 0.5); // starts where it points (an axis end)
+    sprite.position.copy(at);
+    return sprite;
+  }
+
+  _dots(name, points, color, size, opacity = 1, first = null) {
+    // Dots; numbered from ``first`` (1-based, as in the touch list and on the printed sheet).
     this.clear(name);
     const geo = new THREE.SphereGeometry(size, 14, 10);
     for (let i = 0; i < points.length; i++) {
       const c = Array.isArray(color) ? color[i] : color;
       const m = new THREE.Mesh(geo, new THREE.MeshStandardMaterial({ color: c, transparent: opacity < 1, opacity }));
-      m.position.copy(v3(points[i]));
+      const p = v3(points[i]);
+      m.position.copy(p);
       m.userData.index = i;
       this.groups[name].add(m);
+      if (first != null) {
+        const out = p.clone().sub(this.center).normalize().multiplyScalar(size + 4);
+        this.groups[name].add(this._label(String(first + i), "#1d2330", p.clone().add(out)));
+      }
     }
   }
 
-  setPlanned(points) { this._dots("planned", points, 0x9aa3b5, 1.6, 0.7); }
+  setPlanned(points, first = 0) { this._dots("planned", points, 0x9aa3b5, 1.6, 0.7, first + 1); }
 
   setDone(points, flags) {
     const colors = points.map((_, i) => ((flags[i] || []).length ? 0xe08a00 : 0x1e9e5a));
-    this._dots("done", points, colors, 2.4);
+    this._dots("done", points, colors, 2.4, 1, 1);
   }
 
   setTarget(point, turn = true) {
     this.clear("target");
-    if (!point) return;
+    if (!point) {
+      // The last target is done: back to the whole skin.
+      if (this.targetRing && turn) this.overview();
+      this.targetRing = null;
+      return;
+    }
     const p = v3(point);
     const sphere = new THREE.Mesh(new THREE.SphereGeometry(4, 24, 16),
       new THREE.MeshStandardMaterial({ color: 0xd13b3b, emissive: 0x550000 }));
@@ -158,9 +277,31 @@ export class Viewer {
     return n;
   }
 
+  _outside() {
+    // The whole skin seen from its outside: along the normal of the skin point nearest its
+    // centre, turned away from the centre, a little from above.
+    const pos = this.skinGeometry.attributes.position, nor = this.skinGeometry.attributes.normal;
+    const q = new THREE.Vector3();
+    let best = 0, bestD = Infinity;
+    for (let i = 0; i < pos.count; i++) {
+      const d = q.fromBufferAttribute(pos, i).distanceToSquared(this.center);
+      if (d < bestD) { bestD = d; best = i; }
+    }
+    const out = q.fromBufferAttribute(pos, best).clone().sub(this.center);
+    const n = new THREE.Vector3().fromBufferAttribute(nor, best).normalize();
+    if (out.lengthSq() > 1e-9 && n.dot(out) < 0) n.negate();
+    if (!Number.isFinite(n.x) || n.lengthSq() < 0.5) return new THREE.Vector3(0.9, -1.6, 1.4).normalize();
+    return n.add(new THREE.Vector3(0, 0, 0.4)).normalize();
+  }
+
+  overview() {
+    const to = this.center.clone().add((this.homeDir || new THREE.Vector3(0, -1, 1).normalize()).clone().multiplyScalar(this.fitDistance()));
+    this.fly = { from: this.camera.position.clone(), to, t0: performance.now(), ms: 700 };
+  }
+
   lookAt(p, n) {
     const dir = n.clone().multiplyScalar(1.0).add(p.clone().sub(this.center).normalize().multiplyScalar(0.6)).normalize();
-    const to = this.center.clone().add(dir.multiplyScalar(this.radius * 2.8));
+    const to = this.center.clone().add(dir.multiplyScalar(this.fitDistance()));
     this.fly = { from: this.camera.position.clone(), to, t0: performance.now(), ms: 700 };
   }
 
@@ -171,7 +312,16 @@ export class Viewer {
         new THREE.MeshStandardMaterial({ color: 0x2f6fde, emissive: 0x10306a }));
       this.liveHalo = new THREE.Mesh(new THREE.SphereGeometry(1, 20, 14),
         new THREE.MeshBasicMaterial({ color: 0x2f6fde, transparent: true, opacity: 0.18, depthWrite: false }));
-      this.trailLine = new THREE.Line(new THREE.BufferGeometry(), new THREE.LineBasicMaterial({ color: 0x2f6fde }));
+      // One buffer for the whole trail, drawn up to its length (never re-sized while drawn).
+      const geo = new THREE.BufferGeometry();
+      const pos = new THREE.BufferAttribute(new Float32Array(TRAIL * 3), 3);
+      pos.setUsage(THREE.DynamicDrawUsage);
+      geo.setAttribute("position", pos);
+      geo.setDrawRange(0, 0);
+      // Predictions lie a little inside or outside the surface: the trail is drawn over the skin.
+      this.trailLine = new THREE.Line(geo, new THREE.LineBasicMaterial({ color: 0x2f6fde, depthTest: false }));
+      this.trailLine.frustumCulled = false;
+      this.trailLine.renderOrder = 5;
       this.groups.live.add(this.liveDot, this.liveHalo, this.trailLine);
     }
     if (!point) {
@@ -185,12 +335,19 @@ export class Viewer {
     this.liveHalo.visible = r > 0;
     this.liveHalo.position.copy(p);
     this.liveHalo.scale.setScalar(r || 1);
-    this.trailLine.geometry.setFromPoints(this.trail);
+    this._drawTrail();
+  }
+
+  _drawTrail() {
+    const geo = this.trailLine.geometry, pos = geo.attributes.position;
+    this.trail.forEach((q, i) => pos.setXYZ(i, q.x, q.y, q.z));
+    pos.needsUpdate = true;
+    geo.setDrawRange(0, this.trail.length);
   }
 
   addTrail(point) {
     this.trail.push(v3(point));
-    if (this.trail.length > 40) this.trail.shift();
+    if (this.trail.length > TRAIL) this.trail.shift();
   }
 
   clearLive() {
@@ -198,7 +355,7 @@ export class Viewer {
     this.trail = [];
     if (this.liveDot) {
       this.liveDot.visible = this.liveHalo.visible = false;
-      this.trailLine.geometry.setFromPoints([]);
+      this._drawTrail();
     }
   }
 
@@ -210,6 +367,8 @@ export class Viewer {
       const m = new THREE.Mesh(geo, new THREE.MeshStandardMaterial({ color: errorColor(errors[i]) }));
       m.position.copy(v3(targets[i]));
       this.groups.errors.add(m);
+      const out = v3(targets[i]).sub(this.center).normalize().multiplyScalar(7);
+      this.groups.errors.add(this._label(String(i + 1), "#1d2330", v3(targets[i]).add(out)));
       pts.push(v3(targets[i]), v3(predicted[i]));
       const x = new THREE.Mesh(new THREE.SphereGeometry(1.3, 10, 8), new THREE.MeshBasicMaterial({ color: 0x333333 }));
       x.position.copy(v3(predicted[i]));
@@ -223,7 +382,7 @@ export class Viewer {
 
   show(names) {
     this.dirty = true;
-    for (const [k, g] of Object.entries(this.groups)) g.visible = k === "skin" || names.includes(k);
+    for (const [k, g] of Object.entries(this.groups)) g.visible = k === "skin" || k === "axes" || names.includes(k);
   }
 
   _pointer() {

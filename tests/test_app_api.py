@@ -362,7 +362,7 @@ def _stream_until(ws, check, what: str, timeout_s: float = 20.0) -> dict:
 def test_heartbeat_when_nothing_else_is_sent(tmp_path):
     with make_client(tmp_path, source=False) as client:
         client.headers.update({"X-Skinloc-Token": getattr(client.app.state, "token", "") or ""})
-        with client.websocket_connect("/ws?client=tab-a") as ws:
+        with stream(client, "tab-a") as ws:
             assert ws.receive_json()["type"] == "state"
             beat = _stream_until(ws, lambda m: m["type"] == "heartbeat", "heartbeat")
             assert beat["device"] is False and beat["link_up"] is False
@@ -382,8 +382,8 @@ def test_every_tab_is_told_when_the_link_drops_and_comes_back(tmp_path):
         with TestClient(app) as client:
             client.headers.update({"X-Skinloc-Token": getattr(app.state, "token", "") or ""})
             with (
-                client.websocket_connect("/ws?client=tab-a") as ws_a,
-                client.websocket_connect("/ws?client=tab-b") as ws_b,
+                stream(client, "tab-a") as ws_a,
+                stream(client, "tab-b") as ws_b,
             ):
                 for ws in (ws_a, ws_b):
                     _stream_until(ws, lambda m: m["type"] == "frame", "frame")

@@ -2,8 +2,13 @@
 
 from __future__ import annotations
 
+import re
 import socket
+import subprocess
+import sys
+import time
 
+import httpx
 from typer.testing import CliRunner
 
 from skinloc.cli import app
@@ -26,20 +31,9 @@ def test_missing_mesh(tmp_path):
     assert "mesh file not found" in result.output and "Traceback" not in result.output
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def test_bad_serial_port(tmp_path):
     tty = str(tmp_path / "ttyNONE")
-    # The app checks its TCP port before the serial port (and rejects --port 0), so it needs a
-    # free one; another process may take it between free_port() and the check: try again.
-    for _ in range(5):
-        result = run("--source", tty, "--data", str(tmp_path), "--port", str(free_port()))
-        if "pass another --port" not in result.output:
-            break
+    result = run("--source", tty, "--data", str(tmp_path), "--port", "0")
     assert result.exit_code == 1 and "Traceback" not in result.output
     assert f"cannot open serial port {tty}" in result.output
 
@@ -63,7 +57,36 @@ def test_pyserial_url_is_refused(tmp_path):
     victim = tmp_path / "precious.txt"
     victim.write_text("keep me\n")
     for source in (f"spy://loop://?file={victim}", "socket://127.0.0.1:9"):
-        result = run("--source", source, "--data", str(tmp_path), "--port", str(free_port()))
+        result = run("--source", source, "--data", str(tmp_path), "--port", "0")
         assert result.exit_code == 1 and "Traceback" not in result.output
         assert "pyserial URL" in result.output and "'sim'" in result.output
     assert victim.read_text() == "keep me\n"
+
+
+def test_port_0_serves_on_the_port_it_got(tmp_path):
+    """``--port 0`` binds any free port and prints the URL with the port it got."""
+
+    cmd = [sys.executable, "-m", "skinloc", "app", "--no-browser", "--port", "0"]
+    proc = subprocess.Popen(
+        [*cmd, "--data", str(tmp_path)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+    )
+    try:
+        line = proc.stdout.readline()  # blocks until the app prints its URL (or exits)
+        match = re.search(r"http://127\.0\.0\.1:(\d+)/", line)
+        assert match, f"no URL in {line!r}"
+        port = int(match.group(1))
+        assert port != 0
+        page = None
+        for _ in range(600):  # bounded: the server may take a while to start on a busy machine
+            try:
+                page = httpx.get(f"http://127.0.0.1:{port}/", timeout=10)
+                break
+            except httpx.TransportError:
+                if proc.poll() is not None:
+                    break
+                time.sleep(0.1)
+        assert page is not None and page.status_code == 200
+        assert "skinloc-token" in page.text
+    finally:
+        proc.terminate()
+        proc.wait(timeout=60)

@@ -25,17 +25,23 @@ def _is_loopback(host: str) -> bool:
         return False
 
 
-def _check_free(host: str, port: int) -> None:
-    """Raise ValueError with a one-line hint when ``host:port`` cannot be bound."""
+def _bind(host: str, port: int) -> socket.socket:
+    """The listening socket for ``host:port`` (port 0: any free port), or a one-line ValueError.
+
+    Binding here, before the server starts, is what lets ``--port 0`` print the port it got
+    and lets the page's own origin name it.
+    """
     family = socket.AF_INET6 if ":" in host else socket.AF_INET
-    with socket.socket(family, socket.SOCK_STREAM) as s:
-        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        try:
-            s.bind((host, port))
-        except OSError as exc:
-            raise ValueError(
-                f"cannot serve on {host}:{port} ({exc.strerror or exc}): pass another --port"
-            ) from None
+    sock = socket.socket(family, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind((host, port))
+    except OSError as exc:
+        sock.close()
+        raise ValueError(
+            f"cannot serve on {host}:{port} ({exc.strerror or exc}): pass another --port"
+        ) from None
+    return sock
 
 
 def register(app: typer.Typer) -> None:
@@ -61,7 +67,9 @@ def register(app: typer.Typer) -> None:
             "skinloc-sessions"
         ),
         host: Annotated[str, typer.Option(help="Address to serve on.")] = "127.0.0.1",
-        port: Annotated[int, typer.Option(min=1, max=65535, help="TCP port to serve on.")] = 8765,
+        port: Annotated[
+            int, typer.Option(min=0, max=65535, help="TCP port to serve on (0: any free port).")
+        ] = 8765,
         tx: Annotated[int, typer.Option(min=1, max=21, help="TX lines the device sends.")] = 8,
         rx: Annotated[int, typer.Option(min=1, max=12, help="RX lines the device sends.")] = 8,
         baud: Annotated[int, typer.Option(min=50, help="Baud rate of --source PORT.")] = 115200,
@@ -100,23 +108,32 @@ def register(app: typer.Typer) -> None:
                 "controls the skin and reads the sessions (there is no login)",
                 highlight=False,
             )
-        _check_free(host, port)
-        config = AppConfig(
-            data_dir=data,
-            mesh=surface,
-            mesh_name=mesh.name if mesh is not None else AppConfig.mesh_name,
-        )
-        spec = None
-        if source is not None:
-            spec = SourceSpec(source=source, tx=tx, rx=rx, baud=baud, format=fmt, seed=seed)
-        hosts = ["127.0.0.1", "localhost", "[::1]", host, f"[{host}]"]
-        # The page's own origins only: another site's page gets no stream and no actions.
-        web = create_app(config, spec, allowed_hosts=hosts, origins=own_origins(host, port))
-        shown = f"[{host}]" if ":" in host else host
-        url = f"http://{shown}:{port}/"
-        console.print(f"skinloc app on {url} (sessions in {data}/); Ctrl-C stops", soft_wrap=True)
-        if not no_browser:
-            import webbrowser
+        sock = _bind(host, port)
+        try:
+            port = sock.getsockname()[1]
+            config = AppConfig(
+                data_dir=data,
+                mesh=surface,
+                mesh_name=mesh.name if mesh is not None else AppConfig.mesh_name,
+            )
+            spec = None
+            if source is not None:
+                spec = SourceSpec(source=source, tx=tx, rx=rx, baud=baud, format=fmt, seed=seed)
+            hosts = ["127.0.0.1", "localhost", "[::1]", host, f"[{host}]"]
+            # The page's own origins only: another site's page gets no stream and no actions.
+            web = create_app(config, spec, allowed_hosts=hosts, origins=own_origins(host, port))
+            shown = f"[{host}]" if ":" in host else host
+            url = f"http://{shown}:{port}/"
+            console.print(
+                f"skinloc app on {url} (sessions in {data}/); Ctrl-C stops", soft_wrap=True
+            )
+            if not no_browser:
+                import webbrowser
 
-            threading.Timer(1.0, lambda: webbrowser.open(url)).start()
-        uvicorn.run(web, host=host, port=port, log_level="warning", ws="websockets-sansio")
+                threading.Timer(1.0, lambda: webbrowser.open(url)).start()
+            server = uvicorn.Server(
+                uvicorn.Config(web, log_level="warning", ws="websockets-sansio")
+            )
+            server.run(sockets=[sock])
+        finally:
+            sock.close()

@@ -160,6 +160,20 @@ def day_stats(means: list[np.ndarray], targets: list[np.ndarray]) -> dict[str, f
     return out
 
 
+def line_heights() -> str:
+    """Mean TX and RX line profiles (max over the other family) of the day's touches by height."""
+    recs = [read_recording(DATA / n) for n in DAY_REAL]
+    M = np.vstack([r.touch_means for r in recs])
+    y = 1e3 * np.vstack([r.targets for r in recs])[:, 1]
+    lines = ["y band (mm) | touches | TX profile (counts) | RX profile (counts)"]
+    for lo, hi in ((-110, -85), (-85, -65), (-65, -45), (-45, -25), (-25, 0), (0, 40)):
+        img = M[(y >= lo) & (y < hi)].reshape(-1, recs[0].n_tx, recs[0].n_rx)
+        tx = " ".join(f"{v:3.0f}" for v in img.max(axis=2).mean(axis=0))
+        rx = " ".join(f"{v:3.0f}" for v in img.max(axis=1).mean(axis=0))
+        lines.append(f"{lo:5d} to {hi:4d} | {len(img):3d} | {tx} | {rx}")
+    return "\n".join(lines)
+
+
 def real_day() -> dict[str, float]:
     """``day_stats`` of the four real recordings of 2023-12-10."""
     recs = [read_recording(DATA / n) for n in DAY_REAL]
@@ -510,7 +524,11 @@ def main() -> None:
     ap.add_argument("--model-error", action="store_true", help="also the models' errors")
     ap.add_argument("--grid", help="fit one parameter on a grid: name=v1,v2,...")
     ap.add_argument("--figures", action="store_true", help="write docs/figures/sim_*.png/svg")
+    ap.add_argument("--line-heights", action="store_true", help="real line profiles by height")
     args = ap.parse_args()
+    if args.line_heights:
+        print(line_heights())
+        return
     torch.set_num_threads(1)
     t0 = time.time()
     params = dataclasses.replace(SkinParams.default(), **_parse_set(args.set))
@@ -572,6 +590,7 @@ def make_figures(params: SkinParams) -> None:
                 ax.set_xlabel("RX")
     fig.colorbar(im, ax=axes, shrink=0.8, label="counts above baseline (mean of 50 frames)")
     fig.savefig(out / "sim_touch_images.png", dpi=110)
+    fig.savefig(out / "sim_touch_images.svg")
     plt.close(fig)
 
     skin = sim["skin"]
@@ -593,6 +612,7 @@ def make_figures(params: SkinParams) -> None:
     ax.legend(loc="upper left", fontsize=8)
     ax.set_title("simulated wiring, seed 0 (8 TX x 8 RX)")
     fig.savefig(out / "sim_layout.png", dpi=110)
+    fig.savefig(out / "sim_layout.svg")
     plt.close(fig)
     print(f"wrote {out / 'sim_touch_images.png'} and {out / 'sim_layout.png'}")
 

@@ -31,12 +31,12 @@ def _pyplot():
     return plt
 
 
-def _save(fig, path: str | Path) -> Path:
+def _save(fig, path: str | Path, **kw) -> Path:
     """Write ``fig`` to ``path`` (PNG, 150 dpi) and, beside it, the same figure as SVG."""
     path = Path(path)
-    fig.savefig(path, dpi=150)
+    fig.savefig(path, dpi=150, **kw)
     if path.suffix.lower() == ".png":
-        fig.savefig(path.with_suffix(".svg"))
+        fig.savefig(path.with_suffix(".svg"), **kw)
     return path
 
 
@@ -81,7 +81,7 @@ def plot_predictions_3d(
     norm = colors.Normalize(0.0, max(float(np.percentile(err, 95)) if len(err) else 1.0, 1.0))
     cmap = plt.get_cmap("plasma")
     fig = plt.figure(figsize=(12, 5.8))
-    for k, (elev, azim) in enumerate(((60, -70), (5, -90))):
+    for k, (elev, azim) in enumerate(((60, -70), (15, -100))):
         ax = fig.add_subplot(1, 2, k + 1, projection="3d")
         ax.plot_trisurf(
             v[:, 0],
@@ -94,9 +94,10 @@ def plot_predictions_3d(
             linewidth=0.2,
         )
         for a, b, e in zip(t, p, err, strict=True):
-            ax.plot(*np.stack([a, b]).T, color=cmap(norm(e)), lw=2.2)
-        ax.scatter(*t.T, facecolors="none", edgecolors="k", s=30, label="target", depthshade=False)
-        ax.scatter(*p.T, c="k", marker="x", s=30, label="prediction", depthshade=False)
+            ax.plot(*np.stack([a, b]).T, color=cmap(norm(e)), lw=3.0, solid_capstyle="round")
+        # Small markers, so that the segments (a few mm long) stay visible between them.
+        ax.scatter(*t.T, facecolors="none", edgecolors="k", s=12, lw=0.7, label="target")
+        ax.scatter(*p.T, c="k", marker="x", s=12, lw=0.7, label="prediction")
         ax.set_xlabel("x (mm)")
         ax.set_ylabel("y (mm)")
         ax.set_zlabel("z (mm)")
@@ -106,9 +107,10 @@ def plot_predictions_3d(
             ax.legend(loc="upper left")
     sm = cm.ScalarMappable(norm=norm, cmap=cmap)
     sm.set_array([])
-    fig.colorbar(sm, ax=fig.axes, shrink=0.7, label="error (mm)")
+    fig.subplots_adjust(left=0.0, right=0.9, wspace=0.0)
+    fig.colorbar(sm, cax=fig.add_axes((0.92, 0.2, 0.012, 0.6)), label="error (mm)")
     fig.suptitle(title)
-    _save(fig, path)
+    _save(fig, path, bbox_inches="tight")
     plt.close(fig)
     return Path(path)
 

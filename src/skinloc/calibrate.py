@@ -313,7 +313,8 @@ def simulate_session(
     """Record a whole session from a simulated skin with a scripted finger.
 
     ``skin`` is a ``SimulatedSkin`` (connected or not); the true contacts (targets plus probing
-    error) are kept in ``meta["true_contacts"]`` for diagnosis; models never see them.
+    error) are kept in ``meta["true_contacts"]`` and the wire crossings, ``(n_sensors, 3)`` m,
+    in ``meta["truth_sensor_positions_m"]``, for diagnosis; models never see them.
     """
     finger = ScriptedFinger(skin, random_state=config.random_state + 1)
     was_connected = skin.is_connected
@@ -326,5 +327,9 @@ def simulate_session(
         if not was_connected:
             skin.disconnect()
     rec.meta["true_contacts"] = np.asarray(finger.contacts).tolist()
+    layout = getattr(skin, "layout", None)
+    if layout is not None:
+        # Sensor k is TX k // n_rx, RX k % n_rx; models never see these either.
+        rec.meta["truth_sensor_positions_m"] = np.asarray(layout.sensor_positions).tolist()
     write_recording(rec, path)
     return rec

@@ -414,9 +414,15 @@ def info(
         "mesh_vertices": len(rec.vertices),
         "mesh_faces": len(rec.faces),
         **(stream_summary(data) or {}),  # a `skinloc record` file: its raw stream too
-        "meta": {k: v for k, v in rec.meta.items() if k not in ("true_contacts",)},
+        "meta": {
+            k: v
+            for k, v in rec.meta.items()
+            if k not in ("true_contacts", "truth_sensor_positions_m")
+        },
     }
     if as_json:
+        if "truth_sensor_positions_m" in rec.meta:  # a simulated skin's wire crossings
+            summary["truth_sensor_positions_m"] = rec.meta["truth_sensor_positions_m"]
         _print_json(summary)
         return
     table = Table(title=str(data), show_header=False)

@@ -74,14 +74,19 @@ def test_commands_and_scripted_finger():
             while dev.counts["touches"] == 0:
                 time.sleep(0.01)
             src.clear()
-            touched = src.read(10.0).values - base
-            assert touched[9] > 50
+            # A frame or two may still be in flight from before the touch.
+            touched = np.max([f.values for f in read_n(src, 5)], axis=0) - base
+            # The scripted finger misses its target like a person (5.3 mm per axis) and may
+            # press lightly, but always hard enough to be felt (2 sensors over 6 sigma).
+            k = int(np.argmax(touched))
+            assert touched[k] > 25
+            assert np.linalg.norm(skin.contact - skin.sensor_positions[9]) < 0.03
             src.write(b"lift\nf text\n")
             while dev.fmt.value != "text":
                 time.sleep(0.01)
             src.clear()
             after = read_n(src, 5)[-1]
-            assert abs(after.values[9] - base[9]) < 40
+            assert abs(after.values[k] - base[k]) < 40
     assert dev.handle_command("v").startswith("skinloc_muca 1.0.0 grid 8x8 format text")
     assert dev.handle_command("g 300").startswith("error")
     assert dev.handle_command("g 20") == "ok gain 20"

@@ -107,3 +107,19 @@ def test_same_skin_seed_same_wiring_different_noise(tmp_path):
     # same skin: baselines agree within noise; different sessions: frames differ
     assert np.abs(a.baseline - b.baseline).max() < 40
     assert not np.array_equal(a.baseline_frames, b.baseline_frames)
+
+
+def test_simulated_recording_keeps_the_true_sensor_positions(tmp_path):
+    from skinloc.cli import app
+    from skinloc.sources.sim import SimulatedSkin
+
+    out = tmp_path / "s.h5"
+    args = ["simulate", "--points", "2", "--samples", "2", "--seed", "3", "--skin-seed", "5"]
+    res = runner.invoke(app, [*args, "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    info = json.loads(runner.invoke(app, ["info", str(out), "--json"]).output)
+    pos = np.asarray(info["truth_sensor_positions_m"])
+    assert pos.shape == (64, 3)
+    # the skin seed's wiring, sensor k = TX k // 8, RX k % 8, not the session's
+    assert np.allclose(pos, SimulatedSkin(random_state=5).sensor_positions)
+    assert "truth_sensor_positions_m" not in info["meta"]

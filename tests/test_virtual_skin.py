@@ -82,16 +82,21 @@ def test_commands_and_scripted_finger():
             src.write(f"touch {x} {y} {z}\n".encode())
             wait_until(lambda: dev.counts["touches"] > 0, "the device to take the touch")
             src.clear()
-            touched = src.read(30.0).values - base
-            assert touched[9] > 50
+            # A frame or two may still be in flight from before the touch.
+            touched = np.max([f.values for f in read_n(src, 5)], axis=0) - base
+            # The scripted finger misses its target like a person (5.3 mm per axis) and may
+            # press lightly, but always hard enough to be felt (2 sensors over 6 sigma).
+            k = int(np.argmax(touched))
+            assert touched[k] > 25
+            assert np.linalg.norm(skin.contact - skin.sensor_positions[9]) < 0.03
             src.write(b"lift\nf text\n")
             wait_until(lambda: dev.fmt.value == "text", "the device to switch to text")
             # Frames sent before the lift may still be in the pty on a busy machine: the
             # promise is that the sensor comes back to its baseline, not when.
             src.clear()
             deadline = time.monotonic() + 30
-            while abs(src.read(30.0).values[9] - base[9]) >= 40:
-                assert time.monotonic() < deadline, "sensor 9 did not return to its baseline"
+            while abs(src.read(30.0).values[k] - base[k]) >= 40:
+                assert time.monotonic() < deadline, f"sensor {k} did not return to its baseline"
     assert dev.handle_command("v").startswith("skinloc_muca 1.0.0 grid 8x8 format text")
     assert dev.handle_command("g 300").startswith("error")
     assert dev.handle_command("g 20") == "ok gain 20"

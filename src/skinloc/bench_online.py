@@ -105,11 +105,16 @@ def touch_stream(
     100 Hz (about 75 % of frames touched). Returns the frames and the script
     ``(first frame, last frame, contact (3,) m)``.
     """
+    import dataclasses
+
     from skinloc.geometry import sample_surface
-    from skinloc.sources.sim import SimulatedSkin
+    from skinloc.sources.sim import SimulatedSkin, SkinParams
 
     rng = np.random.default_rng(random_state)
-    skin = SimulatedSkin(random_state=random_state)
+    # Firm touches only: the stream times the live path and checks its events; the light
+    # touches of a calibration (weak_touch_prob) can fall under its 8-sigma start threshold.
+    firm = dataclasses.replace(SkinParams.default(), weak_touch_prob=0.0)
+    skin = SimulatedSkin(params=firm, random_state=random_state)
     skin.connect()
     targets = sample_surface(skin.mesh, 512, rng)[0]
     frames = np.empty((n_frames, skin.n_sensors), dtype=np.uint16)

@@ -341,7 +341,8 @@ def simulate_session(
     """Record a whole session from a simulated skin with a scripted finger.
 
     ``skin`` is a ``SimulatedSkin`` (connected or not); the true contacts (targets plus probing
-    error) are kept in ``meta["true_contacts"]`` for diagnosis; models never see them.
+    error) are kept in ``meta["true_contacts"]`` and the wire crossings, ``(n_sensors, 3)`` m,
+    in ``meta["truth_sensor_positions_m"]``, for diagnosis; models never see them.
 
     Point logs are appended to a side file (``partial``, default ``NAME.partial.h5`` next to
     ``path``, or the next free name) that is renamed over ``path`` only when the session is
@@ -366,7 +367,12 @@ def simulate_session(
                 skin.disconnect()
             if session._appender is not None:
                 contacts = np.asarray(finger.contacts[: session.n_done]).tolist()
-                session._appender.update_meta(true_contacts=contacts)
+                truth: dict = {"true_contacts": contacts}
+                layout = getattr(skin, "layout", None)
+                if layout is not None:
+                    # Sensor k is TX k // n_rx, RX k % n_rx; models never see these either.
+                    truth["truth_sensor_positions_m"] = np.asarray(layout.sensor_positions).tolist()
+                session._appender.update_meta(**truth)
             session.close()
     except KeyboardInterrupt:
         n, total = session.n_done, len(session.targets)

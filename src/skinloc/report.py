@@ -13,6 +13,8 @@ log = logging.getLogger(__name__)
 
 __all__ = [
     "plot_error_curve",
+    "plot_error_curves",
+    "plot_uncertainty",
     "plot_paper_fig3",
     "plot_predictions_3d",
     "plot_sensor_image",
@@ -27,6 +29,15 @@ def _pyplot():
     import matplotlib.pyplot as plt
 
     return plt
+
+
+def _save(fig, path: str | Path, **kw) -> Path:
+    """Write ``fig`` to ``path`` (PNG, 150 dpi) and, beside it, the same figure as SVG."""
+    path = Path(path)
+    fig.savefig(path, dpi=150, **kw)
+    if path.suffix.lower() == ".png":
+        fig.savefig(path.with_suffix(".svg"), **kw)
+    return path
 
 
 def plot_sensor_image(
@@ -45,7 +56,7 @@ def plot_sensor_image(
     ax.set_title(title)
     fig.colorbar(im, ax=ax, label="counts above baseline")
     fig.tight_layout()
-    fig.savefig(path, dpi=150)
+    _save(fig, path)
     plt.close(fig)
     return Path(path)
 
@@ -55,37 +66,99 @@ def plot_predictions_3d(
     true: np.ndarray,
     predicted: np.ndarray,
     path: str | Path,
-    title: str = "Predicted (x) against true (o) contacts",
+    title: str = "Prompted targets (o) and predictions (x)",
 ) -> Path:
-    """The skin in 3D with true and predicted points joined by error lines (axes in mm)."""
+    """The skin in 3D with each target joined to its prediction, coloured by error (mm axes).
+
+    Two views (from above and from the side) so that no segment hides behind the surface.
+    """
     plt = _pyplot()
+    from matplotlib import cm, colors
+
     v = np.asarray(mesh.vertices) * 1e3
     t, p = np.asarray(true) * 1e3, np.asarray(predicted) * 1e3
-    fig = plt.figure(figsize=(7, 5.5))
-    ax = fig.add_subplot(projection="3d")
-    ax.plot_trisurf(
-        v[:, 0],
-        v[:, 1],
-        v[:, 2],
-        triangles=mesh.faces,
-        color="0.85",
-        alpha=0.35,
-        edgecolor="0.6",
-        linewidth=0.2,
-    )
-    ax.scatter(*t.T, c="tab:blue", s=18, label="true", depthshade=False)
-    ax.scatter(*p.T, c="tab:red", marker="x", s=22, label="predicted", depthshade=False)
-    for a, b in zip(t, p, strict=True):
-        ax.plot(*np.stack([a, b]).T, c="k", lw=0.7)
-    ax.set_xlabel("x (mm)")
-    ax.set_ylabel("y (mm)")
-    ax.set_zlabel("z (mm)")
-    ax.set_box_aspect(np.ptp(v, axis=0))
-    ax.view_init(elev=35, azim=-60)
-    ax.legend(loc="upper left")
-    ax.set_title(title)
+    err = np.linalg.norm(p - t, axis=1)
+    norm = colors.Normalize(0.0, max(float(np.percentile(err, 95)) if len(err) else 1.0, 1.0))
+    cmap = plt.get_cmap("plasma")
+    fig = plt.figure(figsize=(12, 5.8))
+    for k, (elev, azim) in enumerate(((60, -70), (15, -100))):
+        ax = fig.add_subplot(1, 2, k + 1, projection="3d")
+        ax.plot_trisurf(
+            v[:, 0],
+            v[:, 1],
+            v[:, 2],
+            triangles=mesh.faces,
+            color="0.9",
+            alpha=0.25,
+            edgecolor="0.75",
+            linewidth=0.2,
+        )
+        for a, b, e in zip(t, p, err, strict=True):
+            ax.plot(*np.stack([a, b]).T, color=cmap(norm(e)), lw=3.0, solid_capstyle="round")
+        # Small markers, so that the segments (a few mm long) stay visible between them.
+        ax.scatter(*t.T, facecolors="none", edgecolors="k", s=12, lw=0.7, label="target")
+        ax.scatter(*p.T, c="k", marker="x", s=12, lw=0.7, label="prediction")
+        ax.set_xlabel("x (mm)")
+        ax.set_ylabel("y (mm)")
+        ax.set_zlabel("z (mm)")
+        ax.set_box_aspect(np.ptp(v, axis=0))
+        ax.view_init(elev=elev, azim=azim)
+        if k == 0:
+            ax.legend(loc="upper left")
+    sm = cm.ScalarMappable(norm=norm, cmap=cmap)
+    sm.set_array([])
+    fig.subplots_adjust(left=0.0, right=0.9, wspace=0.0)
+    fig.colorbar(sm, cax=fig.add_axes((0.92, 0.2, 0.012, 0.6)), label="error (mm)")
+    fig.suptitle(title)
+    _save(fig, path, bbox_inches="tight")
+    plt.close(fig)
+    return Path(path)
+
+
+def plot_error_curves(
+    simulated: dict[str, tuple[Sequence[int], Sequence[float], Sequence[float]]],
+    real: dict[str, tuple[Sequence[int], Sequence[float]]],
+    path: str | Path,
+) -> Path:
+    """Error against point logs: simulated curves with error bars, real-skin points beside.
+
+    ``simulated[label] = (sizes, mean_mm, std_mm)`` and ``real[label] = (sizes, mean_mm)``.
+    """
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(6.4, 4.4))
+    colours = ["tab:blue", "tab:orange", "tab:green", "tab:purple"]
+    for i, (label, (xs, ys, es)) in enumerate(simulated.items()):
+        ax.errorbar(xs, ys, yerr=es, marker="o", capsize=3, color=colours[i % 4], label=label)
+    for i, (label, (xs, ys)) in enumerate(real.items()):
+        ax.plot(xs, ys, marker="s", ls="--", mfc="none", color=colours[i % 4], label=label)
+    ax.set_xlabel("calibration point logs")
+    ax.set_ylabel("mean localisation error (mm)")
+    ax.set_ylim(bottom=0)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=150)
+    _save(fig, path)
+    plt.close(fig)
+    return Path(path)
+
+
+def plot_uncertainty(uncertainty_mm: np.ndarray, error_mm: np.ndarray, path: str | Path) -> Path:
+    """The model's predicted uncertainty against its actual error, one point per touch (mm)."""
+    plt = _pyplot()
+    u, e = np.asarray(uncertainty_mm, dtype=float), np.asarray(error_mm, dtype=float)
+    fig, ax = plt.subplots(figsize=(4.8, 4.2))
+    ok = np.isfinite(u)
+    ax.scatter(u[ok], e[ok], s=20, color="tab:blue")
+    top = max(float(np.nanmax(np.r_[u[ok], e, 1.0])), 1.0) * 1.05
+    ax.plot([0, top], [0, top], color="0.6", ls=":", label="error = uncertainty")
+    ax.set_xlim(0, top)
+    ax.set_ylim(0, top)
+    ax.set_xlabel("model uncertainty (mm)")
+    ax.set_ylabel("actual error (mm)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    _save(fig, path)
     plt.close(fig)
     return Path(path)
 
@@ -110,7 +183,7 @@ def plot_error_curve(
     ax.grid(alpha=0.3)
     ax.legend()
     fig.tight_layout()
-    fig.savefig(path, dpi=150)
+    _save(fig, path)
     plt.close(fig)
     return Path(path)
 
@@ -141,7 +214,7 @@ def plot_paper_fig3(
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=150)
+    _save(fig, path)
     plt.close(fig)
     return Path(path)
 
@@ -159,7 +232,7 @@ def write_html(
     )
     figs = "\n".join(
         f'<figure><img src="{html.escape(src)}" alt="{html.escape(cap)}">'
-        f"<figcaption>{html.escape(cap)}</figcaption></figure>"
+        f"<figcaption>{html.escape(cap)}{_vector_link(path, src)}</figcaption></figure>"
         for src, cap in figures
     )
     page = f"""<!doctype html>
@@ -168,8 +241,9 @@ def write_html(
 body {{ font-family: system-ui, sans-serif; max-width: 1000px; margin: 2em auto; color: #222; }}
 table {{ border-collapse: collapse; margin: 1em 0; }}
 th, td {{ border: 1px solid #ccc; padding: 4px 10px; text-align: left; }}
-figure {{ display: inline-block; margin: 0.5em; vertical-align: top; }}
-img {{ max-width: 460px; }} figcaption {{ font-size: 0.9em; color: #555; }}
+figure {{ display: block; margin: 1em 0; }}
+img {{ max-width: 100%; }} figure {{ max-width: 960px; }}
+figcaption {{ font-size: 0.9em; color: #555; }}
 </style></head><body>
 <h1>{html.escape(title)}</h1>
 <table>{rows}</table>
@@ -180,3 +254,11 @@ img {{ max-width: 460px; }} figcaption {{ font-size: 0.9em; color: #555; }}
     path = Path(path)
     path.write_text(page, encoding="utf-8")
     return path
+
+
+def _vector_link(page: str | Path, src: str) -> str:
+    """`` (SVG)`` link when the figure's SVG sits beside its PNG, else nothing."""
+    svg = Path(src).with_suffix(".svg")
+    if Path(src).suffix.lower() == ".png" and (Path(page).parent / svg).exists():
+        return f' <a href="{html.escape(str(svg))}">(SVG)</a>'
+    return ""

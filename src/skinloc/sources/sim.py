@@ -30,12 +30,23 @@ except ModuleNotFoundError:  # pragma: no cover - Python 3.10 needs the tomli ba
 
 log = logging.getLogger(__name__)
 
-__all__ = ["MAX_RX", "MAX_TX", "SimulatedSkin", "SkinLayout", "SkinParams", "sensor_image"]
+__all__ = [
+    "MAX_RX",
+    "MAX_TX",
+    "SimulatedSkin",
+    "SkinLayout",
+    "SkinParams",
+    "sensor_image",
+    "silicone_thickness_at",
+]
 
 #: Largest grid the Muca board reads.
 MAX_TX, MAX_RX = 21, 12
 _COUNT_MAX = 65535.0  # 16-bit counts
 _WIRE_SAMPLES = 48  # points per wire polyline
+# A touch whose second-strongest sensor stays under this many noise stds is not felt by the
+# session's touch detector (5 sigma, 2 sensors) with some margin, so the person presses again.
+_FELT_SIGMA = 6.0
 
 
 def _default_toml() -> Path:
@@ -63,14 +74,19 @@ class SkinParams:
     shuffle_lines: bool = True
     # touch signal
     silicone_thickness_m: float = 0.006
-    peak_signal_counts: float = 195.0
-    falloff_exponent: float = 1.0
-    line_coupling: float = 0.08
+    silicone_thickness_base_m: float = 0.013
+    peak_signal_counts: float = 300.0
+    falloff_exponent: float = 1.3
+    line_coupling: float = 0.12
     common_mode_counts: float = 1.5
     finger_radius_m: float = 0.010
     finger_radius_std_m: float = 0.001
     pressure_std: float = 0.2
-    probe_error_std_m: float = 0.0025
+    radius_pressure_exponent: float = 0.333
+    weak_touch_prob: float = 0.15
+    weak_touch_pressure: float = 0.3
+    crossing_width_std: float = 0.0
+    probe_error_std_m: float = 0.0053
     # per-sensor electronics
     gain_std: float = 0.2
     baseline_mean_counts: float = 9500.0
@@ -105,12 +121,20 @@ class SkinParams:
             "wire_wobble": (0.0 <= self.wire_wobble <= 0.5, "in [0, 0.5]"),
             "edge_margin": (0.0 < self.edge_margin <= 1.0, "in (0, 1]"),
             "silicone_thickness_m": (0.0 < self.silicone_thickness_m < 0.1, "in (0, 0.1) m"),
+            "silicone_thickness_base_m": (
+                0.0 < self.silicone_thickness_base_m < 0.1,
+                "in (0, 0.1) m",
+            ),
             "peak_signal_counts": (self.peak_signal_counts >= 0.0, ">= 0 counts"),
             "falloff_exponent": (0.0 < self.falloff_exponent <= 10.0, "in (0, 10]"),
             "line_coupling": (0.0 <= self.line_coupling <= 1.0, "in [0, 1]"),
             "finger_radius_m": (0.0 < self.finger_radius_m < 0.05, "in (0, 0.05) m"),
             "finger_radius_std_m": (0.0 <= self.finger_radius_std_m < 0.02, "in [0, 0.02) m"),
             "pressure_std": (0.0 <= self.pressure_std <= 2.0, "in [0, 2]"),
+            "radius_pressure_exponent": (0.0 <= self.radius_pressure_exponent <= 1.0, "in [0, 1]"),
+            "weak_touch_prob": (0.0 <= self.weak_touch_prob <= 1.0, "in [0, 1]"),
+            "weak_touch_pressure": (0.0 < self.weak_touch_pressure <= 1.0, "in (0, 1]"),
+            "crossing_width_std": (0.0 <= self.crossing_width_std <= 1.0, "in [0, 1]"),
             "probe_error_std_m": (0.0 <= self.probe_error_std_m < 0.05, "in [0, 0.05) m"),
             "gain_std": (0.0 <= self.gain_std <= 2.0, "in [0, 2]"),
             "baseline_line_std_counts": (self.baseline_line_std_counts >= 0, ">= 0 counts"),
@@ -198,6 +222,13 @@ class SkinLayout:
         ``"cylindrical"`` (TX wires at constant angle about the y axis, i.e. along the cone;
         RX wires at constant y, around it) or ``"planar"`` (TX at constant first principal
         coordinate, RX at constant second one).
+    width_scales : (n_tx * n_rx,) float or None
+        Each crossing's own response width relative to the common one (median 1): the
+        irregularity between neighbouring crossings. ``None`` means all 1.
+    height_range_m : (float, float) or None
+        Lowest and highest y of the mesh, m: the silicone thickens linearly from the top
+        (``silicone_thickness_m``) to the base (``silicone_thickness_base_m``). ``None`` means
+        a uniform thickness.
     """
 
     n_tx: int
@@ -209,6 +240,8 @@ class SkinLayout:
     baselines_counts: np.ndarray
     noise_std_counts: np.ndarray
     parameterisation: str
+    width_scales: np.ndarray | None = None
+    height_range_m: tuple[float, float] | None = None
 
     @property
     def n_sensors(self) -> int:
@@ -308,6 +341,9 @@ class SkinLayout:
         for tx, rx in params.noisy_sensors:
             if tx < n_tx and rx < n_rx:
                 noise[tx * n_rx + rx] = params.noisy_sensor_noise_std_counts
+        # Drawn last, so the wiring and electronics of a seed stay what they were before.
+        widths = np.exp(params.crossing_width_std * rng.standard_normal(n))
+        y = np.asarray(mesh.vertices)[:, 1]
         log.debug(
             "laid out %d x %d wires (%s) on a mesh of %d faces",
             n_tx,
@@ -325,6 +361,8 @@ class SkinLayout:
             baselines_counts=baselines,
             noise_std_counts=noise,
             parameterisation=parameterisation,
+            width_scales=widths,
+            height_range_m=(float(y.min()), float(y.max())),
         )
 
 
@@ -452,13 +490,15 @@ def sensor_image(
 ) -> np.ndarray:
     """Expected baseline-subtracted image of one finger contact, without noise.
 
-    With ``d_k`` the distance from the contact to sensor k, ``h`` the silicone thickness and
-    ``a`` the finger radius, ``w^2 = h^2 + a^2`` and ``K(d) = (1 + d^2 / w^2)^-gamma``::
+    With ``d_k`` the distance from the contact to sensor k, ``h`` the silicone thickness over
+    the contact (``silicone_thickness_at``), ``a`` the finger radius, ``w^2 = h^2 + a^2`` and
+    ``K(d; w) = (1 + d^2 / w^2)^-gamma``::
 
-        s_k = P * g_k * [A * (K(d_k) + c * (K(D_tx(k)) + K(D_rx(k)))) + C]
+        s_k = P * g_k * [A * (h0 / h) * (K(d_k; r_k w) + c * (K(D_tx(k); w) + K(D_rx(k); w))) + C]
 
     where ``D_tx(k)``, ``D_rx(k)`` are the distances to the nearest point of the sensor's TX and
-    RX wires, ``A`` is ``peak_signal_counts``, ``c`` ``line_coupling``, ``C``
+    RX wires, ``A`` is ``peak_signal_counts``, ``h0`` ``silicone_thickness_m`` (the top's),
+    ``r_k`` the crossing's own width (``layout.width_scales``), ``c`` ``line_coupling``, ``C``
     ``common_mode_counts`` and ``P`` the pressure. Sensors on weak lines respond with
     ``weak_line_gain`` times that, plus ``P * weak_line_offset_counts``.
 
@@ -495,14 +535,18 @@ def sensor_image(
         raise ValueError(f"pressure must be a finite value >= 0, got {pressure!r}")
     if not (np.isfinite(finger_radius_m) and finger_radius_m > 0):
         raise ValueError(f"finger_radius_m must be > 0, got {finger_radius_m!r}")
-    width2 = params.silicone_thickness_m**2 + finger_radius_m**2
+    h = silicone_thickness_at(layout, params, contact)
+    width2 = h**2 + finger_radius_m**2
     gamma = params.falloff_exponent
     d2 = ((layout.sensor_positions - contact) ** 2).sum(axis=1)
-    local = _kernel(d2, width2, gamma)
+    scales = np.ones(layout.n_sensors) if layout.width_scales is None else layout.width_scales
+    local = _kernel(d2, width2 * scales**2, gamma)
     k_tx = _kernel(_polyline_distance2(contact, layout.tx_wires), width2, gamma)
     k_rx = _kernel(_polyline_distance2(contact, layout.rx_wires), width2, gamma)
     along = (k_tx[:, None] + k_rx[None, :]).ravel()
-    signal = params.peak_signal_counts * (local + params.line_coupling * along)
+    # Parallel-plate coupling through the dielectric: the signal falls as 1 / thickness.
+    amplitude = params.peak_signal_counts * params.silicone_thickness_m / h
+    signal = amplitude * (local + params.line_coupling * along)
     signal = pressure * layout.gains * (signal + params.common_mode_counts)
     weak = np.zeros((layout.n_tx, layout.n_rx), dtype=bool)
     weak[[i for i in params.weak_tx_lines if i < layout.n_tx], :] = True
@@ -510,6 +554,20 @@ def sensor_image(
     weak = weak.ravel()
     signal[weak] = params.weak_line_gain * signal[weak] + pressure * params.weak_line_offset_counts
     return signal
+
+
+def silicone_thickness_at(layout: SkinLayout, params: SkinParams, point: np.ndarray) -> float:
+    """Silicone thickness over ``point (3,)`` m: linear in y from the top to the base, m.
+
+    A skin moulded on a standing cone is thicker at its base; ``silicone_thickness_m`` is the
+    thickness at the highest y of the mesh and ``silicone_thickness_base_m`` at the lowest.
+    """
+    top, base = params.silicone_thickness_m, params.silicone_thickness_base_m
+    if layout.height_range_m is None or base == top:
+        return top
+    lo, hi = layout.height_range_m
+    depth = 0.0 if hi <= lo else float(np.clip((hi - point[1]) / (hi - lo), 0.0, 1.0))
+    return top + (base - top) * depth
 
 
 # --------------------------------------------------------------------------------------------
@@ -653,18 +711,26 @@ class SimulatedSkin(FrameSource):
             np.random.SeedSequence([self._noise_seed.entropy, seed or 0])
         )
 
-    def draw_touch(self, rng: np.random.Generator | None = None) -> tuple[float, float]:
-        """Pressure and finger radius (m) of one touch, drawn from the touch-to-touch spread."""
+    def draw_touch(
+        self, rng: np.random.Generator | None = None, weak: bool = True
+    ) -> tuple[float, float]:
+        """Pressure and finger radius (m) of one touch, drawn from the touch-to-touch spread.
+
+        With ``weak=False`` the touch is never one of the light ones (``weak_touch_prob``).
+        """
         rng = self._rng if rng is None else rng
         p = self.params
         pressure = float(np.exp(p.pressure_std * rng.standard_normal() - 0.5 * p.pressure_std**2))
-        radius = float(
-            max(
-                p.finger_radius_m + p.finger_radius_std_m * rng.standard_normal(),
-                0.25 * p.finger_radius_m,
-            )
+        # A few touches are light (the finger barely lands): a pressure well below the rest.
+        if weak and p.weak_touch_prob > 0 and rng.uniform() < p.weak_touch_prob:
+            pressure *= p.weak_touch_pressure
+        radius = max(
+            p.finger_radius_m + p.finger_radius_std_m * rng.standard_normal(),
+            0.25 * p.finger_radius_m,
         )
-        return pressure, radius
+        # A harder press flattens the fingertip: Hertz contact gives a ~ F^(1/3).
+        radius *= pressure**p.radius_pressure_exponent
+        return pressure, float(radius)
 
     def press(
         self,
@@ -725,5 +791,15 @@ class SimulatedSkin(FrameSource):
         moved = target + offset[0] * e1 + offset[1] * e2
         contact = trimesh.proximity.closest_point(self.mesh, moved[None])[0][0]
         pressure, radius = self.draw_touch(rng)
+        felt = _FELT_SIGMA * self.layout.noise_std_counts
+        for _ in range(3):
+            image = sensor_image(self.layout, self.params, contact, pressure, radius)
+            if np.count_nonzero(image > felt) >= 2:
+                break
+            # Too light for the prompt to register: the person presses again, normally.
+            pressure, radius = self.draw_touch(rng, weak=False)
+        else:
+            # Still not felt (a dull spot): they press harder until it registers.
+            pressure *= 1.1 / max(float(np.sort(image / felt)[-2]), 1e-3)
         self.press(contact, pressure=pressure, finger_radius_m=radius)
         return contact

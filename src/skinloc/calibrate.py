@@ -302,6 +302,15 @@ class CalibrationSession:
         return self.recording
 
 
+def store_truth_layout(rec: Recording, skin) -> None:
+    """Keep a simulated skin's true wire crossings in ``rec.meta`` (models never read them).
+
+    ``meta["truth_sensor_positions_m"]`` is ``(n_sensors, 3)`` m, sensor k = TX ``k // n_rx``,
+    RX ``k % n_rx``; ``skinloc info --json`` prints it and ``skinloc sensors`` scores against it.
+    """
+    rec.meta["truth_sensor_positions_m"] = np.round(skin.layout.sensor_positions, 7).tolist()
+
+
 def simulate_session(
     skin,
     mesh,
@@ -326,5 +335,6 @@ def simulate_session(
         if not was_connected:
             skin.disconnect()
     rec.meta["true_contacts"] = np.asarray(finger.contacts).tolist()
+    store_truth_layout(rec, skin)
     write_recording(rec, path)
     return rec

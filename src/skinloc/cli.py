@@ -401,18 +401,30 @@ def info(
         "mesh_vertices": len(rec.vertices),
         "mesh_faces": len(rec.faces),
         **(stream_summary(data) or {}),  # a `skinloc record` file: its raw stream too
-        "meta": {k: v for k, v in rec.meta.items() if k not in ("true_contacts",)},
+        "meta": {k: v for k, v in rec.meta.items() if k not in _TRUTH_KEYS},
+        **_truth_layout(rec),
     }
     if as_json:
         _print_json(summary)
         return
     table = Table(title=str(data), show_header=False)
     for k, v in summary.items():
-        if k != "meta":
+        if k == "truth_sensor_positions_m":
+            table.add_row(k, f"{len(v)} true crossings (simulated skin)")
+        elif k != "meta":
             table.add_row(k, f"{v:.1f}" if isinstance(v, float) else str(v))
     for k, v in summary["meta"].items():
         table.add_row(f"meta.{k}", str(v))
     console.print(table)
+
+
+_TRUTH_KEYS = ("true_contacts", "truth_sensor_positions_m")
+
+
+def _truth_layout(rec) -> dict[str, Any]:
+    """A simulated recording's true crossings (``skinloc simulate`` stores them), else nothing."""
+    truth = rec.meta.get("truth_sensor_positions_m")
+    return {} if truth is None else {"truth_sensor_positions_m": truth}
 
 
 # ------------------------------------------------------------------------------------ convert
@@ -589,6 +601,7 @@ def _register_plugins() -> None:
     register(app)
     __import__("skinloc.app.cli", fromlist=["register"]).register(app)  # skinloc app
     __import__("skinloc.cli_live", fromlist=["register"]).register(app)  # skinloc run, export
+    __import__("skinloc.cli_skin", fromlist=["register"]).register(app)  # skinloc sensors, ...
 
 
 _register_plugins()

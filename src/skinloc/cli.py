@@ -242,17 +242,27 @@ def train(
             "instead of training from scratch."
         ),
     ] = None,
+    select: Annotated[
+        int | None,
+        typer.Option(min=1, help="Train on only this many point logs, chosen by --strategy."),
+    ] = None,
+    strategy: Annotated[
+        str, typer.Option(help="How --select chooses: active, random or even (seeded by --seed).")
+    ] = "active",
 ) -> None:
     """Train a localiser on one or more calibration recordings, or recalibrate one.
 
     Examples: skinloc train cal.h5 --out model.h5;
-    skinloc train today.h5 --init model.h5 --out model-today.h5
+    skinloc train today.h5 --init model.h5 --out model-today.h5;
+    skinloc train a.h5 b.h5 --select 20 --strategy active --out model-20.h5
     """
     from skinloc.evaluation import recalibrate_localizer, train_localizer
     from skinloc.geometry import load_mesh
     from skinloc.model import ContactLocalizer
 
     recs = _read_all(data)
+    if select is not None:
+        recs = _select_point_logs(recs, select, strategy, seed)
     if init is not None:
         old = ContactLocalizer.load(init)
         with progress_steps() as step:
@@ -283,6 +293,18 @@ def train(
         f"Trained '{arch.value}' on {n} point logs from {len(recs)} recording(s) "
         f"in {model.fit_time_s_:.1f} s; wrote {out}"
     )
+
+
+def _select_point_logs(recs: list, n: int, strategy: str, seed: int) -> list:
+    """``train --select``: the point logs a strategy asks for (skinloc.active)."""
+    from skinloc.active import select_point_logs, subset_recordings
+
+    with progress_steps() as step:
+        picks = select_point_logs(
+            recs, n, strategy, seed, progress=lambda d, t: step(f"choosing ({strategy})", d, t)
+        )
+    console.print(f"Chose {len(picks)} point logs ({strategy}, seed {seed})")
+    return subset_recordings(recs, picks)
 
 
 # ------------------------------------------------------------------------------------ evaluate

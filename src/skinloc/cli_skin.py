@@ -1,4 +1,4 @@
-"""Commands about the skin itself: ``skinloc sensors`` (and its coverage)."""
+"""Commands about the skin itself: ``skinloc sensors`` and ``skinloc coverage``."""
 
 from __future__ import annotations
 
@@ -55,11 +55,11 @@ def _write_text_atomic(path: Path, text: str) -> None:
         raise
 
 
-def _check_out(out: Path, inputs: list[Path]) -> None:
+def _check_out(out: Path, inputs: list[Path], names: tuple[str, ...]) -> None:
     """Refuse a report folder that is, or would overwrite, an input."""
     res = out.resolve()
     for p in inputs:
-        if p.resolve() == res or p.resolve().parent == res and p.name == "sensors.json":
+        if p.resolve() == res or p.resolve().parent == res and p.name in names:
             raise ValueError(f"--out {out} would overwrite the input {p}")
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out} exists and is not a folder")
@@ -102,7 +102,7 @@ def sensors_result(kind: str, obj: Any, n_boot: int, seed: int) -> tuple[dict, A
 
 
 def register(app: typer.Typer) -> None:
-    """Add ``sensors`` to the main ``skinloc`` app."""
+    """Add ``sensors`` and ``coverage`` to the main ``skinloc`` app."""
     from skinloc.cli import console, friendly_errors
 
     @app.command()
@@ -127,7 +127,7 @@ def register(app: typer.Typer) -> None:
         Example: skinloc sensors cal.h5 --json --out sensors-report/
         """
         if out is not None:
-            _check_out(out, data)
+            _check_out(out, data, ("sensors.json", "sensors.png"))
         kind, obj = load_skin_input(data)
         result, smap, mesh, truth = sensors_result(kind, obj, boot, seed)
         result["source"] = [str(p) for p in data]
@@ -144,6 +144,83 @@ def register(app: typer.Typer) -> None:
         _print_summary(console, result)
         if out is not None:
             console.print(f"Report in {out}/")
+
+    @app.command()
+    @friendly_errors
+    def coverage(
+        data: Annotated[
+            list[Path],
+            typer.Argument(help="A model file, or calibration recordings (a map is fitted)."),
+        ],
+        as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+        out: Annotated[
+            Path | None,
+            typer.Option(help="Report folder: coverage.json and coverage.png (the skin)."),
+        ] = None,
+        points: Annotated[
+            int, typer.Option(min=20, max=3000, help="Evaluation points on the surface.")
+        ] = 400,
+    ) -> None:
+        """Expected localisation error over the skin, and its blind spots.
+
+        Example: skinloc coverage model.h5 --json --out coverage-report/
+        """
+        if out is not None:
+            _check_out(out, data, ("coverage.json", "coverage.png"))
+        kind, obj = load_skin_input(data)
+        result, cov, mesh = coverage_result(kind, obj, points)
+        result["source"] = [str(p) for p in data]
+        if out is not None:
+            from skinloc.skin_report import plot_coverage
+
+            out.mkdir(parents=True, exist_ok=True)
+            _write_text_atomic(out / "coverage.json", json.dumps(result, indent=1) + "\n")
+            if mesh is not None:
+                plot_coverage(
+                    mesh, cov.points_m, cov.expected_mm, out / "coverage.png", cov.blind_m
+                )
+        if as_json:
+            sys.stdout.write(json.dumps(result, indent=1) + "\n")
+            return
+        e = result["expected_error_mm"]
+        console.print(
+            f"expected error: mean {e['mean']} mm, median {e['median']} mm, p90 {e['p90']} mm; "
+            f"blind (> {result['blind_threshold_mm']:.0f} mm): "
+            f"{100 * result['blind_fraction']:.0f}% of the skin"
+        )
+
+
+def coverage_result(kind: str, obj: Any, n_points: int) -> tuple[dict, Any, Any]:
+    """Coverage of a model, or of a default map trained on the recordings.
+
+    Returns ``(result, Coverage, mesh or None)``.
+    """
+    from skinloc.coverage import calibrate_temperature, coverage_map
+    from skinloc.geometry import mesh_from_arrays
+
+    temperature = float(getattr(obj, "meta_", {}).get("coverage_temperature", 1.0))
+    if kind == "model":
+        model, F = obj, None
+        mesh = (
+            mesh_from_arrays(model.mesh_vertices_, model.mesh_faces_)
+            if getattr(model, "mesh_vertices_", None) is not None
+            else None
+        )
+    else:
+        import numpy as np
+
+        from skinloc.evaluation import train_localizer
+        from skinloc.response_map import shape_features
+
+        model = train_localizer(obj)
+        F = shape_features(np.concatenate([r.touch_means for r in obj]))
+        targets = np.concatenate([r.targets for r in obj])
+        temperature = calibrate_temperature(targets, F, model.map_.candidates)
+        mesh = obj[0].mesh
+    if getattr(model, "map_", None) is None:
+        raise ValueError("coverage needs a response-map model (arch 'default'), or recordings")
+    cov = coverage_map(model.map_, F, n_points=n_points, temperature=temperature)
+    return cov.as_dict(), cov, mesh
 
 
 def _print_summary(console: Any, result: dict) -> None:

@@ -121,7 +121,7 @@ class SensorMap:
                         "index": i,
                         "status": self.line_status[kind][i],
                         "gain": _r(self.line_gain[kind][i], 3),
-                        "noise_counts": _r(float(np.nanmedian(self.noise_counts[idx]))),
+                        "noise_counts": _nanmedian(self.noise_counts[idx]),
                         "uncertainty_mm": _r(float(np.median(self.uncertainty_mm[idx]))),
                         "path_m": np.round(path, 6).tolist(),
                     }
@@ -138,6 +138,10 @@ class SensorMap:
 def _r(v: float, nd: int = 2) -> float | None:
     v = float(v)
     return round(v, nd) if np.isfinite(v) else None
+
+
+def _nanmedian(v: np.ndarray) -> float | None:
+    return _r(float(np.nanmedian(v))) if np.isfinite(v).any() else None
 
 
 def truth_sensor_positions(meta: dict[str, Any]) -> Points | None:

@@ -81,7 +81,10 @@ def plot_coverage(
     """Expected localisation error over the skin (colour, mm) and the blind spots (x)."""
     plt, fig, ax = _skin_axes(mesh, "Coverage: expected localisation error")
     p = 1e3 * np.asarray(points)
-    sc = ax.scatter(*p.T, c=expected_mm, cmap="viridis_r", s=10, depthshade=False)
+    vmax = float(np.percentile(expected_mm, 95))  # a few far-off outliers would wash it out
+    sc = ax.scatter(
+        *p.T, c=expected_mm, cmap="viridis_r", vmin=0.0, vmax=vmax, s=10, depthshade=False
+    )
     if blind is not None and len(blind):
         ax.scatter(*(1e3 * blind).T, marker="x", c="tab:red", s=30, label="blind spot")
         ax.legend(loc="upper left", fontsize=8)

@@ -164,3 +164,21 @@ def test_train_select_cli(sim_path, tmp_path):
     assert res.exit_code == 1 and "strategy must be one of" in res.output
     res = run("train", sim_path, "--select", "500", "--out", out)
     assert res.exit_code == 1 and "between 1 and 80" in res.output
+
+
+def test_repeated_targets_measure_the_probing_floor(tmp_path):
+    from skinloc.repeatability import repeated_pairs, session_repeatability
+
+    mesh = cone_skin()
+    skin = SimulatedSkin(mesh, random_state=0)
+    cfg = SessionConfig(n_points=40, mode="even", samples_per_touch=4, random_state=3, n_repeats=4)
+    rec = simulate_session(skin, mesh, tmp_path / "r.h5", cfg)
+    assert rec.n_point_logs == 44
+    assert len(repeated_pairs([rec])) == 4
+    rep = session_repeatability(rec)
+    assert rep["n_pairs"] == 4 and 0.0 < rep["rms_mm"] < 30.0
+    res = run("sensors", tmp_path / "r.h5", "--boot", "0")
+    assert res.exit_code == 0, res.output
+    assert "your probing repeatability" in res.output
+    with pytest.raises(ValueError, match="n_repeats"):
+        SessionConfig(n_points=5, n_repeats=6)

@@ -60,6 +60,9 @@ class SessionConfig:
         Seed for the targets.
     description : str
         Free text stored with the recording.
+    n_repeats : int
+        Targets asked for a second time at the end of the session (spread over the first
+        ``n_points``), to measure the probing repeatability (``skinloc.repeatability``).
     """
 
     n_points: int = 80
@@ -72,9 +75,14 @@ class SessionConfig:
     touch_timeout_s: float = 60.0
     random_state: int = 0
     description: str = ""
+    n_repeats: int = 0
 
     def __post_init__(self) -> None:
         self.mode = SamplingMode(self.mode).value
+        if not 0 <= self.n_repeats <= self.n_points:
+            raise ValueError(
+                f"SessionConfig.n_repeats must be in [0, n_points], got {self.n_repeats}"
+            )
         for name in ("n_points", "samples_per_touch", "min_active", "settle_frames"):
             if getattr(self, name) < 1:
                 raise ValueError(
@@ -189,6 +197,9 @@ class CalibrationSession:
             targets = sample_targets(
                 mesh, self.config.n_points, self.config.mode, random_state=self.config.random_state
             )
+            if self.config.n_repeats:
+                again = np.linspace(0, len(targets) - 1, self.config.n_repeats).round().astype(int)
+                targets = np.concatenate([targets, targets[again]])
         self.targets = np.asarray(targets, dtype=np.float64).reshape(-1, 3)
         self.source_name = source_name or source.name
         self.recording: Recording | None = None

@@ -88,6 +88,13 @@ def sensors_result(kind: str, obj: Any, n_boot: int, seed: int) -> tuple[dict, A
         mesh = obj[0].mesh
         truth = S.truth_sensor_positions(obj[0].meta)
     result = smap.as_dict()
+    if kind != "model" and len(obj) == 1:
+        from skinloc.repeatability import session_repeatability
+
+        rep = session_repeatability(obj[0])
+        if rep is not None:
+            result["probing_repeatability_mm"] = round(rep["rms_mm"], 2)
+            result["n_repeated_targets"] = rep["n_pairs"]
     if truth is not None and truth.shape == smap.positions_m.shape:
         err = S.position_errors_mm(smap.positions_m, truth)
         alive = smap.status != "dead"
@@ -242,6 +249,12 @@ def _print_summary(console: Any, result: dict) -> None:
     if unc:
         unc.sort()
         console.print(f"position uncertainty: median {unc[len(unc) // 2]:.1f} mm")
+    if "probing_repeatability_mm" in result:
+        console.print(
+            f"your probing repeatability: {result['probing_repeatability_mm']:.1f} mm "
+            f"({result['n_repeated_targets']} repeated targets): no accuracy figure of this "
+            "session can be trusted below it"
+        )
     if "truth" in result:
         t = result["truth"]
         console.print(

@@ -104,6 +104,7 @@ def expected_error_mm(
     queries: tuple[Points, np.ndarray, np.ndarray] | None = None,
     chunk: int = 512,
     normalised: bool = True,
+    exclude_self: bool = True,
 ) -> np.ndarray:
     """Expected localisation error at each query point, mm.
 
@@ -123,6 +124,8 @@ def expected_error_mm(
     normalised : bool
         Include the Gaussian normaliser. Without it every poorly known point competes with
         every query: a pessimistic score that ``skinloc.active`` uses to explore.
+    exclude_self : bool
+        Leave the query's own grid point out of its competitors.
 
     Returns
     -------
@@ -142,7 +145,8 @@ def expected_error_mm(
         logw = -d2 / (2.0 * var)
         if normalised:
             logw -= 0.5 * mu.shape[1] * np.log(var)
-        logw[dist < 1e-6] = -np.inf
+        if exclude_self:
+            logw[dist < 1e-6] = -np.inf
         logw -= logw.max(axis=1, keepdims=True)
         w = np.exp(logw)
         out[sl] = (w * dist).sum(1) / w.sum(1)

@@ -5,14 +5,15 @@ off with the distance to it over a width set by the silicone and the finger (the
 ``(1 + d^2 / w^2)^-1`` and the paper's observed ~10 mm footprints). So each sensor's position
 is the peak of its response over the surface:
 
-1. a Gaussian-process response map of every sensor (``ResponseMap``, pressure-normalised
-   counts) gives a first peak on the surface;
-2. a robust local fit of ``a / (1 + d^2 / w^2) + c`` to the touches near that peak refines
-   the position (sub-touch-spacing), and gives the footprint ``w`` (mm) and gain ``a``;
-3. the wires are continuous: sensor (i, j) lies on TX wire i and on RX wire j. A smooth curve
-   is fitted through each line's crossings (weighted by their uncertainty) and every crossing
-   is pulled towards the meeting point of its two curves (rank-one TX x RX structure). This
-   mostly helps sensors on weak lines, whose own peaks are noisy;
+1. a robust fit of ``a / (1 + d^2 / w^2) + c`` to each sensor's mean response per touch,
+   with the crossing searched over the surface points near its strongest touches and ``a``,
+   ``c`` solved in closed form for each (no local minima, the crossing stays on the surface),
+   touches weighted by their expected variance (pressure spread, probing error x slope);
+2. one footprint ``w`` for all (one silicone layer, one finger: the median of the first
+   per-sensor fits), and one damped pass dividing each touch by its estimated pressure;
+3. the wires are continuous: sensor (i, j) lies on TX wire i and on RX wire j, so each
+   crossing is pulled towards the smooth curves through its lines' crossings
+   (``skinloc.wires``); this mostly helps sensors on weak lines, whose own peaks are noisy;
 4. the uncertainty of each position is the spread of the whole estimate over bootstrap
    resamples of the touches (mm).
 
@@ -31,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from skinloc._typing import Points
+from skinloc.wires import line_path, structured_crossings
 
 __all__ = [
     "SensorMap",
@@ -51,7 +53,6 @@ _SEARCH_MM = 22.0  # candidate positions searched around the strongest touches
 _WIDTHS_MM = np.geomspace(4.0, 30.0, 14)
 _REL_NOISE, _ABS_NOISE, _PROBE_MM = 0.2, 0.05, 2.5
 _PRESSURE_ITERS = 1
-_CURVE_DEGREE = 2
 _SHARED_WIDTH = True
 _SHRINK = 0.5
 
@@ -153,13 +154,6 @@ def truth_sensor_positions(meta: dict[str, Any]) -> Points | None:
 # -------------------------------------------------------------------------------- estimation
 
 
-def _pressure_normalised(images: np.ndarray) -> np.ndarray:
-    """Divide each touch by its pressure proxy (L2 norm of the positive image, median 1)."""
-    norm = np.linalg.norm(np.maximum(images, 0.0), axis=1)
-    norm = np.maximum(norm, 1e-9)
-    return images / (norm / np.median(norm))[:, None]
-
-
 def _local_fit(
     targets_mm: np.ndarray,
     r: np.ndarray,
@@ -214,36 +208,6 @@ def _local_fit(
         h = np.minimum(1.0, 2.0 / np.maximum(np.abs(z), 1e-12)) / sd**2
     rms = float(np.sqrt(np.mean(res**2)))
     return int(cidx[ci]), float(widths[wi]), float(a[wi, ci]), float(c[wi, ci]), rms
-
-
-def _line_curve(points: np.ndarray, weights: np.ndarray, degree: int = 2) -> np.ndarray:
-    """Weighted polynomial curve through a line's crossings, evaluated at them, ``(m, 3)``.
-
-    The parameter is the projection on the points' principal direction; the curve is the
-    wire's path (a smooth, gently bending line across the surface).
-    """
-    c = np.average(points, axis=0, weights=weights)
-    _, _, vt = np.linalg.svd((points - c) * np.sqrt(weights)[:, None], full_matrices=False)
-    t = (points - c) @ vt[0]
-    deg = min(degree, len(points) - 2)
-    if deg < 1:
-        return points.copy()
-    V = np.vander(t, deg + 1)
-    W = np.sqrt(weights)[:, None]
-    coef, *_ = np.linalg.lstsq(V * W, points * W, rcond=None)
-    return V @ coef
-
-
-def _line_path(points: np.ndarray, weights: np.ndarray, n: int = 24) -> np.ndarray:
-    """A wire's path: the weighted curve through its crossings, sampled at ``n`` points."""
-    c = np.average(points, axis=0, weights=weights)
-    _, _, vt = np.linalg.svd((points - c) * np.sqrt(weights)[:, None], full_matrices=False)
-    t = (points - c) @ vt[0]
-    deg = max(1, min(2, len(points) - 2))
-    W = np.sqrt(weights)[:, None]
-    coef, *_ = np.linalg.lstsq(np.vander(t, deg + 1) * W, points * W, rcond=None)
-    ts = np.linspace(t.min(), t.max(), n)
-    return np.vander(ts, deg + 1) @ coef
 
 
 def _touch_pressure(
@@ -303,103 +267,8 @@ def _fit_once(
         elif it <= _PRESSURE_ITERS:
             pressure = _touch_pressure(T_mm, images, pos, width, amp, offset)
     if structure:
-        pos = _structured(pos, amp / max(float(np.median(amp)), 1e-12), C_mm, n_tx, n_rx)
+        pos = structured_crossings(pos, amp / max(float(np.median(amp)), 1e-12), C_mm, n_tx, n_rx)
     return pos, width, amp, rms
-
-
-def _chart(candidates_mm: np.ndarray) -> tuple[Any, np.ndarray]:
-    """2D coordinates on the skin in which the wires run roughly straight, mm.
-
-    A cone or cylinder about the y axis (the paper's skin) unrolls to (arc length around the
-    axis at the mean radius, y); any other skin uses its two principal directions. Returns
-    ``(to_uv, candidates_uv)`` with ``to_uv((k, 3) mm) -> (k, 2) mm``.
-    """
-    c = candidates_mm
-    r = np.hypot(c[:, 0], c[:, 2])
-    fit = np.polyfit(c[:, 1], r, 1)
-    if np.ptp(c[:, 1]) > 0 and np.abs(np.polyval(fit, c[:, 1]) - r).max() < 0.03 * r.mean():
-        r0 = float(r.mean())
-
-        def to_uv(p: np.ndarray) -> np.ndarray:
-            return np.stack([r0 * np.arctan2(p[:, 2], p[:, 0]), p[:, 1]], axis=1)
-
-    else:
-        centre = c.mean(axis=0)
-        axes = np.linalg.svd(c - centre, full_matrices=False)[2][:2]
-
-        def to_uv(p: np.ndarray) -> np.ndarray:
-            return (p - centre) @ axes.T
-
-    return to_uv, to_uv(c)
-
-
-def _curve_constraint(
-    uv: np.ndarray, weights: np.ndarray, degree: int
-) -> tuple[np.ndarray, np.ndarray, float]:
-    """Smooth curve through one line's crossings in the chart.
-
-    Returns the curve point nearest each crossing ``(m, 2)``, the curve's unit normal there
-    ``(m, 2)``, and the weighted residual variance across the curve (mm^2).
-    """
-    c = np.average(uv, axis=0, weights=weights)
-    d = np.linalg.svd((uv - c) * np.sqrt(weights)[:, None], full_matrices=False)[2][0]
-    nrm = np.array([-d[1], d[0]])
-    t, h = (uv - c) @ d, (uv - c) @ nrm
-    deg = max(1, min(degree, len(uv) - 3))
-    coef = np.polyfit(t, h, deg, w=np.sqrt(weights))
-    hf = np.polyval(coef, t)
-    slope = np.polyval(np.polyder(coef), t)
-    tang = d[None, :] + slope[:, None] * nrm[None, :]
-    tang /= np.linalg.norm(tang, axis=1, keepdims=True)
-    normal = np.stack([-tang[:, 1], tang[:, 0]], axis=1)
-    dof = max(len(uv) - deg - 1, 1)
-    var = float((weights * (h - hf) ** 2).sum() / weights.sum() * len(uv) / dof)
-    return c + t[:, None] * d + hf[:, None] * nrm, normal, max(var, 0.25)
-
-
-def _structured(
-    pos_mm: np.ndarray,
-    gain: np.ndarray,
-    candidates_mm: np.ndarray,
-    n_tx: int,
-    n_rx: int,
-) -> np.ndarray:
-    """Combine each crossing's own peak with the smooth paths of its TX and RX wires.
-
-    In the chart, crossing (i, j) must lie on TX curve i and RX curve j; each curve fixes
-    the component across it, with the variance of its own fit. The crossing's own peak
-    (weighted by its gain squared: weak sensors' peaks are noisier) is the third term of a
-    2 x 2 weighted least-squares problem, solved in closed form. Returns ``(n, 3)`` mm, on
-    the nearest candidate point.
-    """
-    from scipy.spatial import cKDTree
-
-    if n_tx < 4 or n_rx < 4:
-        return pos_mm
-    to_uv, cand_uv = _chart(candidates_mm)
-    uv = to_uv(pos_mm).reshape(n_tx, n_rx, 2)
-    g2 = np.clip(gain, 0.05, 2.0).reshape(n_tx, n_rx) ** 2
-    A = np.zeros((n_tx, n_rx, 2, 2))
-    b = np.zeros((n_tx, n_rx, 2))
-    own_var = []
-    cons = []
-    for axis, count in ((0, n_tx), (1, n_rx)):
-        for i in range(count):
-            sl = (i, slice(None)) if axis == 0 else (slice(None), i)
-            p, nrm, var = _curve_constraint(uv[sl], g2[sl], _CURVE_DEGREE)
-            own_var.append(var)
-            cons.append((sl, p, nrm, var))
-    s_own = float(np.median(own_var))  # per-axis variance of a typical crossing's own peak
-    for sl, p, nrm, var in cons:
-        wl = 1.0 / var
-        A[sl] += wl * nrm[:, :, None] * nrm[:, None, :]
-        b[sl] += wl * nrm * (nrm * p).sum(-1, keepdims=True)
-    wo = g2 / s_own
-    A += wo[..., None, None] * np.eye(2)
-    b += wo[..., None] * uv
-    merged = np.linalg.solve(A.reshape(-1, 2, 2), b.reshape(-1, 2)[..., None])[..., 0]
-    idx = cKDTree(cand_uv).query(merged)[1]
-    return candidates_mm[idx]
 
 
 def _snap(points_m: Points, candidates: Points) -> tuple[Points, np.ndarray]:
@@ -408,16 +277,6 @@ def _snap(points_m: Points, candidates: Points) -> tuple[Points, np.ndarray]:
 
     idx = cKDTree(candidates).query(points_m)[1]
     return candidates[idx], idx
-
-
-def _normals(candidates: Points, k: int = 12) -> np.ndarray:
-    """Unit surface normals at the candidates from their ``k`` nearest neighbours, ``(P, 3)``."""
-    from scipy.spatial import cKDTree
-
-    nb = cKDTree(candidates).query(candidates, k=min(k, len(candidates)))[1]
-    rel = candidates[nb] - candidates[nb].mean(axis=1, keepdims=True)
-    _, _, vt = np.linalg.svd(rel, full_matrices=False)
-    return vt[:, -1, :]
 
 
 def _flag(
@@ -530,8 +389,8 @@ def estimate_sensor_map(
     status, line_status, line_gain = _flag(gain, noise, n_tx, n_rx)
     S = snapped.reshape(n_tx, n_rx, 3)
     W = (1.0 / np.maximum(unc, 0.3) ** 2 if boots else np.ones(n)).reshape(n_tx, n_rx)
-    tx_paths = [_line_path(S[i], W[i]) for i in range(n_tx)]
-    rx_paths = [_line_path(S[:, j], W[:, j]) for j in range(n_rx)]
+    tx_paths = [line_path(S[i], W[i]) for i in range(n_tx)]
+    rx_paths = [line_path(S[:, j], W[:, j]) for j in range(n_rx)]
     return SensorMap(
         n_tx=n_tx,
         n_rx=n_rx,

@@ -13,7 +13,7 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -67,6 +67,9 @@ class SessionConfig:
         Seed for the targets.
     description : str
         Free text stored with the recording.
+    n_repeats : int
+        Targets asked for a second time at the end of the session (spread over the first
+        ``n_points``), to measure the probing repeatability (``skinloc.repeatability``).
     """
 
     n_points: int = 80
@@ -79,9 +82,14 @@ class SessionConfig:
     touch_timeout_s: float = 60.0
     random_state: int = 0
     description: str = ""
+    n_repeats: int = 0
 
     def __post_init__(self) -> None:
         self.mode = SamplingMode(self.mode).value
+        if not 0 <= self.n_repeats <= self.n_points:
+            raise ValueError(
+                f"SessionConfig.n_repeats must be in [0, n_points], got {self.n_repeats}"
+            )
         for name in ("n_points", "samples_per_touch", "min_active", "settle_frames"):
             if getattr(self, name) < 1:
                 raise ValueError(
@@ -203,6 +211,9 @@ class CalibrationSession:
             targets = sample_targets(
                 mesh, self.config.n_points, self.config.mode, random_state=self.config.random_state
             )
+            if self.config.n_repeats:
+                again = np.linspace(0, len(targets) - 1, self.config.n_repeats).round().astype(int)
+                targets = np.concatenate([targets, targets[again]])
         self.targets = np.asarray(targets, dtype=np.float64).reshape(-1, 3)
         self.source_name = source_name or source.name
         self.recording: Recording | None = None
@@ -329,6 +340,19 @@ class CalibrationSession:
             self._appender.close()
 
 
+def truth_layout(skin) -> dict[str, Any]:
+    """A simulated skin's true wire crossings, for a recording's meta (models never read them).
+
+    ``{"truth_sensor_positions_m": (n_sensors, 3) m}``, sensor k = TX ``k // n_rx``, RX
+    ``k % n_rx``; ``skinloc info --json`` prints it and ``skinloc sensors`` scores against it.
+    Empty for a skin without a known layout.
+    """
+    layout = getattr(skin, "layout", None)
+    if layout is None:
+        return {}
+    return {"truth_sensor_positions_m": np.round(layout.sensor_positions, 7).tolist()}
+
+
 def simulate_session(
     skin,
     mesh,
@@ -367,12 +391,7 @@ def simulate_session(
                 skin.disconnect()
             if session._appender is not None:
                 contacts = np.asarray(finger.contacts[: session.n_done]).tolist()
-                truth: dict = {"true_contacts": contacts}
-                layout = getattr(skin, "layout", None)
-                if layout is not None:
-                    # Sensor k is TX k // n_rx, RX k % n_rx; models never see these either.
-                    truth["truth_sensor_positions_m"] = np.asarray(layout.sensor_positions).tolist()
-                session._appender.update_meta(**truth)
+                session._appender.update_meta(true_contacts=contacts, **truth_layout(skin))
             session.close()
     except KeyboardInterrupt:
         n, total = session.n_done, len(session.targets)

@@ -472,11 +472,19 @@ def train(
         ),
     ] = None,
     force: Annotated[bool, typer.Option("--force", help="Replace an existing --out.")] = False,
+    select: Annotated[
+        int | None,
+        typer.Option(min=1, help="Train on only this many point logs, chosen by --strategy."),
+    ] = None,
+    strategy: Annotated[
+        str, typer.Option(help="How --select chooses: active, random or even (seeded by --seed).")
+    ] = "active",
 ) -> None:
     """Train a localiser on one or more calibration recordings, or recalibrate one.
 
     Examples: skinloc train cal.h5 --out model.h5;
-    skinloc train today.h5 --init model.h5 --out model-today.h5
+    skinloc train today.h5 --init model.h5 --out model-today.h5;
+    skinloc train a.h5 b.h5 --select 20 --strategy active --out model-20.h5
     """
     from skinloc.evaluation import recalibrate_localizer, train_localizer
     from skinloc.geometry import load_mesh
@@ -484,6 +492,8 @@ def train(
 
     check_output(out, option="--out", inputs=[*data, init, mesh], force=force)
     recs = _read_all(data)
+    if select is not None:
+        recs = _select_point_logs(recs, select, strategy, seed)
     n_logs = sum(r.n_point_logs for r in recs)
     if n_logs == 0:
         raise ValueError("the recordings hold no point logs: record a calibration session first")
@@ -524,6 +534,18 @@ def train(
         f"Trained '{arch.value}' on {n} point logs from {len(recs)} recording(s) "
         f"in {model.fit_time_s_:.1f} s; wrote {out}"
     )
+
+
+def _select_point_logs(recs: list, n: int, strategy: str, seed: int) -> list:
+    """``train --select``: the point logs a strategy asks for (skinloc.active)."""
+    from skinloc.active import select_point_logs, subset_recordings
+
+    with progress_steps() as step:
+        picks = select_point_logs(
+            recs, n, strategy, seed, progress=lambda d, t: step(f"choosing ({strategy})", d, t)
+        )
+    console.print(f"Chose {len(picks)} point logs ({strategy}, seed {seed})")
+    return subset_recordings(recs, picks)
 
 
 # ------------------------------------------------------------------------------------ evaluate
@@ -642,24 +664,30 @@ def info(
         "mesh_vertices": len(rec.vertices),
         "mesh_faces": len(rec.faces),
         **(stream_summary(data) or {}),  # a `skinloc record` file: its raw stream too
-        "meta": {
-            k: v
-            for k, v in rec.meta.items()
-            if k not in ("true_contacts", "truth_sensor_positions_m")
-        },
+        "meta": {k: v for k, v in rec.meta.items() if k not in _TRUTH_KEYS},
+        **_truth_layout(rec),
     }
     if as_json:
-        if "truth_sensor_positions_m" in rec.meta:  # a simulated skin's wire crossings
-            summary["truth_sensor_positions_m"] = rec.meta["truth_sensor_positions_m"]
         _print_json(summary)
         return
     table = Table(title=str(data), show_header=False)
     for k, v in summary.items():
-        if k != "meta":
+        if k == "truth_sensor_positions_m":
+            table.add_row(k, f"{len(v)} true crossings (simulated skin)")
+        elif k != "meta":
             table.add_row(k, f"{v:.1f}" if isinstance(v, float) else str(v))
     for k, v in summary["meta"].items():
         table.add_row(f"meta.{k}", str(v))
     console.print(table)
+
+
+_TRUTH_KEYS = ("true_contacts", "truth_sensor_positions_m")
+
+
+def _truth_layout(rec) -> dict[str, Any]:
+    """A simulated recording's true crossings (``skinloc simulate`` stores them), else nothing."""
+    truth = rec.meta.get("truth_sensor_positions_m")
+    return {} if truth is None else {"truth_sensor_positions_m": truth}
 
 
 # ------------------------------------------------------------------------------------ convert
@@ -839,6 +867,7 @@ def _register_plugins() -> None:
     register(app)
     __import__("skinloc.app.cli", fromlist=["register"]).register(app)  # skinloc app
     __import__("skinloc.cli_live", fromlist=["register"]).register(app)  # skinloc run, export
+    __import__("skinloc.cli_skin", fromlist=["register"]).register(app)  # skinloc sensors, ...
 
 
 _register_plugins()

@@ -143,6 +143,8 @@ def train_localizer(
         "n_recordings": len(recordings),
         "n_point_logs": int(sum(r.n_point_logs for r in recordings)),
         "sources": [r.meta.get("description") or r.meta.get("source", "") for r in recordings],
+        "n_tx": first.n_tx,
+        "n_rx": first.n_rx,
     }
     return model
 

@@ -1,0 +1,82 @@
+"""Figures of docs/accuracy.md, "Active calibration": which touches to ask for.
+
+Pool: the 2023-12-10 recordings other than the test one. Each strategy picks N point logs
+from the pool in its own order (``skinloc.active.select_point_logs``; active uses only the
+images of touches already chosen); a default map is trained on them and scored on the test
+recording (mean error, mm). Orders are nested, so one 40-touch order gives N = 10, 20, 40.
+
+    python bench/active_eval.py --test ConeSkinData80Points_RND_80PL_1.mat \
+        --seeds 0 1 2 3 4 --active-seeds 0 1 2 [--json bench/results/active.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from skinloc.active import select_point_logs, subset_recordings
+from skinloc.dataset import read_recording
+from skinloc.evaluation import evaluate, train_localizer
+
+DAY = [
+    "ConeSkinData_RND_20PL_1.mat",
+    "ConeSkinData50Points_RND_50PL_1.mat",
+    "ConeSkinData80Points_RND_80PL_1.mat",
+    "ConeSkinData30Points_RND_30PL_1.mat",
+]
+
+
+def curve(pool, test, strategy: str, seed: int, sizes: list[int]) -> list[float]:
+    """Mean test error (mm) after the first N picks of one order, for each N in ``sizes``."""
+    picks = select_point_logs(pool, max(sizes), strategy, seed)
+    out = []
+    for n in sizes:
+        model = train_localizer(subset_recordings(pool, picks[:n]))
+        out.append(float(evaluate(model, [test]).stats.mean_mm))
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", type=Path, default=Path("../shared/data/hiro-cone-skin"))
+    ap.add_argument("--test", nargs="*", default=[DAY[2]])
+    ap.add_argument("--sizes", type=int, nargs="*", default=[10, 20, 40])
+    ap.add_argument("--seeds", type=int, nargs="*", default=[0, 1, 2, 3, 4])
+    ap.add_argument("--active-seeds", type=int, nargs="*", default=[0, 1, 2])
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args()
+    recs = {name: read_recording(args.data / name) for name in DAY}
+    results = []
+    for test_name in args.test:
+        pool = [recs[n] for n in DAY if n != test_name]
+        test = recs[test_name]
+        row: dict = {"test": test_name, "sizes": args.sizes}
+        for strategy, seeds in (
+            ("random", args.seeds),
+            ("even", args.seeds),
+            ("active", args.active_seeds),
+        ):
+            errs = np.array([curve(pool, test, strategy, s, args.sizes) for s in seeds])
+            row[strategy] = {
+                "seeds": seeds,
+                "mean_mm": errs.mean(axis=0).round(2).tolist(),
+                "std_mm": errs.std(axis=0).round(2).tolist(),
+                "per_seed_mm": errs.round(2).tolist(),
+            }
+            curve_mm = dict(zip(args.sizes, row[strategy]["mean_mm"], strict=True))
+            print(test_name, strategy, curve_mm, flush=True)
+        row["active_over_random"] = [
+            round(a / r, 3)
+            for a, r in zip(row["active"]["mean_mm"], row["random"]["mean_mm"], strict=True)
+        ]
+        print(test_name, "active / random:", row["active_over_random"], flush=True)
+        results.append(row)
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,57 @@
+"""The label-noise floor on the real recordings of 2023-12-10 (docs/accuracy.md).
+
+Targets were reused between the sessions of that day. For every pair of recordings, the
+shared targets' two touches are localised by a default map trained on the other recordings
+of the day (neither touch in training); the per-touch repeatability is RMS(d) / sqrt(2).
+
+    python bench/label_noise.py [--data ../shared/data/hiro-cone-skin]
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+from pathlib import Path
+
+import numpy as np
+
+from skinloc.dataset import read_recording
+from skinloc.evaluation import train_localizer
+from skinloc.repeatability import probing_repeatability_mm, repeated_pairs
+
+DAY = [
+    "ConeSkinData_RND_20PL_1.mat",
+    "ConeSkinData50Points_RND_50PL_1.mat",
+    "ConeSkinData80Points_RND_80PL_1.mat",
+    "ConeSkinData30Points_RND_30PL_1.mat",
+]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", type=Path, default=Path("../shared/data/hiro-cone-skin"))
+    args = ap.parse_args()
+    recs = [read_recording(args.data / n) for n in DAY]
+    pa, pb = [], []
+    for a, b in itertools.combinations(range(len(recs)), 2):
+        shared = [p for p in repeated_pairs([recs[a], recs[b]]) if p[0] == 0 and p[2] == 1]
+        if not shared:
+            continue
+        model = train_localizer([r for i, r in enumerate(recs) if i not in (a, b)])
+        ia = [p[1] for p in shared]
+        ib = [p[3] for p in shared]
+        xa = model.predict(recs[a].touch_means[ia])
+        xb = model.predict(recs[b].touch_means[ib])
+        r = probing_repeatability_mm(xa, xb)
+        print(f"{DAY[a]} x {DAY[b]}: {r['n_pairs']} shared targets, floor {r['rms_mm']:.1f} mm")
+        pa.append(xa)
+        pb.append(xb)
+    r = probing_repeatability_mm(np.concatenate(pa), np.concatenate(pb))
+    print(
+        f"all: {r['n_pairs']} pairs; probing repeatability {r['rms_mm']:.1f} mm per touch "
+        f"(median pair distance {r['median_pair_mm']:.1f} mm)"
+    )
+
+
+if __name__ == "__main__":
+    main()

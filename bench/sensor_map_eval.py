@@ -1,0 +1,149 @@
+"""Figures of docs/sensors.md: how well ``skinloc sensors`` finds the crossings.
+
+Simulated skins (one per seed, 80 even touches): error of every crossing against the
+simulator's truth, over the sensors not flagged dead, and the lines flagged against the
+simulator's faults. Real skin: the crossings estimated from each recording of 2023-12-10
+separately, and their pairwise agreement; the lines flagged in each.
+
+    python bench/sensor_map_eval.py --seeds 0 1 2 [--data ../shared/data/hiro-cone-skin]
+        [--json bench/results/sensor-map.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from skinloc import sensor_map as S
+from skinloc.calibrate import SessionConfig, simulate_session
+from skinloc.dataset import read_recording
+from skinloc.geometry import cone_skin
+from skinloc.sources.sim import SimulatedSkin
+
+DAY = [
+    "ConeSkinData_RND_20PL_1.mat",
+    "ConeSkinData50Points_RND_50PL_1.mat",
+    "ConeSkinData80Points_RND_80PL_1.mat",
+    "ConeSkinData30Points_RND_30PL_1.mat",
+]
+
+
+def flagged(smap: S.SensorMap) -> list[str]:
+    """Lines not ``ok``, e.g. ``["RX 3 weak"]``."""
+    return [
+        f"{kind.upper()} {i} {st}"
+        for kind in ("tx", "rx")
+        for i, st in enumerate(smap.line_status[kind])
+        if st != "ok"
+    ]
+
+
+def sim_seed(seed: int, points: int, boot: int) -> dict:
+    """Simulate a skin and an even session, locate its sensors, score against the truth."""
+    mesh = cone_skin()
+    skin = SimulatedSkin(mesh, random_state=seed)
+    skin.reseed(seed)
+    cfg = SessionConfig(n_points=points, mode="even", samples_per_touch=50, random_state=seed)
+    with tempfile.TemporaryDirectory() as tmp:
+        rec = simulate_session(skin, mesh, Path(tmp) / "s.h5", cfg)
+    smap = S.sensor_map_from_recordings([rec], n_boot=boot, random_state=seed)
+    truth = S.truth_sensor_positions(rec.meta)
+    err = S.position_errors_mm(smap.positions_m, truth)
+    alive = smap.status != "dead"
+    p = skin.params
+    true_faults = [f"RX {j}" for j in p.weak_rx_lines] + [f"TX {i}" for i in p.weak_tx_lines]
+    found = flagged(smap)
+    false_alarms = [f for f in found if " ".join(f.split()[:2]) not in true_faults]
+    noisy_true = {tx * skin.layout.n_rx + rx for tx, rx in p.noisy_sensors}
+    noisy_found = set(np.flatnonzero(smap.status == "noisy").tolist())
+    return {
+        "seed": seed,
+        "median_mm": float(np.median(err[alive])),
+        "p90_mm": float(np.percentile(err[alive], 90)),
+        "errors_mm": err[alive].round(2).tolist(),
+        "uncertainty_median_mm": float(np.nanmedian(smap.uncertainty_mm)),
+        "footprint_median_mm": float(np.median(smap.footprint_mm)),
+        "lines_flagged": found,
+        "true_faulty_lines": true_faults,
+        "line_false_alarms": false_alarms,
+        "missed_lines": [t for t in true_faults if not any(f.startswith(t + " ") for f in found)],
+        "noisy_sensors_true": sorted(noisy_true),
+        "noisy_sensors_found": sorted(noisy_found),
+    }
+
+
+def real(data: Path, boot: int) -> dict:
+    """Crossings from each recording of 2023-12-10 alone, and their pairwise agreement."""
+    recs = {name: read_recording(data / name) for name in DAY}
+    maps = {name: S.sensor_map_from_recordings([r], n_boot=boot) for name, r in recs.items()}
+    pairs = []
+    for a, b in itertools.combinations(DAY, 2):
+        d = S.position_errors_mm(maps[a].positions_m, maps[b].positions_m)
+        ok = (maps[a].status != "dead") & (maps[b].status != "dead")
+        pairs.append(
+            {
+                "a": a,
+                "b": b,
+                "median_mm": float(np.median(d[ok])),
+                "p90_mm": float(np.percentile(d[ok], 90)),
+            }
+        )
+    return {
+        "pairs": pairs,
+        "median_of_pair_medians_mm": float(np.median([p["median_mm"] for p in pairs])),
+        "flagged": {name: flagged(m) for name, m in maps.items()},
+        "uncertainty_median_mm": {
+            name: float(np.nanmedian(m.uncertainty_mm)) for name, m in maps.items()
+        },
+        "rx_line_gain": {
+            name: [round(g, 2) for g in m.line_gain["rx"]] for name, m in maps.items()
+        },
+        "tx_line_gain": {
+            name: [round(g, 2) for g in m.line_gain["tx"]] for name, m in maps.items()
+        },
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, nargs="*", default=[0, 1, 2])
+    ap.add_argument("--points", type=int, default=80)
+    ap.add_argument("--boot", type=int, default=8)
+    ap.add_argument("--data", type=Path, default=Path("../shared/data/hiro-cone-skin"))
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args()
+    out: dict = {"sim": [sim_seed(s, args.points, args.boot) for s in args.seeds]}
+    if out["sim"]:
+        all_err = np.concatenate([r["errors_mm"] for r in out["sim"]])
+        out["sim_pooled"] = {
+            "median_mm": float(np.median(all_err)),
+            "p90_mm": float(np.percentile(all_err, 90)),
+            "line_false_alarms": sum(len(r["line_false_alarms"]) for r in out["sim"]),
+            "missed_lines": sum(len(r["missed_lines"]) for r in out["sim"]),
+        }
+        for r in out["sim"]:
+            print(
+                f"sim seed {r['seed']}: median {r['median_mm']:.2f} mm, p90 {r['p90_mm']:.2f} mm;"
+                f" flagged {r['lines_flagged']} (true {r['true_faulty_lines']}); noisy sensors"
+                f" {r['noisy_sensors_found']} (true {r['noisy_sensors_true']})"
+            )
+        p = out["sim_pooled"]
+        print(f"sim pooled: median {p['median_mm']:.2f} mm, p90 {p['p90_mm']:.2f} mm")
+    if (args.data / DAY[0]).is_file():
+        out["real"] = real(args.data, args.boot)
+        for pr in out["real"]["pairs"]:
+            print(f"real {pr['a']} vs {pr['b']}: median {pr['median_mm']:.2f} mm")
+        print("real flagged:", out["real"]["flagged"])
+    for r in out["sim"]:
+        r.pop("errors_mm")
+    if args.json:
+        args.json.write_text(json.dumps(out, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()

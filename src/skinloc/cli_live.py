@@ -201,14 +201,14 @@ def register(app: typer.Typer) -> None:
 
         Example: skinloc export model.h5 --onnx model.onnx --c-header skinloc_model.h
         """
+        from skinloc.engine import ModelSpec
         from skinloc.export import export_c_header, export_onnx
-        from skinloc.inference import InferenceSpec
 
         if onnx is None and c_header is None:
             raise ValueError("nothing to do: give --onnx FILE and/or --c-header FILE")
         if not model.is_file():
             raise ValueError(f"model not found: {model}")
-        spec = InferenceSpec.load(model)
+        spec = ModelSpec.load(model)
         if onnx is not None:
             export_onnx(spec, onnx, include_surface=surface)
             err_console.print(f"wrote {onnx}", highlight=False)

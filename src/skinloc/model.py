@@ -8,9 +8,12 @@ Two kinds of model share the class:
 - ``kind="map"`` (the default): a response map of the skin (``skinloc.response_map``), fitted
   by Gaussian-process regression on the surface in well under a second; prediction matches
   the image's shape against the map at every candidate surface point.
-- ``kind="network"`` (``paper``, ``mlp``): fully connected networks trained in PyTorch and
-  run as a plain NumPy forward pass over the whole ensemble, the path exported to other
-  runtimes.
+- ``kind="network"`` (``paper``, ``mlp``): fully connected networks trained in PyTorch (the
+  ``skinloc[nets]`` extra); prediction needs no PyTorch.
+
+Prediction is not here: a fitted model is described by a spec (``spec()``, plain arrays) and
+predicted by the engine of its kind (``skinloc.engine``), the one implementation that the
+pipeline, the benchmarks, the app and the exports share.
 """
 
 from __future__ import annotations
@@ -19,14 +22,14 @@ import json
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from skinloc._typing import Frames, Points
-from skinloc.errors import ModelFileError, NotFittedError
+from skinloc.engine import Engine, ModelSpec, Prediction
+from skinloc.errors import MissingExtraError, ModelFileError, NotFittedError
 
 log = logging.getLogger(__name__)
 
@@ -91,33 +94,19 @@ _TUNABLE = (
 )
 
 
-@dataclass(frozen=True)
-class Prediction:
-    """Localiser output for a batch.
+def import_torch(purpose: str) -> Any:
+    """``torch``, or a one-line error naming the extra that installs it.
 
-    Attributes
-    ----------
-    points : (n, 3) float
-        Contact points on the skin, m.
-    raw : (n, 3) float
-        Ensemble mean before the surface constraint, m.
-    uncertainty_mm : (n,) float
-        Spread of the ensemble members, mm (nan for a single network).
+    Only training networks needs PyTorch; the default model and every prediction run without
+    it, so it is imported here, on demand, and never at module level.
     """
-
-    points: Points
-    raw: Points
-    uncertainty_mm: np.ndarray
-
-
-def _activation_np(name: str) -> Callable[[np.ndarray], np.ndarray]:
-    if name == "relu":
-        return lambda x: np.maximum(x, 0.0, out=x)
-    if name == "tanh":
-        return lambda x: np.tanh(x, out=x)
-    from scipy.special import erf
-
-    return lambda x: 0.5 * x * (1.0 + erf(x / np.sqrt(2.0)))
+    try:
+        import torch
+    except ImportError:
+        raise MissingExtraError(
+            f"{purpose} needs PyTorch: pip install 'skinloc[nets]' (the default model does not)"
+        ) from None
+    return torch
 
 
 def group_means(X: np.ndarray, y: np.ndarray, groups: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -370,8 +359,7 @@ class ContactLocalizer:
 
         ``X (n, n_sensors)`` counts and ``y (n, 3)`` m; the preprocessing attributes must be set.
         """
-        import torch
-
+        torch = import_torch(f"training the {self.config_['arch']!r} network")
         cfg = self.config_
         Z = (self._features(X, cfg) - self.feature_mean_) / self.feature_scale_
         T = (y - self.target_mean_) / self.target_scale_
@@ -445,6 +433,7 @@ class ContactLocalizer:
         if y.shape != (len(X), 3) or len(X) < 1:
             raise ValueError(f"touch positions must have shape ({len(X)}, 3), got {y.shape}")
         new = copy.deepcopy(self)
+        new._engine = None
         t0 = time.perf_counter()
         if self.config_["kind"] == "map":
             from skinloc.response_map import shape_features
@@ -471,20 +460,7 @@ class ContactLocalizer:
             from skinloc.geometry import surface_points as make_points
 
             self.surface_points_ = make_points(mesh)
-        self._constraint = None
-
-    def _surface_constraint(self) -> Callable[[Points], Points]:
-        if getattr(self, "_constraint", None) is None:
-            if self.mesh_vertices_ is None or self.config_["constraint"] == "none":
-                self._constraint = lambda p: p
-            else:
-                from skinloc.geometry import SurfaceConstraint, mesh_from_arrays
-
-                mesh = mesh_from_arrays(self.mesh_vertices_, self.mesh_faces_)
-                self._constraint = SurfaceConstraint(
-                    mesh, self.config_["constraint"], self.surface_points_
-                )
-        return self._constraint
+        self._engine = None
 
     @property
     def mesh(self):  # -> trimesh.Trimesh | None
@@ -503,35 +479,55 @@ class ContactLocalizer:
                 "this ContactLocalizer is not fitted yet: call fit() or load a trained model"
             )
 
-    def _forward(self, X: np.ndarray) -> np.ndarray:
-        """Member outputs, ``(n_members, n, 3)`` m, before the constraint."""
+    def spec(self) -> ModelSpec:
+        """The fitted model as plain arrays: what its engine and the exports are built from."""
+        self._check_fitted()
         cfg = self.config_
-        h = (self._features(X, cfg) - self.feature_mean_) / self.feature_scale_
-        act = _activation_np(cfg["activation"])
-        n_layers = len(self.coefs_)
-        h = np.broadcast_to(h, (len(self.coefs_[0]), *h.shape))
-        for i in range(n_layers):
-            h = np.matmul(h, self.coefs_[i]) + self.intercepts_[i]
-            if i < n_layers - 1:
-                h = act(h)
-        return h * self.target_scale_ + self.target_mean_
+        common = dict(
+            n_features=int(self.n_features_in_),
+            clip_negative=bool(cfg["clip_negative"]),
+            vertices=self.mesh_vertices_,
+            faces=self.mesh_faces_,
+            meta={"arch": cfg.get("arch", "?")},
+        )
+        if cfg["kind"] == "map":
+            from skinloc.engine_map import MapSpec
+
+            coarse, cells = self.map_.search_cells()
+            return MapSpec(
+                **common,
+                surface_points=self.map_.candidates,
+                table=self.map_.table,
+                coarse=coarse,
+                cells=cells,
+                noise=float(self.map_.noise),
+            )
+        from skinloc.engine_network import NetworkSpec
+
+        return NetworkSpec(
+            **common,
+            constraint=cfg["constraint"],
+            surface_points=self.surface_points_,
+            normalise=cfg["normalise"],
+            activation=cfg["activation"],
+            feature_mean=np.asarray(self.feature_mean_, dtype=np.float64),
+            feature_scale=np.asarray(self.feature_scale_, dtype=np.float64),
+            weights=[np.asarray(W, dtype=np.float64) for W in self.coefs_],
+            biases=[np.asarray(b, dtype=np.float64) for b in self.intercepts_],
+            target_mean=np.asarray(self.target_mean_, dtype=np.float64).reshape(3),
+            target_scale=float(self.target_scale_),
+        )
+
+    def engine(self) -> Engine:
+        """The engine that predicts for this model (built once per fit or load)."""
+        if getattr(self, "_engine", None) is None:
+            self._engine = self.spec().engine()
+        return self._engine
 
     def predict_full(self, X: Frames) -> Prediction:
-        """Predict points, raw outputs and the ensemble spread for ``X (n, n_sensors)``."""
+        """Predict points, raw outputs and the uncertainty for ``X (n, n_sensors)``."""
         self._check_fitted()
-        X = self._check_X(X)
-        if self.config_["kind"] == "map":
-            from skinloc.response_map import shape_features
-
-            points, spread = self.map_.match(shape_features(X, self.config_["clip_negative"]))
-            return Prediction(points=points, raw=points, uncertainty_mm=spread)
-        members = self._forward(X)
-        raw = members.mean(axis=0)
-        if len(members) > 1:
-            spread = 1e3 * np.sqrt(((members - raw) ** 2).sum(axis=2).mean(axis=0))
-        else:
-            spread = np.full(len(X), np.nan)
-        return Prediction(points=self._surface_constraint()(raw), raw=raw, uncertainty_mm=spread)
+        return self.engine().predict(self._check_X(X))
 
     def predict(self, X: Frames) -> Points:
         """Contact points ``(n, 3)`` m for baseline-subtracted images ``X (n, n_sensors)``.
@@ -674,7 +670,7 @@ class ContactLocalizer:
                 model.mesh_vertices_ = surf["vertices"][()] if surf and "vertices" in surf else None
                 model.mesh_faces_ = surf["faces"][()] if surf and "faces" in surf else None
                 model.surface_points_ = surf["points"][()] if surf and "points" in surf else None
-                model._constraint = None
+                model._engine = None
         except ModelFileError:
             raise
         except (OSError, KeyError, ValueError, TypeError) as exc:

@@ -129,15 +129,17 @@ def _best_cells(
     C = dc.shape[0]
     nb = best_c.shape[0]
     best_v[:] = np.inf
+    worst = np.inf  # best_v[nb - 1], in a register: the scan is one compare per cell
     for c in range(C):  # the nb-th smallest of dc
         v = dc[c]
-        if v < best_v[nb - 1]:
+        if v < worst:
             t = nb - 1
             while t > 0 and best_v[t - 1] > v:
                 best_v[t] = best_v[t - 1]
                 t -= 1
             best_v[t] = v
-    thr = best_v[nb - 1] + 2.0 * _EPS
+            worst = best_v[nb - 1]
+    thr = worst + 2.0 * _EPS
     best_v[:] = np.inf
     best_c[:] = 0
     for c in range(C):
@@ -160,25 +162,17 @@ def _best_cells(
 
 @jit()
 def _fine(
-    f: np.ndarray,
-    ff: float,
-    best_c: np.ndarray,
-    tt: np.ndarray,
-    sqp: np.ndarray,
-    candp: np.ndarray,
-    off: np.ndarray,
-    pad_n: np.ndarray,
-    pad_pos: np.ndarray,
-    noise: float,
-    out: np.ndarray,
+    f: np.ndarray, ff: float, best_c: np.ndarray, fine: tuple, out: np.ndarray
 ) -> None:  # pragma: no cover - compiled
     """The chosen cells in full, into ``out (7,)`` = [point (3), point (3), spread_mm].
 
-    ``tt (P, k)`` is the table with the candidates grouped by coarse cell (cell c is rows
-    ``off[c]:off[c+1]``, each candidate once), ``sqp`` their squared norms, ``candp`` their
-    points (m). ``pad_n`` and ``pad_pos`` give the padding of each cell (its coarse point
-    repeated), which weighs in the spread. A map's raw output already lies on the surface.
+    ``fine`` = (tt, sqp, candp, off, pad_n, pad_pos, noise): ``tt (P, k)`` is the table with
+    the candidates grouped by coarse cell (cell c is rows ``off[c]:off[c+1]``, each candidate
+    once), ``sqp`` their squared norms, ``candp`` their points (m). ``pad_n`` and ``pad_pos``
+    give the padding of each cell (its coarse point repeated), which weighs in the spread.
+    A map's raw output already lies on the surface.
     """
+    tt, sqp, candp, off, pad_n, pad_pos, noise = fine
     k = f.shape[0]
     nb = best_c.shape[0]
     total = 0
@@ -235,24 +229,19 @@ def _match_one(
     clip: int,
     ct: np.ndarray,
     csq: np.ndarray,
-    tt: np.ndarray,
-    sqp: np.ndarray,
-    candp: np.ndarray,
-    off: np.ndarray,
-    pad_n: np.ndarray,
-    pad_pos: np.ndarray,
-    noise: float,
-    f: np.ndarray,
-    dc: np.ndarray,
-    best_v: np.ndarray,
-    best_c: np.ndarray,
+    fine: tuple,
+    scratch: tuple,
     out: np.ndarray,
 ) -> None:  # pragma: no cover - compiled
-    """One image into ``out (7,)``: features, coarse distances, chosen cells, fine search."""
+    """One image into ``out (7,)``: features, coarse distances, chosen cells, fine search.
+
+    ``scratch`` = (f (k,) float32, dc (C,) float32, best_v (nb,), best_c (nb,) int).
+    """
+    f, dc, best_v, best_c = scratch
     ff = _features(x, clip, f)
     _coarse_into(f, ct, csq, dc)
     _best_cells(f, dc, ct, csq, best_v, best_c)
-    _fine(f, ff, best_c, tt, sqp, candp, off, pad_n, pad_pos, noise, out)
+    _fine(f, ff, best_c, fine, out)
 
 
 @jit(parallel=True)
@@ -262,13 +251,7 @@ def _match_many(
     ct: np.ndarray,
     ct_t: np.ndarray,
     csq: np.ndarray,
-    tt: np.ndarray,
-    sqp: np.ndarray,
-    candp: np.ndarray,
-    off: np.ndarray,
-    pad_n: np.ndarray,
-    pad_pos: np.ndarray,
-    noise: float,
+    fine: tuple,
     n_best: int,
     out: np.ndarray,
 ) -> None:  # pragma: no cover - compiled
@@ -293,7 +276,7 @@ def _match_many(
             for c in range(dc.shape[0]):
                 dc[c] = csq[c] - np.float32(2.0) * dc[c]
             _best_cells(F[r], dc, ct, csq, best_v, best_c)
-            _fine(F[r], ff[r], best_c, tt, sqp, candp, off, pad_n, pad_pos, noise, out[r0 + r])
+            _fine(F[r], ff[r], best_c, fine, out[r0 + r])
 
 
 # --------------------------------------------------------------------------------------------
@@ -326,7 +309,7 @@ class MapEngine(Engine):
         self._ct_t = np.ascontiguousarray(self._ct.T)  # (k, C), for the batch's product
         self._csq = sq[coarse]
         self._n_best = min(int(spec.n_cells), len(coarse))
-        self._fine_args = (
+        self._fine = (
             np.ascontiguousarray(table[perm_a]),  # (P', k), grouped by cell
             sq[perm_a],
             np.ascontiguousarray(np.asarray(spec.surface_points)[perm_a], dtype=np.float64),
@@ -335,25 +318,16 @@ class MapEngine(Engine):
             np.asarray(pad_pos, dtype=np.int64),
             float(spec.noise),
         )
-        self._f = np.zeros(self.n_features, dtype=np.float32)
-        self._dc = np.zeros(len(coarse), dtype=np.float32)
-        self._best_v = np.zeros(self._n_best)
-        self._best = np.zeros(self._n_best, dtype=np.int64)
+        self._scratch = (
+            np.zeros(self.n_features, dtype=np.float32),
+            np.zeros(len(coarse), dtype=np.float32),
+            np.zeros(self._n_best),
+            np.zeros(self._n_best, dtype=np.int64),
+        )
 
     def localise_into(self, x: np.ndarray, out: np.ndarray) -> None:
         """One image ``x (n_features,)`` float32 counts into ``out (7,)`` (see ``Engine``)."""
-        _match_one(
-            x,
-            self._clip,
-            self._ct,
-            self._csq,
-            *self._fine_args,
-            self._f,
-            self._dc,
-            self._best_v,
-            self._best,
-            out,
-        )
+        _match_one(x, self._clip, self._ct, self._csq, self._fine, self._scratch, out)
 
     def _predict_rows(self, X: np.ndarray) -> tuple[Points, Points, np.ndarray]:
         out = np.empty((len(X), 7))
@@ -361,7 +335,7 @@ class MapEngine(Engine):
         # each chunk's product runs on the thread that handles the chunk.
         with _blas_controller().limit(limits=1, user_api="blas"):
             _match_many(
-                X, self._clip, self._ct, self._ct_t, self._csq, *self._fine_args, self._n_best, out
+                X, self._clip, self._ct, self._ct_t, self._csq, self._fine, self._n_best, out
             )
         return out[:, 3:6].copy(), out[:, :3].copy(), out[:, 6].copy()
 

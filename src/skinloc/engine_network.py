@@ -205,12 +205,7 @@ def _localise_one(
     scratch: np.ndarray,
     members: np.ndarray,
     mode: int,
-    pts: np.ndarray,
-    start: np.ndarray,
-    items: np.ndarray,
-    grid: np.ndarray,
-    dims: np.ndarray,
-    tris: np.ndarray,
+    surf: tuple,
     out: np.ndarray,
 ) -> None:  # pragma: no cover - compiled
     """One image to ``out`` = [raw x, y, z, point x, y, z, spread_mm] (m, mm)."""
@@ -221,7 +216,7 @@ def _localise_one(
         for e in range(E):
             r += members[e, k]
         out[k] = r / E
-    _constrain_one(out[0], out[1], out[2], mode, pts, start, items, grid, dims, tris, out[3:6])
+    _constrain_one(out[0], out[1], out[2], mode, surf, out[3:6])
     out[6] = spread
 
 
@@ -307,7 +302,7 @@ class NetworkEngine(Engine):
             self._scratch,
             self._members,
             self.surface.mode,
-            *self.surface.args,
+            self.surface.args,
             out,
         )
 

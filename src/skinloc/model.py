@@ -18,7 +18,6 @@ pipeline, the benchmarks, the app and the exports share.
 
 from __future__ import annotations
 
-import json
 import logging
 import time
 from collections.abc import Callable
@@ -29,14 +28,14 @@ import numpy as np
 
 from skinloc._typing import Frames, Points
 from skinloc.engine import Engine, ModelSpec, Prediction
-from skinloc.errors import MissingExtraError, ModelFileError, NotFittedError
+from skinloc.errors import NotFittedError
+from skinloc.model_file import MODEL_FORMAT_VERSION
+from skinloc.network_training import fit_network
 
 log = logging.getLogger(__name__)
 
 __all__ = ["ARCHITECTURES", "ContactLocalizer", "MODEL_FORMAT_VERSION", "Prediction"]
 
-#: 2 added response-map models; version 1 files (networks) still load.
-MODEL_FORMAT_VERSION = 2
 
 #: Named configurations. ``paper`` is the paper's network exactly (64-32-3, one hidden layer);
 #: ``default`` is the most accurate on the real recordings (see docs/accuracy.md); ``mlp`` is
@@ -92,21 +91,6 @@ _TUNABLE = (
     "weight_decay",
     "noise_std",
 )
-
-
-def import_torch(purpose: str) -> Any:
-    """``torch``, or a one-line error naming the extra that installs it.
-
-    Only training networks needs PyTorch; the default model and every prediction run without
-    it, so it is imported here, on demand, and never at module level.
-    """
-    try:
-        import torch
-    except ImportError:
-        raise MissingExtraError(
-            f"{purpose} needs PyTorch: pip install 'skinloc[nets]' (the default model does not)"
-        ) from None
-    return torch
 
 
 def group_means(X: np.ndarray, y: np.ndarray, groups: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -329,7 +313,7 @@ class ContactLocalizer:
             self.feature_scale_ = np.maximum(F.std(axis=0), 1e-6 * max(F.std(), 1e-12))
             self.target_mean_ = y.mean(axis=0)
             self.target_scale_ = float(np.maximum(y.std(axis=0).max(), 1e-6))
-            self._fit_network(X, y, cfg["epochs"], cfg["lr"], progress)
+            fit_network(self, X, y, cfg["epochs"], cfg["lr"], progress)
         self.fit_time_s_ = time.perf_counter() - t0
         log.info("trained %s in %.2f s", cfg["arch"], self.fit_time_s_)
         return self
@@ -346,69 +330,6 @@ class ContactLocalizer:
         self.map_ = ResponseMap.fit(
             y, F, self.surface_points_, length_scale_mm=self.config_["length_scale_mm"]
         )
-
-    def _fit_network(
-        self,
-        X: np.ndarray,
-        y: Points,
-        epochs: int,
-        lr: float,
-        progress: Callable[[int, int], None] | None,
-    ) -> None:
-        """Train the ensemble with AdamW, cosine-decayed ``lr``, from the current weights if any.
-
-        ``X (n, n_sensors)`` counts and ``y (n, 3)`` m; the preprocessing attributes must be set.
-        """
-        torch = import_torch(f"training the {self.config_['arch']!r} network")
-        cfg = self.config_
-        Z = (self._features(X, cfg) - self.feature_mean_) / self.feature_scale_
-        T = (y - self.target_mean_) / self.target_scale_
-        g = torch.Generator().manual_seed(int(self.random_state))
-        E = cfg["n_members"]
-        sizes = [Z.shape[1], *cfg["hidden"], 3]
-        n_layers = len(sizes) - 1
-        params: list[torch.Tensor] = []
-        if hasattr(self, "coefs_"):
-            for W, b in zip(self.coefs_, self.intercepts_, strict=True):
-                params += [torch.tensor(W).requires_grad_(), torch.tensor(b).requires_grad_()]
-        else:
-            for fan_in, fan_out in zip(sizes[:-1], sizes[1:], strict=True):
-                bound = 1.0 / np.sqrt(fan_in)  # the default init of torch.nn.Linear
-                shape_w, shape_b = (E, fan_in, fan_out), (E, 1, fan_out)
-                W = (torch.rand(shape_w, generator=g, dtype=torch.float64) * 2 - 1) * bound
-                b = (torch.rand(shape_b, generator=g, dtype=torch.float64) * 2 - 1) * bound
-                params += [W.requires_grad_(), b.requires_grad_()]
-        act = {"relu": torch.relu, "tanh": torch.tanh, "gelu": torch.nn.functional.gelu}[
-            cfg["activation"]
-        ]
-        Zt = torch.as_tensor(Z).expand(E, -1, -1)
-        Tt = torch.as_tensor(T).expand(E, -1, -1)
-        opt = torch.optim.AdamW(params, lr=lr, weight_decay=cfg["weight_decay"])
-        sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=epochs)
-        self.loss_curve_ = []
-        for epoch in range(epochs):
-            h = Zt
-            if cfg["noise_std"] > 0:
-                h = h + cfg["noise_std"] * torch.randn(h.shape, generator=g, dtype=h.dtype)
-            for i in range(n_layers):
-                h = torch.baddbmm(params[2 * i + 1], h, params[2 * i])
-                if i < n_layers - 1:
-                    h = act(h)
-            loss = ((h - Tt) ** 2).mean(dim=(1, 2)).sum()
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-            sched.step()
-            self.loss_curve_.append(loss.item() / E)
-            if progress is not None and (epoch % 25 == 0 or epoch == epochs - 1):
-                progress(epoch + 1, epochs)
-        coefs = [params[2 * i].detach().numpy().copy() for i in range(n_layers)]
-        intercepts = [params[2 * i + 1].detach().numpy().copy() for i in range(n_layers)]
-        if not all(np.all(np.isfinite(w)) for w in coefs + intercepts):
-            raise ValueError(
-                "training diverged (non-finite weights); lower lr or check the input images"
-            )
-        self.coefs_, self.intercepts_ = coefs, intercepts
 
     def recalibrate(
         self,
@@ -446,7 +367,7 @@ class ContactLocalizer:
             if self.config_["train_on"] == "means" and groups is not None:
                 X, y = group_means(X, y, groups)
             epochs = max(50, self.config_["epochs"] // 4)
-            new._fit_network(X, y, epochs, self.config_["lr"] / 10, progress)
+            fit_network(new, X, y, epochs, self.config_["lr"] / 10, progress)
         new.fit_time_s_ = time.perf_counter() - t0
         return new
 
@@ -538,141 +459,22 @@ class ContactLocalizer:
 
     # ---------------------------------------------------------------- persistence
     def save(self, path: str | Path, extra_meta: dict[str, Any] | None = None) -> None:
-        """Write the model to one self-describing HDF5 file, atomically.
+        """Write the model to one self-describing HDF5 file, atomically (``skinloc.model_file``).
 
         The file holds the configuration (JSON), the preprocessing arrays, every layer's
-        weights as ``(n_members, in, out)`` datasets, the skin mesh and the snap points.
+        weights as ``(n_members, in, out)`` datasets or the response map's layers, the skin
+        mesh and the snap points.
         """
-        import h5py
-
-        from skinloc import __version__
-        from skinloc.dataset import _atomic_write
+        from skinloc.model_file import write_model
 
         self._check_fitted()
-        meta = {
-            "skinloc_version": __version__,
-            "numpy_version": np.__version__,
-            "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-            "fit_time_s": getattr(self, "fit_time_s_", None),
-            **(extra_meta or {}),
-        }
-        if hasattr(self, "training_meta_"):
-            meta.setdefault("training", self.training_meta_)
-
-        def write(tmp: Path) -> None:
-            with h5py.File(tmp, "w") as f:
-                f.attrs["format"] = "skinloc-model"
-                f.attrs["format_version"] = MODEL_FORMAT_VERSION
-                f.attrs["config"] = json.dumps(self.config_)
-                f.attrs["meta"] = json.dumps(meta, default=str)
-                f.attrs["n_features_in"] = self.n_features_in_
-                if self.config_["kind"] == "map":
-                    self._write_map(f)
-                else:
-                    self._write_network(f)
-                if self.mesh_vertices_ is not None:
-                    f["surface/vertices"], f["surface/faces"] = (
-                        self.mesh_vertices_,
-                        self.mesh_faces_,
-                    )
-                if self.surface_points_ is not None:
-                    f["surface/points"] = self.surface_points_
-
-        _atomic_write(Path(path), write)
-
-    def _write_map(self, f: Any) -> None:
-        f.attrs["description"] = (
-            "x: baseline-subtracted counts (n_features_in,). features: clip negatives, divide by "
-            "max(L2 norm, 1). map(q) = mean + sum over layers of exp(-|q - points_mm|^2 / "
-            "(2 length_scale_mm^2)) @ alpha, q in mm. prediction: the row of map/candidates "
-            "(metres) whose map value is nearest the features."
-        )
-        g = f.create_group("map")
-        g["mean"], g["candidates"] = self.map_.mean, self.map_.candidates
-        for i, layer in enumerate(self.map_.layers):
-            lg = g.create_group(f"layer{i}")
-            lg["points_mm"], lg["alpha"] = layer.points_mm, layer.alpha
-            lg.attrs["length_scale_mm"], lg.attrs["noise"] = layer.length_scale_mm, layer.noise
-
-    def _write_network(self, f: Any) -> None:
-        f.attrs["description"] = (
-            "x: baseline-subtracted counts (n_features_in,). features: clip/normalise per "
-            "config, then (x - feature_mean) / feature_scale. layers: h = act(h @ W + b) "
-            "per member; output * target_scale + target_mean is metres; ensemble mean."
-        )
-        p = f.create_group("preprocessing")
-        p["feature_mean"], p["feature_scale"] = self.feature_mean_, self.feature_scale_
-        p["target_mean"] = self.target_mean_
-        p.attrs["target_scale"] = self.target_scale_
-        net = f.create_group("network")
-        for i, (W, b) in enumerate(zip(self.coefs_, self.intercepts_, strict=True)):
-            net[f"layer{i}/weight"], net[f"layer{i}/bias"] = W, b
-
-    def _read_map(self, g: Any) -> None:
-        from skinloc.response_map import MapLayer, ResponseMap
-
-        layers = [
-            MapLayer(
-                g[f"layer{i}/points_mm"][()],
-                g[f"layer{i}/alpha"][()],
-                float(g[f"layer{i}"].attrs["length_scale_mm"]),
-                float(g[f"layer{i}"].attrs["noise"]),
-            )
-            for i in range(sum(1 for k in g if k.startswith("layer")))
-        ]
-        self.map_ = ResponseMap(g["mean"][()], layers, g["candidates"][()])
-
-    def _read_network(self, f: Any) -> None:
-        p = f["preprocessing"]
-        self.feature_mean_ = p["feature_mean"][()]
-        self.feature_scale_ = p["feature_scale"][()]
-        self.target_mean_ = p["target_mean"][()]
-        self.target_scale_ = float(p.attrs["target_scale"])
-        net = f["network"]
-        self.coefs_ = [net[f"layer{i}/weight"][()] for i in range(len(net))]
-        self.intercepts_ = [net[f"layer{i}/bias"][()] for i in range(len(net))]
+        write_model(self, Path(path), extra_meta)
 
     @classmethod
     def load(cls, path: str | Path) -> ContactLocalizer:
         """Read a model written by ``save``; raises ``ModelFileError`` when it cannot."""
-        import h5py
+        from skinloc.model_file import read_model
 
-        path = Path(path)
-        if not path.is_file():
-            raise ModelFileError(f"model not found: {path}")
-        try:
-            with h5py.File(path, "r") as f:
-                if f.attrs.get("format") != "skinloc-model":
-                    raise ModelFileError(f"{path} is not a skinloc model")
-                version = int(f.attrs["format_version"])
-                if version > MODEL_FORMAT_VERSION:
-                    raise ModelFileError(
-                        f"{path} uses model format {version}; this skinloc reads up to "
-                        f"{MODEL_FORMAT_VERSION}: upgrade skinloc"
-                    )
-                cfg = json.loads(f.attrs["config"])
-                if version == 1:  # version 1 held networks only, under the names of today's mlp
-                    cfg["kind"] = "network"
-                    cfg["arch"] = "mlp" if cfg["arch"] == "default" else cfg["arch"]
-                if "hidden" in cfg:
-                    cfg["hidden"] = tuple(cfg["hidden"])
-                model = cls(
-                    arch=cfg["arch"], constraint=cfg["constraint"], random_state=cfg["random_state"]
-                )
-                model.config_ = cfg
-                model.meta_ = json.loads(f.attrs.get("meta", "{}"))
-                model.n_features_in_ = int(f.attrs["n_features_in"])
-                if cfg["kind"] == "map":
-                    model._read_map(f["map"])
-                else:
-                    model._read_network(f)
-                surf = f.get("surface")
-                model.mesh_vertices_ = surf["vertices"][()] if surf and "vertices" in surf else None
-                model.mesh_faces_ = surf["faces"][()] if surf and "faces" in surf else None
-                model.surface_points_ = surf["points"][()] if surf and "points" in surf else None
-                model._engine = None
-        except ModelFileError:
-            raise
-        except (OSError, KeyError, ValueError, TypeError) as exc:
-            raise ModelFileError(f"cannot read model {path}: {exc}") from exc
+        model = read_model(cls, Path(path))
+        model._engine = None
         return model

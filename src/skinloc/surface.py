@@ -192,19 +192,13 @@ def _closest_on_triangles(
 
 @jit()
 def _constrain_one(
-    q0: float,
-    q1: float,
-    q2: float,
-    mode: int,
-    pts: np.ndarray,
-    start: np.ndarray,
-    items: np.ndarray,
-    grid: np.ndarray,
-    dims: np.ndarray,
-    tris: np.ndarray,
-    out: np.ndarray,
+    q0: float, q1: float, q2: float, mode: int, surf: tuple, out: np.ndarray
 ) -> None:  # pragma: no cover - compiled
-    """Put ``q`` on the surface by ``mode`` (0 none, 1 snap, 2 project); writes ``out (3,)``."""
+    """Put ``q`` on the surface by ``mode`` (0 none, 1 snap, 2 project); writes ``out (3,)``.
+
+    ``surf`` = (points, start, items, grid, dims, triangles): ``Surface.args``.
+    """
+    pts, start, items, grid, dims, tris = surf
     if mode == 1:
         k = _snap_one(q0, q1, q2, pts, start, items, grid, dims)
         out[0] = pts[k, 0]
@@ -220,19 +214,11 @@ def _constrain_one(
 
 @jit(parallel=True)
 def _constrain_many(
-    q: np.ndarray,
-    mode: int,
-    pts: np.ndarray,
-    start: np.ndarray,
-    items: np.ndarray,
-    grid: np.ndarray,
-    dims: np.ndarray,
-    tris: np.ndarray,
-    out: np.ndarray,
+    q: np.ndarray, mode: int, surf: tuple, out: np.ndarray
 ) -> None:  # pragma: no cover - compiled
     """``_constrain_one`` over the rows of ``q (n, 3)``, in parallel, into ``out (n, 3)``."""
     for i in prange(q.shape[0]):
-        _constrain_one(q[i, 0], q[i, 1], q[i, 2], mode, pts, start, items, grid, dims, tris, out[i])
+        _constrain_one(q[i, 0], q[i, 1], q[i, 2], mode, surf, out[i])
 
 
 # --------------------------------------------------------------------------------------------
@@ -355,7 +341,7 @@ class Surface:
             v = np.asarray(vertices, dtype=np.float64)
             self.tris = np.ascontiguousarray(v[np.asarray(faces, dtype=np.int64)])
         idx = self.index
-        #: The kernels' arguments after the mode: points, start, items, grid, dims, triangles.
+        #: The kernels' surface: points, start, items, grid, dims, triangles.
         self.args = (
             idx.points if idx else np.zeros((1, 3)),
             idx.start if idx else np.zeros(2, dtype=np.int64),
@@ -367,7 +353,7 @@ class Surface:
 
     def constrain_into(self, q0: float, q1: float, q2: float, out: np.ndarray) -> None:
         """Put the point ``(q0, q1, q2)`` m on the surface, into ``out (3,)``."""
-        _constrain_one(q0, q1, q2, self.mode, *self.args, out)
+        _constrain_one(q0, q1, q2, self.mode, self.args, out)
 
     def constrain(self, q: Points) -> Points:
         """Constrain ``q (n, 3)`` m onto the surface (in parallel); returns ``(n, 3)`` m."""
@@ -375,5 +361,5 @@ class Surface:
         if self.mode == 0:
             return q.copy()
         out = np.empty_like(q)
-        _constrain_many(q, self.mode, *self.args, out)
+        _constrain_many(q, self.mode, self.args, out)
         return out

@@ -1011,7 +1011,8 @@ class Workspace:
 
     def _train(self, a: _Active, rec: Recording) -> None:
         from skinloc.errors import MissingExtraError
-        from skinloc.model import ARCHITECTURES, import_torch
+        from skinloc.model import ARCHITECTURES
+        from skinloc.network_training import import_torch
 
         arch = self.config.train_options.get("arch", "default")
         torch = None

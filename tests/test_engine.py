@@ -36,6 +36,9 @@ def test_a_frame_alone_and_in_a_batch_gets_the_same_answer(kind):
     engine = load_engine(model_path(kind))
     X = calibration().deltas.reshape(-1, 64).astype(np.float32)
     points, raw, spread = engine.predict_batch(X)
+    assert len(X) > 128  # a map's batch path (chunks of 128 rows), not its few-rows path
+    few = engine.predict_batch(X[:5])
+    np.testing.assert_allclose(few[1], raw[:5], atol=1e-6 if kind == "mlp" else 0)
     out = np.empty(7)
     for i in range(0, len(X), 7):
         engine.localise_into(X[i], out)

@@ -207,7 +207,7 @@ class Engine:
     def warm_up(self) -> Engine:
         """Compile the kernels now (numba caches them on disk) rather than on the first frame."""
         self.localise_into(self._x, self._out)
-        self.predict_batch(np.zeros((2, self.n_features), dtype=np.float32))
+        self.predict_batch(np.zeros((256, self.n_features), dtype=np.float32))
         self.constrain_into(0.0, 0.0, 0.0, np.zeros(3))
         return self
 

@@ -331,12 +331,16 @@ class MapEngine(Engine):
 
     def _predict_rows(self, X: np.ndarray) -> tuple[Points, Points, np.ndarray]:
         out = np.empty((len(X), 7))
-        # BLAS's own threads would fight numba's for the cores (and spin after each product):
-        # each chunk's product runs on the thread that handles the chunk.
-        with _blas_controller().limit(limits=1, user_api="blas"):
-            _match_many(
-                X, self._clip, self._ct, self._ct_t, self._csq, self._fine, self._n_best, out
-            )
+        if len(X) < _CHUNK:  # a few frames (the app's, per frame): no product to share
+            for x, o in zip(X, out, strict=True):
+                self.localise_into(x, o)
+        else:
+            # BLAS's own threads would fight numba's for the cores (and spin after each
+            # product): each chunk's product runs on the thread that handles the chunk.
+            with _blas_controller().limit(limits=1, user_api="blas"):
+                _match_many(
+                    X, self._clip, self._ct, self._ct_t, self._csq, self._fine, self._n_best, out
+                )
         return out[:, 3:6].copy(), out[:, :3].copy(), out[:, 6].copy()
 
 

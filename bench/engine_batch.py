@@ -1,4 +1,4 @@
-"""Batch throughput of the engine against the plain NumPy implementation, in one process.
+"""Batch throughput and per-frame time of the engine against the plain NumPy implementation.
 
 For each bench model (default map, mlp, paper; trained once and cached), 200,000 touched frames
 of the simulated stream go through ``engine.predict_batch`` and through the plain NumPy baseline
@@ -6,7 +6,8 @@ of ``skinloc bench --online`` (the map's coarse-to-fine match in NumPy; a networ
 forward pass and a scipy KD-tree snap), alternately, ``--repeat`` times; the best of each and
 their ratio are printed. ``--old FILE`` adds the fast path as it was before the engine (the
 ``inference.py`` of commit 780f4d6, e.g. ``git show 780f4d6:src/skinloc/inference.py``) to the
-same alternation.
+same alternation. Per frame: the median time of ``localise_into`` (the pipeline's call) over
+3,000 touched frames, best of ``--repeat``, engine and before alternated.
 
     python bench/engine_batch.py --repeat 5 [--old /tmp/old_inference.py]
 """
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -41,6 +43,7 @@ def main() -> None:
     if args.old:
         spec = importlib.util.spec_from_file_location("old_inference", args.old)
         old_mod = importlib.util.module_from_spec(spec)
+        sys.modules["old_inference"] = old_mod  # dataclasses look their module up
         spec.loader.exec_module(old_mod)
     for arch, path in paths.items():
         model = ContactLocalizer.load(path)
@@ -57,11 +60,25 @@ def main() -> None:
                 fn(batch)
                 best[name] = min(best[name], time.perf_counter() - t0)
         rate = {k: len(batch) / v for k, v in best.items()}
+        per_frame = {"engine": model.engine()}
+        if old_mod is not None:
+            per_frame["before"] = old
+        frame_us = {k: np.inf for k in per_frame}
+        out = np.empty(7)
+        for _ in range(args.repeat):
+            for name, e in per_frame.items():
+                ts = np.empty(3000)
+                for i, x in enumerate(touched[:3000]):
+                    t0 = time.perf_counter()
+                    e.localise_into(x, out)
+                    ts[i] = time.perf_counter() - t0
+                frame_us[name] = min(frame_us[name], 1e6 * float(np.median(ts)))
         line = ", ".join(f"{k} {v:,.0f} frames/s" for k, v in rate.items())
         ratios = f"engine/numpy {rate['engine'] / rate['numpy']:.1f}"
         if "before" in rate:
             ratios += f", engine/before {rate['engine'] / rate['before']:.2f}"
-        print(f"{arch}: {line}; {ratios}")
+        frames_line = ", ".join(f"{k} {v:.2f} us" for k, v in frame_us.items())
+        print(f"{arch}: {line}; {ratios}; per frame {frames_line}")
 
 
 if __name__ == "__main__":

@@ -153,3 +153,51 @@ def test_missing_extra_is_a_skinloc_error_the_cli_reports_in_one_line():
     assert issubclass(MissingExtraError, SkinlocError) and issubclass(
         MissingExtraError, ImportError
     )
+
+
+def test_the_names_before_the_engine_still_build_it():
+    from skinloc.engine_network import NetworkEngine
+    from skinloc.inference import FastLocalizer, InferenceSpec
+
+    spec = InferenceSpec.load(GOLDEN / "model_main_paper.h5")
+    engine = FastLocalizer(spec, "none")
+    assert isinstance(engine, NetworkEngine) and engine.constraint == "none"
+    assert isinstance(FastLocalizer.from_model(GOLDEN / "model_main_paper.h5"), NetworkEngine)
+
+
+def test_training_a_network_without_torch_is_one_line_naming_the_extra(monkeypatch, tmp_path):
+    # the message holds brackets, which the CLI's console must print as they are
+    from typer.testing import CliRunner
+
+    from skinloc.cli import app
+
+    monkeypatch.setitem(sys.modules, "torch", None)  # as if PyTorch were not installed
+    res = CliRunner().invoke(
+        app, ["train", str(calibration_path()), "--arch", "paper", "--out", str(tmp_path / "m.h5")]
+    )
+    assert res.exit_code == 1
+    assert "error: training the 'paper' network needs PyTorch: pip install 'skinloc[nets]'" in (
+        res.output
+    )
+    assert "Traceback" not in res.output and not (tmp_path / "m.h5").exists()
+
+
+def calibration_path() -> Path:
+    calibration()
+    from tests._live import _DIR
+
+    return _DIR / "cal.h5"
+
+
+def test_one_model_predicts_from_several_threads_at_once():
+    # the app predicts from its server and its device threads with one model
+    from concurrent.futures import ThreadPoolExecutor
+
+    model = ContactLocalizer.load(model_path("map"))
+    X = calibration().deltas.reshape(-1, 64)
+    want = model.predict(X)
+    rows = [X[i : i + 3] for i in range(0, 120, 3)]
+    with ThreadPoolExecutor(4) as pool:
+        got = list(pool.map(model.predict, rows + [X, X]))
+    np.testing.assert_array_equal(np.concatenate(got[: len(rows)]), want[:120])
+    np.testing.assert_array_equal(got[-1], want)

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import functools
 import math
+import threading
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -332,16 +333,21 @@ class MapEngine(Engine):
     def _predict_rows(self, X: np.ndarray) -> tuple[Points, Points, np.ndarray]:
         out = np.empty((len(X), 7))
         if len(X) < _CHUNK:  # a few frames (the app's, per frame): no product to share
+            scratch = tuple(np.empty_like(a) for a in self._scratch)  # callers may be threads
             for x, o in zip(X, out, strict=True):
-                self.localise_into(x, o)
+                _match_one(x, self._clip, self._ct, self._csq, self._fine, scratch, o)
         else:
             # BLAS's own threads would fight numba's for the cores (and spin after each
             # product): each chunk's product runs on the thread that handles the chunk.
-            with _blas_controller().limit(limits=1, user_api="blas"):
+            # The limit is process-wide: one batch at a time sets and restores it.
+            with _BLAS_LOCK, _blas_controller().limit(limits=1, user_api="blas"):
                 _match_many(
                     X, self._clip, self._ct, self._ct_t, self._csq, self._fine, self._n_best, out
                 )
         return out[:, 3:6].copy(), out[:, :3].copy(), out[:, 6].copy()
+
+
+_BLAS_LOCK = threading.Lock()
 
 
 @functools.cache

@@ -1,15 +1,27 @@
 """The names of the fast inference path before the engine: kept so that code using them runs.
 
-``FastLocalizer`` is ``skinloc.engine.Engine`` (``FastLocalizer.from_model(model)`` builds the
-engine of a model, a spec or a saved file) and ``InferenceSpec`` is ``ModelSpec``
+``FastLocalizer(spec, constraint)`` and ``FastLocalizer.from_model(model)`` build the engine of
+a spec, a model or a saved file (``skinloc.engine``); ``InferenceSpec`` is ``ModelSpec``
 (``InferenceSpec.load(path)``, ``InferenceSpec.from_localizer(model)``). New code imports from
 ``skinloc.engine`` and ``skinloc.surface``.
 """
 
 from __future__ import annotations
 
-from skinloc.engine import Engine as FastLocalizer
+from typing import Any
+
+from skinloc.engine import Engine
 from skinloc.engine import ModelSpec as InferenceSpec
 from skinloc.surface import SnapIndex, closest_on_triangles
 
 __all__ = ["FastLocalizer", "InferenceSpec", "SnapIndex", "closest_on_triangles"]
+
+
+class FastLocalizer:
+    """The engine of a spec: ``FastLocalizer(spec, constraint)`` is ``spec.engine(constraint)``."""
+
+    def __new__(cls, spec: InferenceSpec, constraint: str | None = None) -> Any:
+        """``spec.engine(constraint)``: an engine, not a ``FastLocalizer``."""
+        return spec.engine(constraint)
+
+    from_model = staticmethod(Engine.from_model)

@@ -38,7 +38,7 @@ def test_onnx_matches_python(kind, tmp_path):
     ort = pytest.importorskip("onnxruntime")
     model = ContactLocalizer.load(model_path(kind))
     X = _frames()
-    ref = model.predict_full(X.astype(np.float64))
+    ref = model.engine().predict(X)  # the one implementation of prediction
     path = export_onnx(model, tmp_path / "m.onnx")
     sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     points, raw, spread = sess.run(None, {"frames": X})
@@ -67,7 +67,7 @@ def test_c_header_compiled_with_gcc_matches_python(kind, tmp_path):
     text = "\n".join(" ".join(f"{v:.9g}" for v in row) for row in X)
     out = subprocess.run([str(exe)], input=text, capture_output=True, text=True, check=True)
     got = np.array([[float(v) for v in ln.split()] for ln in out.stdout.strip().splitlines()])
-    ref = model.predict_full(X.astype(np.float64))
+    ref = model.engine().predict(X)  # the one implementation of prediction
     np.testing.assert_allclose(got[:, :3], ref.raw, atol=1e-4)
     assert (np.abs(got[:, 3:6] - ref.points).max(axis=1) < 1e-4).mean() > 0.99
 

@@ -1,4 +1,5 @@
-"""The fast inference path agrees with the model's own prediction; snap and projection are exact."""
+"""The engine's per-frame path agrees with its batches (the model's prediction); snap and
+projection are exact."""
 
 from __future__ import annotations
 
@@ -12,7 +13,6 @@ from skinloc.inference import (
     FastLocalizer,
     InferenceSpec,
     SnapIndex,
-    check_against,
     closest_on_triangles,
 )
 from skinloc.model import ContactLocalizer
@@ -54,7 +54,6 @@ def test_fast_path_matches_predict_full(kind):
         assert kind == "map" or same_on_surface(out[None, 3:6], p[None], r[None]).all()
     if fast.n_members > 1 or kind == "map":
         np.testing.assert_allclose(spread, ref.uncertainty_mm, atol=1e-3)
-    assert check_against(fast, model) < 1e-6
 
 
 def test_batches_larger_than_a_block_give_the_same_rows():
@@ -84,7 +83,7 @@ def test_spec_from_file_equals_spec_from_model():
 def test_spec_rejects_layers_that_do_not_chain():
     spec = InferenceSpec.load(model_path("paper"))
     with pytest.raises(ValueError, match="do not chain"):
-        InferenceSpec(**{**spec.__dict__, "weights": [spec.weights[1], spec.weights[0]]})
+        type(spec)(**{**spec.__dict__, "weights": [spec.weights[1], spec.weights[0]]})
 
 
 def test_snap_index_is_exact(seed):
@@ -115,8 +114,8 @@ def test_project_and_none_constraints():
     model = ContactLocalizer.load(model_path("mlp"))
     spec = InferenceSpec.from_localizer(model)
     X = calibration().touch_means.astype(np.float32)
-    raw = FastLocalizer(spec, "none").predict_batch(X)[0]
-    proj = FastLocalizer(spec, "project").predict_batch(X)[0]
+    raw = spec.engine("none").predict_batch(X)[0]
+    proj = spec.engine("project").predict_batch(X)[0]
     np.testing.assert_allclose(raw, model.predict_full(X).raw, atol=1e-6)
     want = nearest_on_surface(model.mesh, raw)[0]
     np.testing.assert_allclose(
@@ -124,4 +123,4 @@ def test_project_and_none_constraints():
     )
     assert nearest_on_surface(model.mesh, proj)[1].max() < 1e-7  # on the skin
     with pytest.raises(ValueError, match="output constraint"):
-        FastLocalizer(spec, "wobble")
+        spec.engine("wobble")

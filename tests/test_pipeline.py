@@ -153,16 +153,14 @@ def test_contact_json_and_config_errors():
         _core().process(np.zeros(10), 0.0)
 
 
-def test_falls_back_to_the_models_own_prediction(caplog):
+def test_a_model_the_engine_cannot_run_is_an_error_not_a_silent_fallback():
+    # there is one implementation of prediction: no second path to fall back on
     from skinloc.model import ContactLocalizer
     from skinloc.pipeline import load_fast_localizer
 
     model = ContactLocalizer.load(model_path("mlp"))
-    model.config_ = {**model.config_, "activation": "softsign"}  # unknown to the fast path
-    fast = load_fast_localizer(model)
-    assert fast.kind == "model" and "own prediction" in caplog.text
-    frames, _ = stream()
-    core = SkinCore(fast, PipelineConfig())
-    assert any(
-        c is not None for c in (core.process(f, k * 0.01, k) for k, f in enumerate(frames[:250]))
-    )
+    model.config_ = {**model.config_, "activation": "softsign"}  # unknown to the engine
+    with pytest.raises(ValueError, match="activation must be one of relu, tanh, gelu"):
+        load_fast_localizer(model)
+    with pytest.raises(ValueError, match="activation must be one of relu, tanh, gelu"):
+        SkinCore(model, PipelineConfig())

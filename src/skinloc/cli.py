@@ -14,6 +14,7 @@ from typing import Annotated, Any, TypeVar
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from skinloc.errors import SkinlocError
@@ -137,7 +138,10 @@ def friendly_errors(fn: F) -> F:
             try:
                 return fn(*args, **kwargs)
             except (SkinlocError, ValueError, OSError) as exc:
-                err_console.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
+                # escaped: a message may hold brackets (pip install 'skinloc[nets]', paths)
+                err_console.print(
+                    f"[bold red]error:[/] {escape(str(exc))}", highlight=False, soft_wrap=True
+                )
                 raise typer.Exit(1) from None
             except MemoryError:
                 err_console.print(

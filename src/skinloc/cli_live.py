@@ -252,8 +252,8 @@ def register(app: typer.Typer) -> None:
         Example: skinloc export model.h5 --onnx model.onnx --c-header skinloc_model.h
         """
         from skinloc.dataset import _atomic_write
+        from skinloc.engine import ModelSpec
         from skinloc.export import export_c_header, export_onnx
-        from skinloc.inference import InferenceSpec
 
         if onnx is None and c_header is None:
             raise ValueError("nothing to do: give --onnx FILE and/or --c-header FILE")
@@ -265,7 +265,7 @@ def register(app: typer.Typer) -> None:
             check_output(onnx, option="--onnx", inputs=[model], force=force)
         if c_header is not None:
             check_output(c_header, option="--c-header", inputs=[model], force=force)
-        spec = InferenceSpec.load(model)
+        spec = ModelSpec.load(model)
         if onnx is not None:
             _atomic_write(onnx, lambda tmp: export_onnx(spec, tmp, include_surface=surface))
             err_console.print(f"wrote {onnx}", highlight=False)

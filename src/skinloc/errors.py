@@ -17,6 +17,10 @@ class ModelFileError(SkinlocError, ValueError):
     """A model artifact is missing, malformed or from an unknown format version."""
 
 
+class MissingExtraError(SkinlocError, ImportError):
+    """An optional dependency is not installed; the message names the extra to install."""
+
+
 class NotFittedError(SkinlocError, ValueError, AttributeError):
     """A localiser was used before ``fit``."""
 

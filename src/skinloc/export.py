@@ -1,7 +1,8 @@
 """Export a trained localiser: ONNX for a robot computer, a C header for the microcontroller.
 
-Both exports are built from ``InferenceSpec`` (the weights and preprocessing as arrays), so they
-compute exactly what ``ContactLocalizer.predict_full`` computes:
+Both exports are built from the model's spec (``skinloc.engine``: the weights, the map table and
+the preprocessing as arrays), the arrays its engine predicts from, and are tested against that
+engine:
 
 * ``export_onnx``: input ``frames (n, n_features)`` float32 baseline-subtracted counts; outputs
   ``points (n, 3)`` m (snapped to the model's surface points when its constraint is ``snap``,
@@ -20,19 +21,20 @@ from typing import Any
 
 import numpy as np
 
-from skinloc.inference import InferenceSpec
+from skinloc.engine import ModelSpec
+from skinloc.errors import MissingExtraError
 
 log = logging.getLogger(__name__)
 
 __all__ = ["c_header_source", "export_c_header", "export_onnx", "onnx_model"]
 
 
-def _spec(model: Any) -> InferenceSpec:
-    if isinstance(model, InferenceSpec):
+def _spec(model: Any) -> ModelSpec:
+    if isinstance(model, ModelSpec):
         return model
     if isinstance(model, str | Path):
-        return InferenceSpec.load(model)
-    return InferenceSpec.from_localizer(model)
+        return ModelSpec.load(model)
+    return model.spec()
 
 
 # --------------------------------------------------------------------------------------------
@@ -44,7 +46,7 @@ def onnx_model(model: Any, *, include_surface: bool = True, opset: int = 17) -> 
 
     Parameters
     ----------
-    model : ContactLocalizer, InferenceSpec or path
+    model : ContactLocalizer, ModelSpec or path
         The trained model.
     include_surface : bool, default=True
         Snap ``points`` to the model's surface points (an exact nearest-point search over all
@@ -55,7 +57,7 @@ def onnx_model(model: Any, *, include_surface: bool = True, opset: int = 17) -> 
     try:
         from onnx import helper, numpy_helper
     except ImportError:
-        raise ImportError("ONNX export needs onnx: pip install 'skinloc[export]'") from None
+        raise MissingExtraError("ONNX export needs onnx: pip install 'skinloc[export]'") from None
 
     s = _spec(model)
     if s.kind == "map":
@@ -177,15 +179,15 @@ def _finish_onnx(
     return m
 
 
-def _onnx_map(s: InferenceSpec, opset: int) -> Any:
+def _onnx_map(s: Any, opset: int) -> Any:
     """A response-map model as ONNX: the same coarse-to-fine search as ``ResponseMap.match``."""
     from onnx import helper, numpy_helper
 
-    table = np.asarray(s.map_table, dtype=np.float32)
+    table = np.asarray(s.table, dtype=np.float32)
     sq = (table**2).sum(axis=1).astype(np.float32)
-    coarse = np.asarray(s.map_coarse, dtype=np.int64)
-    cells = np.asarray(s.map_cells, dtype=np.int64)
-    n_best = min(int(s.map_n_cells), len(coarse))
+    coarse = np.asarray(s.coarse, dtype=np.int64)
+    cells = np.asarray(s.cells, dtype=np.int64)
+    n_best = min(int(s.n_cells), len(coarse))
     inits = [
         numpy_helper.from_array(table, "table"),
         numpy_helper.from_array(sq, "table_sq"),
@@ -201,7 +203,7 @@ def _onnx_map(s: InferenceSpec, opset: int) -> Any:
         numpy_helper.from_array(np.array([1.0], dtype=np.float32), "one"),
         numpy_helper.from_array(np.array([-2.0], dtype=np.float32), "minus_two"),
         numpy_helper.from_array(np.array([0.0], dtype=np.float32), "zero"),
-        numpy_helper.from_array(np.array([2.0 * s.map_noise], dtype=np.float32), "two_noise"),
+        numpy_helper.from_array(np.array([2.0 * s.noise], dtype=np.float32), "two_noise"),
         numpy_helper.from_array(np.array([1e3], dtype=np.float32), "to_mm"),
     ]
     N: list[Any] = []
@@ -274,11 +276,12 @@ def _onnx_map(s: InferenceSpec, opset: int) -> Any:
 
 def export_onnx(model: Any, path: str | Path, *, include_surface: bool = True) -> Path:
     """Write the localiser as an ONNX file; returns the path."""
+    proto = onnx_model(model, include_surface=include_surface)  # says which extra is missing
     import onnx
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    onnx.save(onnx_model(model, include_surface=include_surface), str(path))
+    onnx.save(proto, str(path))
     return path
 
 
@@ -300,7 +303,7 @@ def c_header_source(model: Any, *, include_surface: bool = True, prefix: str = "
 
     s = _spec(model)
     if s.kind == "map":
-        size_mb = np.asarray(s.map_table).nbytes / 2**20
+        size_mb = np.asarray(s.table).nbytes / 2**20
         raise ValueError(
             f"a response-map model carries a {size_mb:.1f} MB table of the skin: too big for a "
             "microcontroller; export it with --onnx, or train a network for the board "
@@ -458,7 +461,7 @@ def export_c_header(
 
     Parameters
     ----------
-    model : ContactLocalizer, InferenceSpec or path
+    model : ContactLocalizer, ModelSpec or path
         The trained model.
     path : str or Path
         Header to write (``.h``).

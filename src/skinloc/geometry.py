@@ -12,7 +12,6 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
-from scipy.spatial import cKDTree
 
 from skinloc._typing import Points
 from skinloc.errors import MeshError
@@ -367,19 +366,24 @@ class SurfaceConstraint:
         mode: ConstraintMode | str = ConstraintMode.SNAP,
         points: Points | None = None,
     ) -> None:
+        from skinloc.surface import Surface
+
         self.mesh = mesh
         self.mode = ConstraintMode(mode)
         self.points = (
             surface_points(mesh) if points is None else _as_points(points, "surface points")
         )
-        self._tree = cKDTree(self.points) if self.mode is ConstraintMode.SNAP else None
+        # the engines' own constraint (skinloc.surface), so that there is one of it
+        self._surface = Surface(
+            self.mode.value,
+            self.points,
+            np.asarray(mesh.vertices, dtype=np.float64),
+            np.asarray(mesh.faces, dtype=np.int64),
+        )
 
     def __call__(self, points: Points) -> Points:
         """Constrain ``points (n, 3)`` m; returns ``(n, 3)`` m."""
         pts = _as_points(points)
         if self.mode is ConstraintMode.NONE:
             return pts
-        if self.mode is ConstraintMode.SNAP:
-            _, idx = self._tree.query(pts)
-            return self.points[idx]
-        return nearest_on_surface(self.mesh, pts)[0]
+        return self._surface.constrain(pts)

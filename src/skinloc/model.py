@@ -8,32 +8,34 @@ Two kinds of model share the class:
 - ``kind="map"`` (the default): a response map of the skin (``skinloc.response_map``), fitted
   by Gaussian-process regression on the surface in well under a second; prediction matches
   the image's shape against the map at every candidate surface point.
-- ``kind="network"`` (``paper``, ``mlp``): fully connected networks trained in PyTorch and
-  run as a plain NumPy forward pass over the whole ensemble, the path exported to other
-  runtimes.
+- ``kind="network"`` (``paper``, ``mlp``): fully connected networks trained in PyTorch (the
+  ``skinloc[nets]`` extra); prediction needs no PyTorch.
+
+Prediction is not here: a fitted model is described by a spec (``spec()``, plain arrays) and
+predicted by the engine of its kind (``skinloc.engine``), the one implementation that the
+pipeline, the benchmarks, the app and the exports share.
 """
 
 from __future__ import annotations
 
-import json
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from skinloc._typing import Frames, Points
-from skinloc.errors import ModelFileError, NotFittedError
+from skinloc.engine import Engine, ModelSpec, Prediction
+from skinloc.errors import NotFittedError
+from skinloc.model_file import MODEL_FORMAT_VERSION
+from skinloc.network_training import fit_network
 
 log = logging.getLogger(__name__)
 
 __all__ = ["ARCHITECTURES", "ContactLocalizer", "MODEL_FORMAT_VERSION", "Prediction"]
 
-#: 2 added response-map models; version 1 files (networks) still load.
-MODEL_FORMAT_VERSION = 2
 
 #: Named configurations. ``paper`` is the paper's network exactly (64-32-3, one hidden layer);
 #: ``default`` is the most accurate on the real recordings (see docs/accuracy.md); ``mlp`` is
@@ -89,35 +91,6 @@ _TUNABLE = (
     "weight_decay",
     "noise_std",
 )
-
-
-@dataclass(frozen=True)
-class Prediction:
-    """Localiser output for a batch.
-
-    Attributes
-    ----------
-    points : (n, 3) float
-        Contact points on the skin, m.
-    raw : (n, 3) float
-        Ensemble mean before the surface constraint, m.
-    uncertainty_mm : (n,) float
-        Spread of the ensemble members, mm (nan for a single network).
-    """
-
-    points: Points
-    raw: Points
-    uncertainty_mm: np.ndarray
-
-
-def _activation_np(name: str) -> Callable[[np.ndarray], np.ndarray]:
-    if name == "relu":
-        return lambda x: np.maximum(x, 0.0, out=x)
-    if name == "tanh":
-        return lambda x: np.tanh(x, out=x)
-    from scipy.special import erf
-
-    return lambda x: 0.5 * x * (1.0 + erf(x / np.sqrt(2.0)))
 
 
 def group_means(X: np.ndarray, y: np.ndarray, groups: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -340,7 +313,7 @@ class ContactLocalizer:
             self.feature_scale_ = np.maximum(F.std(axis=0), 1e-6 * max(F.std(), 1e-12))
             self.target_mean_ = y.mean(axis=0)
             self.target_scale_ = float(np.maximum(y.std(axis=0).max(), 1e-6))
-            self._fit_network(X, y, cfg["epochs"], cfg["lr"], progress)
+            fit_network(self, X, y, cfg["epochs"], cfg["lr"], progress)
         self.fit_time_s_ = time.perf_counter() - t0
         log.info("trained %s in %.2f s", cfg["arch"], self.fit_time_s_)
         return self
@@ -357,70 +330,6 @@ class ContactLocalizer:
         self.map_ = ResponseMap.fit(
             y, F, self.surface_points_, length_scale_mm=self.config_["length_scale_mm"]
         )
-
-    def _fit_network(
-        self,
-        X: np.ndarray,
-        y: Points,
-        epochs: int,
-        lr: float,
-        progress: Callable[[int, int], None] | None,
-    ) -> None:
-        """Train the ensemble with AdamW, cosine-decayed ``lr``, from the current weights if any.
-
-        ``X (n, n_sensors)`` counts and ``y (n, 3)`` m; the preprocessing attributes must be set.
-        """
-        import torch
-
-        cfg = self.config_
-        Z = (self._features(X, cfg) - self.feature_mean_) / self.feature_scale_
-        T = (y - self.target_mean_) / self.target_scale_
-        g = torch.Generator().manual_seed(int(self.random_state))
-        E = cfg["n_members"]
-        sizes = [Z.shape[1], *cfg["hidden"], 3]
-        n_layers = len(sizes) - 1
-        params: list[torch.Tensor] = []
-        if hasattr(self, "coefs_"):
-            for W, b in zip(self.coefs_, self.intercepts_, strict=True):
-                params += [torch.tensor(W).requires_grad_(), torch.tensor(b).requires_grad_()]
-        else:
-            for fan_in, fan_out in zip(sizes[:-1], sizes[1:], strict=True):
-                bound = 1.0 / np.sqrt(fan_in)  # the default init of torch.nn.Linear
-                shape_w, shape_b = (E, fan_in, fan_out), (E, 1, fan_out)
-                W = (torch.rand(shape_w, generator=g, dtype=torch.float64) * 2 - 1) * bound
-                b = (torch.rand(shape_b, generator=g, dtype=torch.float64) * 2 - 1) * bound
-                params += [W.requires_grad_(), b.requires_grad_()]
-        act = {"relu": torch.relu, "tanh": torch.tanh, "gelu": torch.nn.functional.gelu}[
-            cfg["activation"]
-        ]
-        Zt = torch.as_tensor(Z).expand(E, -1, -1)
-        Tt = torch.as_tensor(T).expand(E, -1, -1)
-        opt = torch.optim.AdamW(params, lr=lr, weight_decay=cfg["weight_decay"])
-        sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=epochs)
-        self.loss_curve_ = []
-        for epoch in range(epochs):
-            h = Zt
-            if cfg["noise_std"] > 0:
-                h = h + cfg["noise_std"] * torch.randn(h.shape, generator=g, dtype=h.dtype)
-            for i in range(n_layers):
-                h = torch.baddbmm(params[2 * i + 1], h, params[2 * i])
-                if i < n_layers - 1:
-                    h = act(h)
-            loss = ((h - Tt) ** 2).mean(dim=(1, 2)).sum()
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-            sched.step()
-            self.loss_curve_.append(loss.item() / E)
-            if progress is not None and (epoch % 25 == 0 or epoch == epochs - 1):
-                progress(epoch + 1, epochs)
-        coefs = [params[2 * i].detach().numpy().copy() for i in range(n_layers)]
-        intercepts = [params[2 * i + 1].detach().numpy().copy() for i in range(n_layers)]
-        if not all(np.all(np.isfinite(w)) for w in coefs + intercepts):
-            raise ValueError(
-                "training diverged (non-finite weights); lower lr or check the input images"
-            )
-        self.coefs_, self.intercepts_ = coefs, intercepts
 
     def recalibrate(
         self,
@@ -445,6 +354,7 @@ class ContactLocalizer:
         if y.shape != (len(X), 3) or len(X) < 1:
             raise ValueError(f"touch positions must have shape ({len(X)}, 3), got {y.shape}")
         new = copy.deepcopy(self)
+        new._engine = None
         t0 = time.perf_counter()
         if self.config_["kind"] == "map":
             from skinloc.response_map import shape_features
@@ -457,7 +367,7 @@ class ContactLocalizer:
             if self.config_["train_on"] == "means" and groups is not None:
                 X, y = group_means(X, y, groups)
             epochs = max(50, self.config_["epochs"] // 4)
-            new._fit_network(X, y, epochs, self.config_["lr"] / 10, progress)
+            fit_network(new, X, y, epochs, self.config_["lr"] / 10, progress)
         new.fit_time_s_ = time.perf_counter() - t0
         return new
 
@@ -471,20 +381,7 @@ class ContactLocalizer:
             from skinloc.geometry import surface_points as make_points
 
             self.surface_points_ = make_points(mesh)
-        self._constraint = None
-
-    def _surface_constraint(self) -> Callable[[Points], Points]:
-        if getattr(self, "_constraint", None) is None:
-            if self.mesh_vertices_ is None or self.config_["constraint"] == "none":
-                self._constraint = lambda p: p
-            else:
-                from skinloc.geometry import SurfaceConstraint, mesh_from_arrays
-
-                mesh = mesh_from_arrays(self.mesh_vertices_, self.mesh_faces_)
-                self._constraint = SurfaceConstraint(
-                    mesh, self.config_["constraint"], self.surface_points_
-                )
-        return self._constraint
+        self._engine = None
 
     @property
     def mesh(self):  # -> trimesh.Trimesh | None
@@ -503,35 +400,55 @@ class ContactLocalizer:
                 "this ContactLocalizer is not fitted yet: call fit() or load a trained model"
             )
 
-    def _forward(self, X: np.ndarray) -> np.ndarray:
-        """Member outputs, ``(n_members, n, 3)`` m, before the constraint."""
+    def spec(self) -> ModelSpec:
+        """The fitted model as plain arrays: what its engine and the exports are built from."""
+        self._check_fitted()
         cfg = self.config_
-        h = (self._features(X, cfg) - self.feature_mean_) / self.feature_scale_
-        act = _activation_np(cfg["activation"])
-        n_layers = len(self.coefs_)
-        h = np.broadcast_to(h, (len(self.coefs_[0]), *h.shape))
-        for i in range(n_layers):
-            h = np.matmul(h, self.coefs_[i]) + self.intercepts_[i]
-            if i < n_layers - 1:
-                h = act(h)
-        return h * self.target_scale_ + self.target_mean_
+        common = dict(
+            n_features=int(self.n_features_in_),
+            clip_negative=bool(cfg["clip_negative"]),
+            vertices=self.mesh_vertices_,
+            faces=self.mesh_faces_,
+            meta={"arch": cfg.get("arch", "?")},
+        )
+        if cfg["kind"] == "map":
+            from skinloc.engine_map import MapSpec
+
+            coarse, cells = self.map_.search_cells()
+            return MapSpec(
+                **common,
+                surface_points=self.map_.candidates,
+                table=self.map_.table,
+                coarse=coarse,
+                cells=cells,
+                noise=float(self.map_.noise),
+            )
+        from skinloc.engine_network import NetworkSpec
+
+        return NetworkSpec(
+            **common,
+            constraint=cfg["constraint"],
+            surface_points=self.surface_points_,
+            normalise=cfg["normalise"],
+            activation=cfg["activation"],
+            feature_mean=np.asarray(self.feature_mean_, dtype=np.float64),
+            feature_scale=np.asarray(self.feature_scale_, dtype=np.float64),
+            weights=[np.asarray(W, dtype=np.float64) for W in self.coefs_],
+            biases=[np.asarray(b, dtype=np.float64) for b in self.intercepts_],
+            target_mean=np.asarray(self.target_mean_, dtype=np.float64).reshape(3),
+            target_scale=float(self.target_scale_),
+        )
+
+    def engine(self) -> Engine:
+        """The engine that predicts for this model (built once per fit or load)."""
+        if getattr(self, "_engine", None) is None:
+            self._engine = self.spec().engine()
+        return self._engine
 
     def predict_full(self, X: Frames) -> Prediction:
-        """Predict points, raw outputs and the ensemble spread for ``X (n, n_sensors)``."""
+        """Predict points, raw outputs and the uncertainty for ``X (n, n_sensors)``."""
         self._check_fitted()
-        X = self._check_X(X)
-        if self.config_["kind"] == "map":
-            from skinloc.response_map import shape_features
-
-            points, spread = self.map_.match(shape_features(X, self.config_["clip_negative"]))
-            return Prediction(points=points, raw=points, uncertainty_mm=spread)
-        members = self._forward(X)
-        raw = members.mean(axis=0)
-        if len(members) > 1:
-            spread = 1e3 * np.sqrt(((members - raw) ** 2).sum(axis=2).mean(axis=0))
-        else:
-            spread = np.full(len(X), np.nan)
-        return Prediction(points=self._surface_constraint()(raw), raw=raw, uncertainty_mm=spread)
+        return self.engine().predict(self._check_X(X))
 
     def predict(self, X: Frames) -> Points:
         """Contact points ``(n, 3)`` m for baseline-subtracted images ``X (n, n_sensors)``.
@@ -542,141 +459,22 @@ class ContactLocalizer:
 
     # ---------------------------------------------------------------- persistence
     def save(self, path: str | Path, extra_meta: dict[str, Any] | None = None) -> None:
-        """Write the model to one self-describing HDF5 file, atomically.
+        """Write the model to one self-describing HDF5 file, atomically (``skinloc.model_file``).
 
         The file holds the configuration (JSON), the preprocessing arrays, every layer's
-        weights as ``(n_members, in, out)`` datasets, the skin mesh and the snap points.
+        weights as ``(n_members, in, out)`` datasets or the response map's layers, the skin
+        mesh and the snap points.
         """
-        import h5py
-
-        from skinloc import __version__
-        from skinloc.dataset import _atomic_write
+        from skinloc.model_file import write_model
 
         self._check_fitted()
-        meta = {
-            "skinloc_version": __version__,
-            "numpy_version": np.__version__,
-            "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-            "fit_time_s": getattr(self, "fit_time_s_", None),
-            **(extra_meta or {}),
-        }
-        if hasattr(self, "training_meta_"):
-            meta.setdefault("training", self.training_meta_)
-
-        def write(tmp: Path) -> None:
-            with h5py.File(tmp, "w") as f:
-                f.attrs["format"] = "skinloc-model"
-                f.attrs["format_version"] = MODEL_FORMAT_VERSION
-                f.attrs["config"] = json.dumps(self.config_)
-                f.attrs["meta"] = json.dumps(meta, default=str)
-                f.attrs["n_features_in"] = self.n_features_in_
-                if self.config_["kind"] == "map":
-                    self._write_map(f)
-                else:
-                    self._write_network(f)
-                if self.mesh_vertices_ is not None:
-                    f["surface/vertices"], f["surface/faces"] = (
-                        self.mesh_vertices_,
-                        self.mesh_faces_,
-                    )
-                if self.surface_points_ is not None:
-                    f["surface/points"] = self.surface_points_
-
-        _atomic_write(Path(path), write)
-
-    def _write_map(self, f: Any) -> None:
-        f.attrs["description"] = (
-            "x: baseline-subtracted counts (n_features_in,). features: clip negatives, divide by "
-            "max(L2 norm, 1). map(q) = mean + sum over layers of exp(-|q - points_mm|^2 / "
-            "(2 length_scale_mm^2)) @ alpha, q in mm. prediction: the row of map/candidates "
-            "(metres) whose map value is nearest the features."
-        )
-        g = f.create_group("map")
-        g["mean"], g["candidates"] = self.map_.mean, self.map_.candidates
-        for i, layer in enumerate(self.map_.layers):
-            lg = g.create_group(f"layer{i}")
-            lg["points_mm"], lg["alpha"] = layer.points_mm, layer.alpha
-            lg.attrs["length_scale_mm"], lg.attrs["noise"] = layer.length_scale_mm, layer.noise
-
-    def _write_network(self, f: Any) -> None:
-        f.attrs["description"] = (
-            "x: baseline-subtracted counts (n_features_in,). features: clip/normalise per "
-            "config, then (x - feature_mean) / feature_scale. layers: h = act(h @ W + b) "
-            "per member; output * target_scale + target_mean is metres; ensemble mean."
-        )
-        p = f.create_group("preprocessing")
-        p["feature_mean"], p["feature_scale"] = self.feature_mean_, self.feature_scale_
-        p["target_mean"] = self.target_mean_
-        p.attrs["target_scale"] = self.target_scale_
-        net = f.create_group("network")
-        for i, (W, b) in enumerate(zip(self.coefs_, self.intercepts_, strict=True)):
-            net[f"layer{i}/weight"], net[f"layer{i}/bias"] = W, b
-
-    def _read_map(self, g: Any) -> None:
-        from skinloc.response_map import MapLayer, ResponseMap
-
-        layers = [
-            MapLayer(
-                g[f"layer{i}/points_mm"][()],
-                g[f"layer{i}/alpha"][()],
-                float(g[f"layer{i}"].attrs["length_scale_mm"]),
-                float(g[f"layer{i}"].attrs["noise"]),
-            )
-            for i in range(sum(1 for k in g if k.startswith("layer")))
-        ]
-        self.map_ = ResponseMap(g["mean"][()], layers, g["candidates"][()])
-
-    def _read_network(self, f: Any) -> None:
-        p = f["preprocessing"]
-        self.feature_mean_ = p["feature_mean"][()]
-        self.feature_scale_ = p["feature_scale"][()]
-        self.target_mean_ = p["target_mean"][()]
-        self.target_scale_ = float(p.attrs["target_scale"])
-        net = f["network"]
-        self.coefs_ = [net[f"layer{i}/weight"][()] for i in range(len(net))]
-        self.intercepts_ = [net[f"layer{i}/bias"][()] for i in range(len(net))]
+        write_model(self, Path(path), extra_meta)
 
     @classmethod
     def load(cls, path: str | Path) -> ContactLocalizer:
         """Read a model written by ``save``; raises ``ModelFileError`` when it cannot."""
-        import h5py
+        from skinloc.model_file import read_model
 
-        path = Path(path)
-        if not path.is_file():
-            raise ModelFileError(f"model not found: {path}")
-        try:
-            with h5py.File(path, "r") as f:
-                if f.attrs.get("format") != "skinloc-model":
-                    raise ModelFileError(f"{path} is not a skinloc model")
-                version = int(f.attrs["format_version"])
-                if version > MODEL_FORMAT_VERSION:
-                    raise ModelFileError(
-                        f"{path} uses model format {version}; this skinloc reads up to "
-                        f"{MODEL_FORMAT_VERSION}: upgrade skinloc"
-                    )
-                cfg = json.loads(f.attrs["config"])
-                if version == 1:  # version 1 held networks only, under the names of today's mlp
-                    cfg["kind"] = "network"
-                    cfg["arch"] = "mlp" if cfg["arch"] == "default" else cfg["arch"]
-                if "hidden" in cfg:
-                    cfg["hidden"] = tuple(cfg["hidden"])
-                model = cls(
-                    arch=cfg["arch"], constraint=cfg["constraint"], random_state=cfg["random_state"]
-                )
-                model.config_ = cfg
-                model.meta_ = json.loads(f.attrs.get("meta", "{}"))
-                model.n_features_in_ = int(f.attrs["n_features_in"])
-                if cfg["kind"] == "map":
-                    model._read_map(f["map"])
-                else:
-                    model._read_network(f)
-                surf = f.get("surface")
-                model.mesh_vertices_ = surf["vertices"][()] if surf and "vertices" in surf else None
-                model.mesh_faces_ = surf["faces"][()] if surf and "faces" in surf else None
-                model.surface_points_ = surf["points"][()] if surf and "points" in surf else None
-                model._constraint = None
-        except ModelFileError:
-            raise
-        except (OSError, KeyError, ValueError, TypeError) as exc:
-            raise ModelFileError(f"cannot read model {path}: {exc}") from exc
+        model = read_model(cls, Path(path))
+        model._engine = None
         return model

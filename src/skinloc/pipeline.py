@@ -4,7 +4,7 @@ Per skin, ``SkinCore`` runs, for every frame::
 
     raw counts -> baseline subtraction (drift tracked only while untouched)
                -> touch detection (hysteresis + debouncing: touch-start / touch-end events)
-               -> localiser (``FastLocalizer``) -> surface constraint
+               -> localiser (the model's engine, ``skinloc.engine``) -> surface constraint
                -> temporal filtering on the surface (One-Euro filter, then back onto the skin)
                -> ``Contact``
 
@@ -26,12 +26,12 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, fields
 from enum import StrEnum
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from skinloc.inference import FastLocalizer, _jit
+from skinloc._jit import jit
+from skinloc.engine import Engine, load_engine
 
 log = logging.getLogger(__name__)
 
@@ -219,7 +219,7 @@ class PipelineConfig:
 # compiled per-frame steps
 
 
-@_jit()
+@jit()
 def _prep(
     values: np.ndarray,
     baseline: np.ndarray,
@@ -254,7 +254,7 @@ def _prep(
     return peak
 
 
-@_jit()
+@jit()
 def _one_euro(
     state: np.ndarray, p0: float, p1: float, p2: float, t: float, prm: np.ndarray, out: np.ndarray
 ) -> None:  # pragma: no cover - compiled
@@ -298,70 +298,9 @@ def _one_euro(
 # one skin
 
 
-class _ModelPath:
-    """The model's own ``predict_full`` behind the ``FastLocalizer`` interface (slow, correct).
-
-    Used when the fast path cannot read or does not reproduce a model (its internals changed).
-    """
-
-    kind = "model"
-
-    def __init__(self, model: Any) -> None:
-        from types import SimpleNamespace
-
-        self.model = model
-        self.n_features = int(model.n_features_in_)
-        self.n_members = 1
-        self.spec = SimpleNamespace(
-            vertices=getattr(model, "mesh_vertices_", None),
-            faces=getattr(model, "mesh_faces_", None),
-        )
-        self._constrain = (
-            model._surface_constraint() if hasattr(model, "_surface_constraint") else None
-        )
-
-    def localise_into(self, x: np.ndarray, out: np.ndarray) -> None:
-        p = self.model.predict_full(np.asarray(x, dtype=np.float64)[None])
-        out[:3] = p.raw[0]
-        out[3:6] = p.points[0]
-        out[6] = p.uncertainty_mm[0]
-
-    def constrain_into(self, q0: float, q1: float, q2: float, out: np.ndarray) -> None:
-        q = np.array([[q0, q1, q2]])
-        out[:] = (self._constrain(q) if self._constrain is not None else q)[0]
-
-    def predict_batch(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        p = self.model.predict_full(np.asarray(X, dtype=np.float64))
-        return p.points, p.raw, p.uncertainty_mm
-
-
-def load_fast_localizer(model: Any, *, check: bool = True) -> Any:
-    """A ``FastLocalizer`` from a model path, a ``ContactLocalizer`` or a ``FastLocalizer``.
-
-    With ``check``, the fast path is compared with the model's own ``predict_full`` on a few
-    images; if it cannot read the model or differs by more than 1 um, the model's own
-    prediction is used instead (slower; a warning says so).
-    """
-    if isinstance(model, FastLocalizer | _ModelPath):
-        return model
-    from skinloc.inference import check_against
-    from skinloc.model import ContactLocalizer
-
-    loc = ContactLocalizer.load(model) if isinstance(model, str | Path) else model
-    try:
-        fast = FastLocalizer.from_model(loc).warm_up()
-        err = check_against(fast, loc) if check else 0.0
-    except (ValueError, TypeError, AttributeError, KeyError, IndexError) as exc:
-        log.warning("fast inference path unavailable (%s): using the model's own prediction", exc)
-        return _ModelPath(loc)
-    if not err <= 1e-6:
-        log.warning(
-            "the fast inference path differs from the model's own prediction by %.3f mm: "
-            "using the model's own prediction",
-            err * 1e3,
-        )
-        return _ModelPath(loc)
-    return fast
+def load_fast_localizer(model: Any) -> Engine:
+    """The warmed-up engine of a model path, a ``ContactLocalizer``, a spec or an engine."""
+    return load_engine(model)
 
 
 class SkinCore:
@@ -369,7 +308,7 @@ class SkinCore:
 
     Parameters
     ----------
-    localizer : FastLocalizer, ContactLocalizer or path
+    localizer : Engine, ContactLocalizer or path
         The model.
     config : PipelineConfig, optional
         Detection, drift and filter settings.

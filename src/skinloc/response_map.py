@@ -5,7 +5,8 @@ respond, and how much relative to each other) and whose *scale* depends on press
 response map predicts the shape anywhere on the surface from the calibration touches by
 Gaussian-process regression in 3D (one GP per feature, with shared hyperparameters fitted by
 marginal likelihood). A new image is then localised by matching its shape against the map at
-every candidate surface point (maximum likelihood under the GP's residual noise).
+every candidate surface point (maximum likelihood under the GP's residual noise): that is the
+engine's work (``skinloc.engine_map``), from the table and search cells built here.
 
 Interpolating 64 smooth scalar fields on a 2D surface needs far fewer touches than learning
 the inverse 64 -> 3 mapping, and it recalibrates naturally: a new session's touches fit a
@@ -201,46 +202,3 @@ class ResponseMap:
                 cells[c, :n] = order[s0 : s0 + n]
             self._coarse = (coarse, cells)
         return self._coarse
-
-    def match(self, F: np.ndarray, cells: int = 8) -> tuple[Points, np.ndarray]:
-        """Localise features ``F (n, k)``, coarse to fine.
-
-        The map is smooth at the scale of its length scale (tens of mm), so the best
-        candidate lies in one of the ``cells`` best-matching coarse cells (every 16th
-        candidate, about 5 mm apart on the paper's skin); only those cells are searched in
-        full. That is ~15x fewer distances than the exhaustive search, with the same answer
-        on the real recordings.
-
-        Returns
-        -------
-        points : (n, 3) float
-            The best-matching candidate point of each row, m.
-        spread_mm : (n,) float
-            RMS distance from it of the searched candidates, weighted by a likelihood whose
-            variance is the best match's own residual, mm. An image that fits no candidate
-            well spreads its weight wide, and one that fits two distant places equally well
-            spreads it between them: the spread grows with misfit and ambiguity, and ranks
-            real errors (docs/accuracy.md).
-        """
-        F = np.asarray(F)
-        if len(F) > 512:  # bounds the working arrays to a few tens of MB
-            parts = [self.match(F[i : i + 512], cells) for i in range(0, len(F), 512)]
-            return np.concatenate([p for p, _ in parts]), np.concatenate([s for _, s in parts])
-        T, (coarse, members) = self.table, self.search_cells()
-        Fs = F.astype(np.float32)
-        # ||f - t||^2 as |t|^2 - 2 f.t (|f|^2 is the same for every candidate of a row).
-        dc = self._sq[coarse][None, :] - 2.0 * Fs @ T[coarse].T
-        cells = min(cells, len(coarse))
-        best_cells = np.argpartition(dc, cells - 1, axis=1)[:, :cells]
-        idx = members[best_cells].reshape(len(F), -1)  # (n, cells * m)
-        d = self._sq[idx] - 2.0 * np.einsum("nk,nck->nc", Fs, T[idx])
-        d = d.astype(np.float64) + (Fs.astype(np.float64) ** 2).sum(axis=1, keepdims=True)
-        d = np.maximum(d, 0.0)
-        best = idx[np.arange(len(F)), d.argmin(axis=1)]
-        points = self.candidates[best]
-        dmin = d.min(axis=1, keepdims=True)
-        w = np.exp(-(d - dmin) / np.maximum(dmin, 2.0 * self.noise))
-        w /= w.sum(axis=1, keepdims=True)
-        sq = ((self.candidates[idx] - points[:, None, :]) ** 2).sum(axis=2)
-        spread_mm = 1e3 * np.sqrt((w * sq).sum(axis=1))
-        return points, spread_mm

@@ -131,7 +131,7 @@ class SkinSpec:
 
     Attributes
     ----------
-    model : str, Path, ContactLocalizer or FastLocalizer
+    model : str, Path, ContactLocalizer or Engine
         The localiser.
     source : str or FrameSource
         ``sim`` (simulated skin with a scripted finger; ``sim:SEED`` picks the skin), a serial
@@ -811,7 +811,7 @@ class Pipeline(Runner):
 
     Parameters
     ----------
-    model : str, Path, ContactLocalizer or FastLocalizer
+    model : str, Path, ContactLocalizer or Engine
         The localiser.
     source : str or FrameSource, default="sim"
         ``sim``, a serial port or URL, a recording, or any ``FrameSource``.

@@ -1091,8 +1091,20 @@ class Workspace:
         ).start()
 
     def _train(self, a: _Active, rec: Recording) -> None:
-        import torch
+        from skinloc.errors import MissingExtraError
+        from skinloc.model import ARCHITECTURES
+        from skinloc.network_training import import_torch
 
+        arch = self.config.train_options.get("arch", "default")
+        torch = None
+        if ARCHITECTURES.get(arch, {}).get("kind") == "network":  # a map needs no PyTorch
+            try:
+                torch = import_torch(f"training the {arch!r} network")
+            except MissingExtraError:
+                pass  # _fit fails on it and reports it to the tabs
+        if torch is None:
+            self._fit(a, rec)
+            return
         # Leave a core to the reader thread (training would otherwise starve the live stream).
         threads = torch.get_num_threads()
         torch.set_num_threads(max(1, (os.cpu_count() or 2) - 1))

@@ -67,3 +67,20 @@ def test_cli_rejects_zero_skins(tmp_path: Path) -> None:
     res = runner.invoke(app, ["demo", "--out", str(tmp_path / "d"), "--skins", "0"])
     assert res.exit_code != 0 and "skins" in res.output
     assert not (tmp_path / "d").exists()
+
+
+def test_without_pytorch_the_demo_leaves_the_paper_net_out_and_says_so(tmp_path, monkeypatch):
+    monkeypatch.setitem(__import__("sys").modules, "torch", None)  # as in a plain install
+    cfg = DemoConfig(
+        out_dir=tmp_path,
+        n_points=8,
+        n_validation=3,
+        samples_per_touch=3,
+        curve_sizes=(8,),
+        random_state=3,
+        n_skins=1,
+        n_validation_extra=2,
+    )
+    res = run_demo(cfg)
+    assert "paper" not in res.skins
+    assert "skinloc[nets]" in (tmp_path / "index.html").read_text(encoding="utf-8")

@@ -8,6 +8,7 @@ over several simulated skins with the paper's network beside it and the real ski
 
 from __future__ import annotations
 
+import importlib.util
 import logging
 import tempfile
 from collections.abc import Callable
@@ -135,8 +136,10 @@ def _session(skin, mesh, path: Path, n: int, mode: str, cfg: DemoConfig, seed: i
 
 def run_demo(cfg: DemoConfig, step: Callable[[str, int, int], None] | None = None) -> DemoResult:
     """Run the whole path on simulated paper skins and write the report folder (see ``_run``)."""
-    import torch
-
+    try:
+        import torch
+    except ImportError:  # a plain install: no network is trained (see _run)
+        return _run(cfg, step)
     # Many small networks: one thread each is several times faster than two fighting over a
     # busy machine's cores (measured: 9 s against 127 s for the paper net under load).
     threads = torch.get_num_threads()
@@ -164,7 +167,12 @@ def _run(cfg: DemoConfig, step: Callable[[str, int, int], None] | None) -> DemoR
     out.mkdir(parents=True, exist_ok=True)
     mesh = cone_skin()
     seeds = [cfg.random_state + k for k in range(max(1, cfg.n_skins))]
-    archs = [cfg.arch] + (["paper"] if cfg.compare_paper and cfg.arch != "paper" else [])
+    compare = cfg.compare_paper and cfg.arch != "paper"
+    # The paper's network trains in PyTorch, the [nets] extra; the plain install skips it.
+    without_torch = compare and importlib.util.find_spec("torch") is None
+    if without_torch:
+        log.warning("the paper's network is left out: it trains in PyTorch (skinloc[nets])")
+    archs = [cfg.arch] + (["paper"] if compare and not without_torch else [])
     sizes = sorted({n for n in cfg.curve_sizes if 1 <= n <= cfg.n_points} | {cfg.n_points})
     per_skin: dict[str, list[list[float]]] = {a: [] for a in archs}
     ev = cal = val = model = None
@@ -256,6 +264,14 @@ def _run(cfg: DemoConfig, step: Callable[[str, int, int], None] | None) -> DemoR
                 )
             }
             if "paper" in skins
+            else {}
+        ),
+        **(
+            {
+                "paper 64-32-3 network": "not trained here: it needs PyTorch "
+                "(pip install 'skinloc[nets]')"
+            }
+            if without_torch
             else {}
         ),
         "this skin's error": str(ev.stats),

@@ -1,7 +1,8 @@
 # Two entry points for a fresh machine: `make demo` and `make test`.
-# Each creates its own virtual environment in .venv on first use. `make demo` installs the
-# plain package (calibrate, localise, the app: no PyTorch, no test tools); `make test` adds
-# the test tools and every extra (networks train in PyTorch in the tests).
+# Each creates the virtual environment in .venv on first use. `make demo` installs the package
+# with the [nets] extra (its report compares the default model with the paper's network, which
+# trains in PyTorch; no test tools); `make test` adds the test tools and every extra. The plain
+# package without PyTorch is `pip install .` (docs/benchmarks.md, "The install").
 PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
@@ -12,8 +13,11 @@ PIP := $(BIN)/python -m pip install --quiet --disable-pip-version-check
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 
-$(BIN)/skinloc: pyproject.toml | $(BIN)/python
-	$(PIP) -e .
+$(VENV)/.demo-installed: pyproject.toml | $(BIN)/python
+	# The CPU wheel of torch lies on this machine; installing it first keeps pip
+	# from resolving the multi-GB CUDA build.
+	$(PIP) torch==2.13.0
+	$(PIP) -e '.[nets]'
 	touch $@
 
 $(VENV)/.test-installed: pyproject.toml | $(BIN)/python
@@ -21,10 +25,11 @@ $(VENV)/.test-installed: pyproject.toml | $(BIN)/python
 	# from resolving the multi-GB CUDA build (the [nets] extra, which [test] includes).
 	$(PIP) torch==2.13.0
 	$(PIP) -e '.[test]'
-	touch $@ $(BIN)/skinloc
+	touch $@ $(VENV)/.demo-installed
 
-demo: $(BIN)/skinloc
-	$(BIN)/skinloc demo
+# --force: the demo folder holds only what the demo itself made, from its seed.
+demo: $(VENV)/.demo-installed
+	$(BIN)/skinloc demo --force
 
 test: $(VENV)/.test-installed
 	@sh scripts/ensure-chromium.sh

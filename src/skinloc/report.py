@@ -31,6 +31,25 @@ def _pyplot():
     return plt
 
 
+def draw_mesh(ax, mesh, alpha: float = 0.3, edgecolor: str = "0.7") -> None:
+    """Draw the skin on 3D axes ``ax``: a light translucent surface, axes in mm, true scale."""
+    v = np.asarray(mesh.vertices) * 1e3
+    ax.plot_trisurf(
+        v[:, 0],
+        v[:, 1],
+        v[:, 2],
+        triangles=mesh.faces,
+        color="0.9",
+        alpha=alpha,
+        edgecolor=edgecolor,
+        linewidth=0.2,
+    )
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+    ax.set_zlabel("z (mm)")
+    ax.set_box_aspect(np.ptp(v, axis=0))
+
+
 def _save(fig, path: str | Path, **kw) -> Path:
     """Write ``fig`` to ``path`` (PNG, 150 dpi) and, beside it, the same figure as SVG."""
     path = Path(path)
@@ -75,7 +94,6 @@ def plot_predictions_3d(
     plt = _pyplot()
     from matplotlib import cm, colors
 
-    v = np.asarray(mesh.vertices) * 1e3
     t, p = np.asarray(true) * 1e3, np.asarray(predicted) * 1e3
     err = np.linalg.norm(p - t, axis=1)
     norm = colors.Normalize(0.0, max(float(np.percentile(err, 95)) if len(err) else 1.0, 1.0))
@@ -83,25 +101,12 @@ def plot_predictions_3d(
     fig = plt.figure(figsize=(12, 5.8))
     for k, (elev, azim) in enumerate(((60, -70), (15, -100))):
         ax = fig.add_subplot(1, 2, k + 1, projection="3d")
-        ax.plot_trisurf(
-            v[:, 0],
-            v[:, 1],
-            v[:, 2],
-            triangles=mesh.faces,
-            color="0.9",
-            alpha=0.25,
-            edgecolor="0.75",
-            linewidth=0.2,
-        )
+        draw_mesh(ax, mesh, alpha=0.25, edgecolor="0.75")
         for a, b, e in zip(t, p, err, strict=True):
             ax.plot(*np.stack([a, b]).T, color=cmap(norm(e)), lw=3.0, solid_capstyle="round")
         # Small markers, so that the segments (a few mm long) stay visible between them.
         ax.scatter(*t.T, facecolors="none", edgecolors="k", s=12, lw=0.7, label="target")
         ax.scatter(*p.T, c="k", marker="x", s=12, lw=0.7, label="prediction")
-        ax.set_xlabel("x (mm)")
-        ax.set_ylabel("y (mm)")
-        ax.set_zlabel("z (mm)")
-        ax.set_box_aspect(np.ptp(v, axis=0))
         ax.view_init(elev=elev, azim=azim)
         if k == 0:
             ax.legend(loc="upper left")

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from skinloc._typing import Points
-from skinloc.report import _pyplot
+from skinloc.report import _pyplot, draw_mesh
 from skinloc.sensor_map import SensorMap
 
 __all__ = ["plot_coverage", "plot_sensor_map"]
@@ -20,23 +20,9 @@ _STATUS_COLOURS = {"ok": "tab:green", "weak": "tab:orange", "dead": "k", "noisy"
 
 def _skin_axes(mesh, title: str):
     plt = _pyplot()
-    v = np.asarray(mesh.vertices) * 1e3
     fig = plt.figure(figsize=(7.5, 6))
     ax = fig.add_subplot(projection="3d")
-    ax.plot_trisurf(
-        v[:, 0],
-        v[:, 1],
-        v[:, 2],
-        triangles=mesh.faces,
-        color="0.9",
-        alpha=0.3,
-        edgecolor="0.7",
-        linewidth=0.2,
-    )
-    ax.set_xlabel("x (mm)")
-    ax.set_ylabel("y (mm)")
-    ax.set_zlabel("z (mm)")
-    ax.set_box_aspect(np.ptp(v, axis=0))
+    draw_mesh(ax, mesh)
     ax.view_init(elev=30, azim=-65)
     ax.set_title(title)
     return plt, fig, ax

@@ -210,6 +210,65 @@ def _local_fit(
     return int(cidx[ci]), float(widths[wi]), float(a[wi, ci]), float(c[wi, ci]), rms
 
 
+def _loo_profile(
+    targets_mm: np.ndarray, r: np.ndarray, cands_mm: np.ndarray, tree: Any, widths: np.ndarray
+) -> np.ndarray:
+    """Leave-one-out error of one sensor's fit at each width, ``(len(widths),)``.
+
+    As in ``_local_fit`` (every 4th candidate crossing, ``a`` and ``c`` in closed form, no
+    reweighting), each nearby touch is predicted from the fit to the others; its squared
+    error is scaled by the variance the noise model expects (``_REL_NOISE`` of the signal,
+    ``_ABS_NOISE`` of the sensor's peak), so the strong touches do not dominate.
+    """
+    top = np.argsort(r)[-3:]
+    wt = np.maximum(r[top] - np.median(r), 1e-9)
+    centre = (targets_mm[top] * wt[:, None]).sum(0) / wt.sum()
+    cidx = np.asarray(tree.query_ball_point(centre, _SEARCH_MM), dtype=int)[::4]
+    if cidx.size == 0:
+        cidx = np.array([tree.query(centre)[1]])
+    d = np.linalg.norm(targets_mm - centre, axis=1)
+    near = np.argsort(d)[: max(_MIN_NEAR, int((d < _NEAR_MM).sum()))]
+    P, y = targets_mm[near], r[near]
+    m = len(y)
+    d2 = ((cands_mm[cidx][:, None, :] - P[None]) ** 2).sum(-1)  # (C, m)
+    K = 1.0 / (1.0 + d2[None] / widths[:, None, None] ** 2)  # (W, C, m)
+    # Sums over all touches; each left-out fit subtracts its touch's term.
+    S1, SK2, SKy = K.sum(-1), (K**2).sum(-1), (K * y).sum(-1)
+    Sy, Sy2 = y.sum(), (y**2).sum()
+    peak = max(float(y.max()), 1e-9)
+    rows = np.arange(len(widths))
+    err = np.zeros((len(widths), m))
+    for j in range(m):
+        kj, n1 = K[..., j], m - 1
+        km, ym = (S1 - kj) / n1, (Sy - y[j]) / n1
+        skk, sky = (SK2 - kj**2) / n1, (SKy - kj * y[j]) / n1
+        a = np.maximum((sky - km * ym) / np.maximum(skk - km**2, 1e-12), 0.0)
+        c = ym - a * km
+        sse = (Sy2 - y[j] ** 2) / n1 - 2 * a * sky - 2 * c * ym + a**2 * skk + 2 * a * c * km + c**2
+        ci = np.argmin(sse, axis=1)
+        pred = a[rows, ci] * kj[rows, ci] + c[rows, ci]
+        var = (_REL_NOISE * np.maximum(pred, y[j])) ** 2 + (_ABS_NOISE * peak) ** 2
+        err[:, j] = (pred - y[j]) ** 2 / var
+    return err.mean(axis=1)
+
+
+def _shared_width(profiles: np.ndarray, widths: np.ndarray) -> float:
+    """Width (mm) minimising ``sum_k log profile_k(w)``, refined by a parabola in log w.
+
+    ``profiles (n_sensors, n_widths)`` are each sensor's errors at each of ``widths
+    (n_widths,)`` mm (a log grid); the log makes every sensor count alike whatever its gain.
+    """
+    L = np.log(np.maximum(profiles, 1e-300)).sum(axis=0)
+    i = int(np.argmin(L))
+    if 0 < i < len(widths) - 1:
+        # Vertex of the parabola through the three grid points around the minimum.
+        x, y = np.log(widths[i - 1 : i + 2]), L[i - 1 : i + 2]
+        A, B, _ = np.polyfit(x, y, 2)
+        if A > 0:
+            return float(np.exp(np.clip(-B / (2 * A), x[0], x[2])))
+    return float(widths[i])
+
+
 def _touch_pressure(
     T_mm: np.ndarray,
     images: np.ndarray,
@@ -261,9 +320,16 @@ def _fit_once(
             pos[k] = C_mm[ci]
         if it == 0 and _SHARED_WIDTH:
             # One silicone layer and one finger: every crossing has about the same footprint,
-            # and fixing it leaves each fit three free parameters instead of four.
+            # and fixing it leaves each fit three free parameters instead of four. One
+            # sensor's own best width is ill-determined (its crossing is free to sit on its
+            # strongest touch, which a narrow bump then fits exactly, while a wide bump and a
+            # negative offset fit the rest), so the per-sensor widths scatter over the whole
+            # grid and their median is an arbitrary grid value. The shared width is instead
+            # the one that best predicts each touch left out of its sensor's fit, summed over
+            # the sensors that respond.
             good = amp >= 0.5 * np.median(amp)
-            widths = np.array([float(np.median(width[good]))])
+            prof = np.array([_loo_profile(T_mm, R[:, k], C_mm, tree, widths) for k in range(n)])
+            widths = np.array([_shared_width(prof[good], widths)])
         elif it <= _PRESSURE_ITERS:
             pressure = _touch_pressure(T_mm, images, pos, width, amp, offset)
     if structure:
@@ -380,7 +446,11 @@ def estimate_sensor_map(
         )
     if boots:
         B = np.stack(boots)
-        unc = np.sqrt(((B - pos[None]) ** 2).sum(axis=2).mean(axis=0))
+        # Positions are searched over the discrete surface points, so a few resamples can all
+        # land on the same point: add the rounding error of that grid (spacing s: s^2 / 6 on
+        # a surface) so an uncertainty is never reported as exactly zero.
+        spacing = float(np.median(tree.query(tree.data, k=2)[0][:, 1]))
+        unc = np.sqrt(((B - pos[None]) ** 2).sum(axis=2).mean(axis=0) + spacing**2 / 6.0)
     else:
         unc = np.full(n, np.nan)
     snapped, _ = _snap(1e-3 * pos, candidates)

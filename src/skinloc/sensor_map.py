@@ -326,8 +326,10 @@ def _fit_once(
             # negative offset fit the rest), so the per-sensor widths scatter over the whole
             # grid and their median is an arbitrary grid value. The shared width is instead
             # the one that best predicts each touch left out of its sensor's fit, summed over
-            # the sensors that respond.
-            good = amp >= 0.5 * np.median(amp)
+            # the sensors that respond (judged by their strongest touches, not by the fitted
+            # amplitude, which is larger for the sensors whose own fit chose a narrow width).
+            peak = np.sort(R, axis=0)[-3:].mean(axis=0) - np.median(R, axis=0)
+            good = peak >= 0.5 * np.median(peak)
             prof = np.array([_loo_profile(T_mm, R[:, k], C_mm, tree, widths) for k in range(n)])
             widths = np.array([_shared_width(prof[good], widths)])
         elif it <= _PRESSURE_ITERS:

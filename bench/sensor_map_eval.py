@@ -6,12 +6,13 @@ simulator's faults. Real skin: the crossings estimated from each recording of 20
 separately, and their pairwise agreement; the lines flagged in each.
 
     python bench/sensor_map_eval.py --seeds 0 1 2 [--data ../shared/data/hiro-cone-skin]
-        [--json bench/results/sensor-map.json]
+        [--json bench/results/sensor-map.json] [--label-error-mm 0] [--true-contacts]
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import itertools
 import json
 import tempfile
@@ -43,15 +44,31 @@ def flagged(smap: S.SensorMap) -> list[str]:
     ]
 
 
-def sim_seed(seed: int, points: int, boot: int) -> dict:
-    """Simulate a skin and an even session, locate its sensors, score against the truth."""
+def sim_seed(
+    seed: int,
+    points: int,
+    boot: int,
+    label_error_mm: float = S.LABEL_ERROR_MM,
+    true_contacts: bool = False,
+) -> dict:
+    """Simulate a skin and an even session, locate its sensors, score against the truth.
+
+    ``true_contacts`` locates them from where the finger really landed instead of the labels
+    (a diagnostic: the figure without the person's probing error).
+    """
     mesh = cone_skin()
     skin = SimulatedSkin(mesh, random_state=seed)
     skin.reseed(seed)
     cfg = SessionConfig(n_points=points, mode="even", samples_per_touch=50, random_state=seed)
     with tempfile.TemporaryDirectory() as tmp:
         rec = simulate_session(skin, mesh, Path(tmp) / "s.h5", cfg)
-    smap = S.sensor_map_from_recordings([rec], n_boot=boot, random_state=seed)
+    if true_contacts:
+        rec = dataclasses.replace(
+            rec, targets=np.asarray(rec.meta["true_contacts"], float).reshape(-1, 3)
+        )
+    smap = S.sensor_map_from_recordings(
+        [rec], n_boot=boot, random_state=seed, label_error_mm=label_error_mm
+    )
     truth = S.truth_sensor_positions(rec.meta)
     err = S.position_errors_mm(smap.positions_m, truth)
     alive = smap.status != "dead"
@@ -116,8 +133,23 @@ def main() -> None:
     ap.add_argument("--boot", type=int, default=8)
     ap.add_argument("--data", type=Path, default=Path("../shared/data/hiro-cone-skin"))
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument(
+        "--label-error-mm",
+        type=float,
+        default=S.LABEL_ERROR_MM,
+        help="prior of the person's miss per axis; 0 takes the labels as exact",
+    )
+    ap.add_argument(
+        "--true-contacts",
+        action="store_true",
+        help="simulated skins only: locate from the true contacts, not the labels",
+    )
     args = ap.parse_args()
-    out: dict = {"sim": [sim_seed(s, args.points, args.boot) for s in args.seeds]}
+    sims = [
+        sim_seed(s, args.points, args.boot, args.label_error_mm, args.true_contacts)
+        for s in args.seeds
+    ]
+    out: dict = {"sim": sims}
     if out["sim"]:
         all_err = np.concatenate([r["errors_mm"] for r in out["sim"]])
         out["sim_pooled"] = {

@@ -9,8 +9,11 @@ is the peak of its response over the surface:
    with the crossing searched over the surface points near its strongest touches and ``a``,
    ``c`` solved in closed form for each (no local minima, the crossing stays on the surface),
    touches weighted by their expected variance (pressure spread, probing error x slope);
-2. one footprint ``w`` for all (one silicone layer, one finger: the median of the first
-   per-sensor fits), and one damped pass dividing each touch by its estimated pressure;
+2. one footprint ``w`` for all (one silicone layer, one finger), the width that best predicts
+   each touch left out of its sensor's fit; it is the half-maximum radius of a response;
+   then one damped pass dividing each touch by its estimated pressure, and one pass moving
+   each touch from its label to where its image says the finger was (the person misses
+   the target by ~5 mm per axis; ``label_error_mm``) before refitting the crossings;
 3. the wires are continuous: sensor (i, j) lies on TX wire i and on RX wire j, so each
    crossing is pulled towards the smooth curves through its lines' crossings
    (``skinloc.wires``); this mostly helps sensors on weak lines, whose own peaks are noisy;
@@ -32,6 +35,15 @@ from typing import Any
 import numpy as np
 
 from skinloc._typing import Points
+from skinloc.sensor_fit import (
+    LABEL_ERROR_MM,
+    WIDTHS_MM,
+    local_fit,
+    loo_profile,
+    refine_touches,
+    shared_width,
+    touch_pressure,
+)
 from skinloc.wires import line_path, structured_crossings
 
 __all__ = [
@@ -47,14 +59,11 @@ WEAK_FRACTION = 0.55
 DEAD_FRACTION = 0.12
 #: A sensor (line) whose no-touch noise exceeds this multiple of the median is noisy.
 NOISY_FACTOR = 3.0
-_NEAR_MM = 50.0  # touches used by a sensor's local fit
-_MIN_NEAR = 8
-_SEARCH_MM = 22.0  # candidate positions searched around the strongest touches
-_WIDTHS_MM = np.geomspace(4.0, 30.0, 14)
-_REL_NOISE, _ABS_NOISE, _PROBE_MM = 0.2, 0.05, 2.5
 _PRESSURE_ITERS = 1
 _SHARED_WIDTH = True
-_SHRINK = 0.5
+#: Passes moving each touch from its label to where its image says the finger was (more
+#: passes measured no better on simulated skins).
+_REFINE_ITERS = 1
 
 
 @dataclass
@@ -154,88 +163,6 @@ def truth_sensor_positions(meta: dict[str, Any]) -> Points | None:
 # -------------------------------------------------------------------------------- estimation
 
 
-def _local_fit(
-    targets_mm: np.ndarray,
-    r: np.ndarray,
-    cands_mm: np.ndarray,
-    tree: Any,
-    widths: np.ndarray = _WIDTHS_MM,
-    stride: int = 1,
-) -> tuple[int, float, float, float, float]:
-    """Fit ``a / (1 + |p - s|^2 / w^2) + c`` to one sensor's responses ``r (n,)``.
-
-    ``s`` runs over the candidate surface points near the strongest touches and ``w`` over a
-    log grid; for each pair ``a`` and ``c`` are the (Huber-reweighted) linear least-squares
-    solution, so the search has no local minima and ``s`` stays on the surface. ``stride``
-    searches every ``stride``-th candidate (a coarse first pass).
-
-    Returns ``(candidate index of s, w_mm, a, c, residual_rms)``.
-    """
-    top = np.argsort(r)[-3:]
-    wt = np.maximum(r[top] - np.median(r), 1e-9)
-    centre = (targets_mm[top] * wt[:, None]).sum(0) / wt.sum()
-    cidx = np.asarray(tree.query_ball_point(centre, _SEARCH_MM), dtype=int)[::stride]
-    if cidx.size == 0:
-        cidx = np.array([tree.query(centre)[1]])
-    d = np.linalg.norm(targets_mm - centre, axis=1)
-    near = np.argsort(d)[: max(_MIN_NEAR, int((d < _NEAR_MM).sum()))]
-    P, y = targets_mm[near], r[near]
-    d2 = ((cands_mm[cidx][:, None, :] - P[None]) ** 2).sum(-1)  # (C, m)
-    K = 1.0 / (1.0 + d2[None] / widths[:, None, None] ** 2)  # (W, C, m)
-    h = np.ones_like(y)
-    for _ in range(4):
-        hs = h / h.sum()
-        Km = (K * hs).sum(-1, keepdims=True)
-        ym = float((y * hs).sum())
-        cov = ((K - Km) * (y - ym) * hs).sum(-1)
-        var = np.maximum(((K - Km) ** 2 * hs).sum(-1), 1e-12)
-        a = np.maximum(cov / var, 0.0)
-        c = ym - a * Km[..., 0]
-        sse = (((a[..., None] * K + c[..., None] - y) ** 2) * hs).sum(-1)
-        wi, ci = np.unravel_index(np.argmin(sse), sse.shape)
-        fit = a[wi, ci] * K[wi, ci] + c[wi, ci]
-        res = fit - y
-        # Pressure varies from touch to touch, so the error is mostly proportional to the
-        # signal: weight by the inverse predicted variance, then damp outliers (Huber).
-        # A probing error of ~2.5 mm moves the response by |grad| * 2.5 mm.
-        q = d2[ci] / widths[wi] ** 2
-        grad = a[wi, ci] * 2.0 * np.sqrt(q) / (widths[wi] * (1.0 + q) ** 2)
-        sd = np.sqrt(
-            (_REL_NOISE * fit) ** 2 + (_PROBE_MM * grad) ** 2 + (_ABS_NOISE * a[wi, ci]) ** 2
-        )
-        sd = np.maximum(sd, 1e-9)
-        z = res / sd
-        h = np.minimum(1.0, 2.0 / np.maximum(np.abs(z), 1e-12)) / sd**2
-    rms = float(np.sqrt(np.mean(res**2)))
-    return int(cidx[ci]), float(widths[wi]), float(a[wi, ci]), float(c[wi, ci]), rms
-
-
-def _touch_pressure(
-    T_mm: np.ndarray,
-    images: np.ndarray,
-    pos_mm: np.ndarray,
-    width_mm: np.ndarray,
-    amp: np.ndarray,
-    offset: np.ndarray,
-) -> np.ndarray:
-    """Relative pressure of each touch, ``(n_touch,)`` (median 1).
-
-    A touch's pressure scales its whole image, so it is the typical ratio of the observed to
-    the predicted response over the sensors that respond strongly at that point (the weak
-    ones are dominated by noise and by the line coupling the sensor model leaves out).
-    """
-    d2 = ((T_mm[:, None, :] - pos_mm[None]) ** 2).sum(-1)
-    pred = amp / (1.0 + d2 / width_mm**2) + offset  # (n_touch, n_sensors)
-    strong = pred >= 0.5 * pred.max(axis=1, keepdims=True)
-    ratio = np.where(strong & (images > 0) & (pred > 0), images / np.maximum(pred, 1e-12), np.nan)
-    w = np.where(np.isfinite(ratio), pred**2, 0.0)
-    logp = (np.nan_to_num(np.log(np.where(ratio > 0, ratio, 1.0))) * w).sum(1) / np.maximum(
-        w.sum(1), 1e-12
-    )
-    p = np.exp(_SHRINK * (logp - np.median(logp)))
-    return np.clip(p, 0.3, 3.0)
-
-
 def _fit_once(
     targets: Points,
     images: np.ndarray,
@@ -244,31 +171,56 @@ def _fit_once(
     n_tx: int,
     n_rx: int,
     structure: bool,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """One estimate: positions (n, 3) mm, footprints mm, gains (counts), residual rms."""
+    label_mm: float = LABEL_ERROR_MM,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One estimate: positions (n, 3) mm, footprints mm, gains, residual rms, touches.
+
+    The touches ``(n_touch, 3)`` mm are where the fit placed them (the labels when
+    ``label_mm`` is 0).
+    """
     T_mm, C_mm = 1e3 * targets, 1e3 * candidates
+    T_mm0 = T_mm
     n = images.shape[1]
     pos, width, amp, rms = np.zeros((n, 3)), np.zeros(n), np.zeros(n), np.zeros(n)
     offset = np.zeros(n)
     pressure = np.ones(len(targets))
-    widths = _WIDTHS_MM
+    widths = WIDTHS_MM
     for it in range(_PRESSURE_ITERS + 2):
         R = images / pressure[:, None]
         for k in range(n):
-            ci, width[k], amp[k], offset[k], rms[k] = _local_fit(
+            ci, width[k], amp[k], offset[k], rms[k] = local_fit(
                 T_mm, R[:, k], C_mm, tree, widths, stride=4 if len(widths) > 1 else 1
             )
             pos[k] = C_mm[ci]
         if it == 0 and _SHARED_WIDTH:
             # One silicone layer and one finger: every crossing has about the same footprint,
-            # and fixing it leaves each fit three free parameters instead of four.
-            good = amp >= 0.5 * np.median(amp)
-            widths = np.array([float(np.median(width[good]))])
+            # and fixing it leaves each fit three free parameters instead of four. One
+            # sensor's own best width is ill-determined (its crossing is free to sit on its
+            # strongest touch, which a narrow bump then fits exactly, while a wide bump and a
+            # negative offset fit the rest), so the per-sensor widths scatter over the whole
+            # grid and their median is an arbitrary grid value. The shared width is instead
+            # the one that best predicts each touch left out of its sensor's fit, summed over
+            # the sensors that respond (judged by their strongest touches, not by the fitted
+            # amplitude, which is larger for the sensors whose own fit chose a narrow width).
+            peak = np.sort(R, axis=0)[-3:].mean(axis=0) - np.median(R, axis=0)
+            good = peak >= 0.5 * np.median(peak)
+            prof = np.array([loo_profile(T_mm, R[:, k], C_mm, tree, widths) for k in range(n)])
+            widths = np.array([shared_width(prof[good], widths)])
         elif it <= _PRESSURE_ITERS:
-            pressure = _touch_pressure(T_mm, images, pos, width, amp, offset)
+            pressure = touch_pressure(T_mm, images, pos, width, amp, offset)
+    for _ in range(_REFINE_ITERS if label_mm > 0 else 0):
+        # The labels carry the person's miss (~5 mm per axis); each touch's image says
+        # where the finger really was. Move the touches there (from their labels, with the
+        # miss as a prior) and refit the crossings on the moved touches.
+        T_mm = refine_touches(T_mm0, images, pos, width, amp, offset, rms, C_mm, tree, label_mm)
+        pressure = touch_pressure(T_mm, images, pos, width, amp, offset)
+        R = images / pressure[:, None]
+        for k in range(n):
+            ci, width[k], amp[k], offset[k], rms[k] = local_fit(T_mm, R[:, k], C_mm, tree, widths)
+            pos[k] = C_mm[ci]
     if structure:
         pos = structured_crossings(pos, amp / max(float(np.median(amp)), 1e-12), C_mm, n_tx, n_rx)
-    return pos, width, amp, rms
+    return pos, width, amp, rms, T_mm
 
 
 def _snap(points_m: Points, candidates: Points) -> tuple[Points, np.ndarray]:
@@ -333,6 +285,7 @@ def estimate_sensor_map(
     n_boot: int = 8,
     random_state: int = 0,
     structure: bool = True,
+    label_error_mm: float = LABEL_ERROR_MM,
 ) -> SensorMap:
     """Estimate the skin's layout from calibration touches.
 
@@ -354,6 +307,9 @@ def estimate_sensor_map(
         Seed of the bootstrap.
     structure : bool
         Use the TX x RX wire structure (step 3 of the module docstring).
+    label_error_mm : float
+        How far, per tangent axis, the touches may be from their labels (mm): each touch is
+        moved to where its image says it was (step 2). 0: the labels are exact.
 
     Returns
     -------
@@ -370,17 +326,22 @@ def estimate_sensor_map(
     from scipy.spatial import cKDTree
 
     tree = cKDTree(1e3 * candidates)
-    pos, width, amp, _ = _fit_once(targets, images, candidates, tree, n_tx, n_rx, structure)
+    if not (np.isfinite(label_error_mm) and label_error_mm >= 0):
+        raise ValueError(f"label_error_mm must be >= 0, got {label_error_mm!r}")
+    fit_args = (candidates, tree, n_tx, n_rx, structure, label_error_mm)
+    pos, width, amp, _, _ = _fit_once(targets, images, *fit_args)
     rng = np.random.default_rng(random_state)
     boots = []
     for _ in range(n_boot):
         pick = rng.choice(len(targets), len(targets), replace=True)  # repeats act as weights
-        boots.append(
-            _fit_once(targets[pick], images[pick], candidates, tree, n_tx, n_rx, structure)[0]
-        )
+        boots.append(_fit_once(targets[pick], images[pick], *fit_args)[0])
     if boots:
         B = np.stack(boots)
-        unc = np.sqrt(((B - pos[None]) ** 2).sum(axis=2).mean(axis=0))
+        # Positions are searched over the discrete surface points, so a few resamples can all
+        # land on the same point: add the rounding error of that grid (spacing s: s^2 / 6 on
+        # a surface) so an uncertainty is never reported as exactly zero.
+        spacing = float(np.median(tree.query(tree.data, k=2)[0][:, 1]))
+        unc = np.sqrt(((B - pos[None]) ** 2).sum(axis=2).mean(axis=0) + spacing**2 / 6.0)
     else:
         unc = np.full(n, np.nan)
     snapped, _ = _snap(1e-3 * pos, candidates)
@@ -454,7 +415,10 @@ def sensor_map_from_model(model: Any, stride: int = 8) -> SensorMap:
     n_tx, n_rx = _model_grid(model)
     pts = rmap.candidates[::stride]
     values = rmap.evaluate_mm(1e3 * pts)
-    return estimate_sensor_map(pts, values, n_tx, n_rx, rmap.candidates, n_boot=0)
+    # The map's own values sit exactly at their points: no label error to undo.
+    return estimate_sensor_map(
+        pts, values, n_tx, n_rx, rmap.candidates, n_boot=0, label_error_mm=0.0
+    )
 
 
 def _model_grid(model: Any) -> tuple[int, int]:

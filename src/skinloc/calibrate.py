@@ -233,7 +233,8 @@ class CalibrationSession:
             if self.config.n_repeats:
                 again = np.linspace(0, len(targets) - 1, self.config.n_repeats).round().astype(int)
                 targets = np.concatenate([targets, targets[again]])
-        self.targets = np.asarray(targets, dtype=np.float64).reshape(-1, 3)
+        # A copy: an active session replaces its targets as it goes.
+        self.targets = np.array(targets, dtype=np.float64).reshape(-1, 3)
         self.source_name = source_name or source.name
         self.recording: Recording | None = None
         self.detector: TouchDetector | None = None
@@ -261,8 +262,7 @@ class CalibrationSession:
         if cfg.mode == "active":
             n = min(rec.n_point_logs, len(session.targets))
             session.targets[:n] = rec.targets[:n]
-        session._done_targets = list(np.asarray(rec.targets, dtype=np.float64))
-        session._done_images = list(np.asarray(rec.touch_means, dtype=np.float64))
+
         session.detector = TouchDetector(
             rec.baseline, rec.noise, cfg.threshold_sigma, cfg.min_active
         )
@@ -348,9 +348,9 @@ class CalibrationSession:
         from skinloc.active import N_START, next_targets
 
         n_points = cfg.n_points
-        if index < min(N_START, n_points) or index > len(self._done_targets):
+        done, images = self.touched()
+        if index < min(N_START, n_points) or index > len(done):
             return self.targets[index]
-        done = np.asarray(self._done_targets)
         if index >= n_points:
             again = np.linspace(0, n_points - 1, cfg.n_repeats).round().astype(int)
             target = done[again[index - n_points]]
@@ -363,9 +363,23 @@ class CalibrationSession:
             cands = self.recording.surface_points
             if cands is None:
                 cands = surface_points(self.mesh)
-            target = left[next_targets(done, np.asarray(self._done_images), left, cands)]
+            target = left[next_targets(done, images, left, cands)]
         self.targets[index] = target
         return self.targets[index]
+
+    def touched(self) -> tuple[Points, np.ndarray]:
+        """Targets ``(n, 3)`` m and mean baseline-subtracted images ``(n, k)`` of the touches.
+
+        From the recording when it holds them (whoever appended or removed point logs, e.g.
+        the app), else (an incremental session) from those this session recorded.
+        """
+        rec = self.recording
+        if self._appender is None and rec is not None:
+            return np.asarray(rec.targets, dtype=np.float64), rec.touch_means.astype(np.float64)
+        k = self.source.n_sensors if rec is None else rec.n_sensors
+        if not self._done_targets:
+            return np.zeros((0, 3)), np.zeros((0, k))
+        return np.asarray(self._done_targets), np.asarray(self._done_images)
 
     def active_pool(self) -> Points:
         """Candidate targets of an active session, ``(c, 3)`` m, evenly spread and seeded."""

@@ -315,10 +315,12 @@ class Workspace:
             targets = self._parse_targets(targets_csv or "", mesh)
             cfg.n_points = len(targets)
         else:
-            SamplingMode(mode)
             from skinloc.geometry import sample_targets
 
-            targets = sample_targets(mesh, cfg.n_points, cfg.mode, random_state=cfg.random_state)
+            # An active session starts from an even plan and replaces all but its first
+            # targets, one after each touch (``_choose_next``).
+            plan = "even" if cfg.mode == "active" else SamplingMode(cfg.mode).value
+            targets = sample_targets(mesh, cfg.n_points, plan, random_state=cfg.random_state)
         info = {
             "config": asdict(cfg),
             "sampling": mode,
@@ -518,7 +520,8 @@ class Workspace:
         with self._lock:
             a = self._need_session()
             device = self._need_device()
-            if a.cal is None and a.folder.calibration.is_file():
+            resumed = a.cal is None and a.folder.calibration.is_file()
+            if resumed:
                 a.cal = CalibrationSession.resume(device.source, a.folder.calibration)
             if a.cal is not None and a.cal.recording is None:
                 # The baseline capture did not finish: take it again.
@@ -530,6 +533,8 @@ class Workspace:
                         f"the session has {a.cal.recording.n_sensors} sensors but the skin "
                         f"has {device.source.n_sensors}"
                     )
+                if resumed:
+                    self._choose_next(a.cal)
                 self._begin(Mode.CALIBRATE, a.cal)
                 return
             cfg_fields = SessionConfig.__dataclass_fields__
@@ -936,11 +941,26 @@ class Workspace:
         self.hub.publish({"type": "touch", "recording": what, "index": index, "flags": flags})
         if self.mode is Mode.CALIBRATE:
             self._update_session_snr()
+            self._choose_next(sess)
         if sess.finished:
             self._finish(self.mode)
         elif "drifted" not in self.message:
             self.message = f"touch target {sess.n_done + 1} of {len(sess.targets)}"
         self._publish_state()
+
+    def _choose_next(self, sess: CalibrationSession) -> None:
+        """In an ``active`` session, choose the next target from the touches recorded so far.
+
+        Runs once after each stored touch and on resuming (not after an undo, a retake or a
+        skip: the target they put next stays). The plan in the recording shows the choice.
+        Takes about a second (a map refit), under the lock: the next touch waits for it anyway.
+        """
+        rec = sess.recording
+        if sess.config.mode != "active" or sess.finished or rec is None:
+            return
+        sess.target_for(sess.n_done)
+        rec.planned_targets = sess.targets
+        write_recording(rec, sess.path)
 
     def _refresh_flags(self, rec: Recording) -> None:
         meta = _app_meta(rec)

@@ -414,8 +414,9 @@ def test_every_tab_is_told_when_the_link_drops_and_comes_back(tmp_path):
         dev.stop()
 
 
-def test_active_sampling_chooses_each_next_target_after_a_touch(tmp_path):
-    """The 'active' mode: a few planned (even) targets, then each chosen from the touches."""
+def test_active_sampling_then_the_coverage_map_of_the_trained_model(tmp_path):
+    """The 'active' mode: a few planned (even) targets, then each chosen from the touches;
+    after training, the coverage map of the model."""
     from skinloc.active import N_START
     from skinloc.calibrate import CalibrationSession
     from skinloc.sources.sim import SimulatedSkin
@@ -450,3 +451,19 @@ def test_active_sampling_chooses_each_next_target_after_a_touch(tmp_path):
         assert len(np.unique(np.round(rec.targets, 6), axis=0)) == 7
         # The page's view of the plan shows what was asked.
         np.testing.assert_allclose(rec.planned_targets, rec.targets)
+        # The coverage map comes from the trained model: refused before, drawn after.
+        r = client.get("/api/session/coverage")
+        assert r.status_code == 400 and "train a model first" in r.json()["detail"]
+        assert client.post("/api/train", headers=A).status_code == 200
+        wait_for(client, lambda s: s["training"] and not s["training"].get("running"), "training")
+        r = client.get("/api/session/coverage")
+        assert r.status_code == 200, r.text
+        cov = r.json()
+        pts, err = np.asarray(cov["points"]), np.asarray(cov["expected_mm"])
+        assert pts.ndim == 2 and pts.shape[1] == 3 and err.shape == (len(pts),)
+        assert np.isfinite(err).all() and (err > 0).all() and cov["unit"] == "mm"
+        assert cov["expected_error_mm"]["mean"] == pytest.approx(err.mean(), abs=0.05)
+        # On the skin: every point within a millimetre of the cone's surface.
+        from skinloc.geometry import nearest_on_surface
+
+        assert nearest_on_surface(cone_skin(), pts)[1].max() < 1e-3

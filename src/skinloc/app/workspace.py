@@ -456,6 +456,37 @@ class Workspace:
             raise ValueError("no session open: open one on the Sessions page or start a new one")
         return self.active
 
+    def coverage(self, n_points: int = 300) -> dict[str, Any]:
+        """The trained model's expected localisation error over the skin, for the 3D view.
+
+        ``points`` ``(E, 3)`` m and ``expected_mm`` ``(E,)`` mm (``skinloc.coverage``), plus
+        the summary of ``skinloc coverage`` and the colour scale's range, mm. Computed once
+        per model (about a second), outside the lock.
+        """
+        from skinloc.coverage import coverage_map
+
+        with self._lock:
+            a = self._need_session()
+            model = a.model
+            cached = getattr(self, "_coverage_cache", None)
+        if model is None:
+            raise ValueError("train a model first: the coverage map comes from the trained model")
+        if getattr(model, "map_", None) is None:
+            raise ValueError("the coverage map needs a response-map model (the default)")
+        if cached is not None and cached[0] is model:
+            return cached[1]
+        temperature = float(getattr(model, "meta_", {}).get("coverage_temperature", 1.0))
+        cov = coverage_map(model.map_, None, n_points=n_points, temperature=temperature)
+        out = {k: v for k, v in cov.as_dict().items() if k != "blind_spots_m"}
+        out.update(
+            points=np.round(cov.points_m, 6),
+            expected_mm=np.round(cov.expected_mm, 2),
+            unit="mm",
+            scale_mm=[0.0, 20.0],  # the colours of the validation errors: green, yellow, red
+        )
+        self._coverage_cache = (model, out)
+        return out
+
     def session_mesh(self) -> dict[str, Any] | None:
         """The open session's skin mesh (m), for the 3D view."""
         with self._lock:

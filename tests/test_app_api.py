@@ -412,3 +412,58 @@ def test_every_tab_is_told_when_the_link_drops_and_comes_back(tmp_path):
                 assert state["link_losses"] == 1 and state["reconnects"] >= 1
     finally:
         dev.stop()
+
+
+def test_active_sampling_then_the_coverage_map_of_the_trained_model(tmp_path):
+    """The 'active' mode: a few planned (even) targets, then each chosen from the touches;
+    after training, the coverage map of the model."""
+    from skinloc.active import N_START
+    from skinloc.calibrate import CalibrationSession
+    from skinloc.sources.sim import SimulatedSkin
+
+    with make_client(tmp_path) as client:
+        r = client.post(
+            "/api/sessions", json={"name": "x", "n_points": 6, "mode": "smart"}, headers=A
+        )
+        assert 400 <= r.status_code < 500 and "active" in r.json()["detail"]
+        sid = new_session(client, n_points=7, mode="active")
+        plan = np.asarray(client.get("/api/session").json()["calibration"]["planned"])
+        assert plan.shape == (7, 3)
+        calibrate(client, until=N_START + 1)
+        # Closed and reopened, the session asks what the recorded touches call for.
+        assert client.post("/api/session/close", headers=A).status_code == 200
+        assert client.post(f"/api/sessions/{sid}/open", headers=A).status_code == 200
+        path = tmp_path / sid / "calibration.h5"
+        n = read_recording(path).n_point_logs
+        assert N_START < n < 7
+        with SimulatedSkin(cone_skin(), random_state=3) as skin:
+            expected = CalibrationSession.resume(skin, path).target_for(n)
+        assert client.post("/api/finger", json={"on": False}, headers=A).status_code == 200
+        assert client.post("/api/calibrate/start", headers=A).status_code == 200
+        state = wait_for(client, lambda s: s["guided"] is not None, "the resumed calibration")
+        assert state["guided"]["index"] == n
+        np.testing.assert_allclose(state["guided"]["target"], expected, atol=1e-9)
+        calibrate(client)
+        rec = read_recording(path)
+        assert rec.n_point_logs == 7 and rec.meta["sampling_mode"] == "active"
+        np.testing.assert_allclose(rec.targets[:N_START], plan[:N_START])
+        assert np.linalg.norm(rec.targets[N_START:] - plan[N_START:], axis=1).min() > 1e-6
+        assert len(np.unique(np.round(rec.targets, 6), axis=0)) == 7
+        # The page's view of the plan shows what was asked.
+        np.testing.assert_allclose(rec.planned_targets, rec.targets)
+        # The coverage map comes from the trained model: refused before, drawn after.
+        r = client.get("/api/session/coverage")
+        assert r.status_code == 400 and "train a model first" in r.json()["detail"]
+        assert client.post("/api/train", headers=A).status_code == 200
+        wait_for(client, lambda s: s["training"] and not s["training"].get("running"), "training")
+        r = client.get("/api/session/coverage")
+        assert r.status_code == 200, r.text
+        cov = r.json()
+        pts, err = np.asarray(cov["points"]), np.asarray(cov["expected_mm"])
+        assert pts.ndim == 2 and pts.shape[1] == 3 and err.shape == (len(pts),)
+        assert np.isfinite(err).all() and (err > 0).all() and cov["unit"] == "mm"
+        assert cov["expected_error_mm"]["mean"] == pytest.approx(err.mean(), abs=0.05)
+        # On the skin: every point within a millimetre of the cone's surface.
+        from skinloc.geometry import nearest_on_surface
+
+        assert nearest_on_surface(cone_skin(), pts)[1].max() < 1e-3

@@ -187,6 +187,13 @@ def test_full_session_in_the_browser(chromium, server, tmp_path):
         assert page.locator("#viewer-legend").is_visible()
         vpanel.locator(".finger").click()  # off
         shot("05-validate")
+        # The trained model's coverage map on the skin, with its colour scale and unit.
+        vpanel.locator(".coverage").click()
+        vpanel.locator(".coverage-legend").get_by_text("expected error (mm)").wait_for()
+        assert page.evaluate("window.skinloc.viewer.groups.coverage.children.length") > 100
+        assert page.evaluate("window.skinloc.viewer.groups.coverage.visible")
+        vpanel.locator(".coverage").click()  # off
+        assert not page.evaluate("window.skinloc.viewer.groups.coverage.visible")
 
         # Live: press on the skin with the mouse, see the predicted point and its trail.
         page.click("#nav button[data-page=live]")

@@ -118,3 +118,17 @@ def test_given_targets_are_used(tmp_path, cone):
 def test_bad_config(field, value):
     with pytest.raises(ValueError, match=field if field != "mode" else "grid"):
         SessionConfig(**{field: value})
+
+
+def test_active_session_chooses_after_touches_and_repeats_recorded_targets(cone, tmp_path):
+    """An incremental (header-only) active session still chooses from its touches."""
+    from skinloc.active import N_START
+
+    cfg = SessionConfig(**SMALL, mode="active", n_repeats=2)
+    rec = simulate_session(SimulatedSkin(cone, random_state=0), cone, tmp_path / "s.h5", cfg)
+    assert rec.n_point_logs == 8 and rec.meta["sampling_mode"] == "active"
+    np.testing.assert_allclose(rec.targets[:N_START], rec.planned_targets[:N_START])
+    chosen = rec.targets[N_START:6]
+    assert np.linalg.norm(chosen - rec.planned_targets[N_START:6], axis=1).min() > 1e-6
+    # The repeats ask again for recorded targets (the first and the last of the six).
+    np.testing.assert_allclose(rec.targets[6:], rec.targets[[0, 5]])

@@ -226,3 +226,73 @@ def test_virtual_skin_command_prints_the_port_first(tmp_path):
     assert proc.returncode == 0, err
     assert "frames sent intact" in err and truth.exists()
     assert not os.path.exists(port)
+
+
+def _active_args(out, *extra):
+    return [
+        "collect",
+        "--mode",
+        "active",
+        "--points",
+        "6",
+        "--samples",
+        "5",
+        "--baseline-frames",
+        "10",
+        "--touch-timeout",
+        "20",
+        "--out",
+        out,
+        *extra,
+    ]
+
+
+def test_collect_active_sim_chooses_resumes_and_repeats(tmp_path):
+    """Active targets: first few even, then chosen from the touches; same seed, same targets."""
+    from skinloc.active import N_START
+    from skinloc.calibrate import CalibrationSession
+    from skinloc.sources.sim import SimulatedSkin
+
+    out, again = tmp_path / "a.h5", tmp_path / "b.h5"
+    res = run(*_active_args(out, "--source", "sim", "--seed", "3", "--max-touches", "5"))
+    assert res.exit_code == 0, res.output
+    rec = read_recording(out)
+    assert rec.n_point_logs == 5 and rec.meta["sampling_mode"] == "active"
+    np.testing.assert_allclose(rec.targets[:N_START], rec.planned_targets[:N_START])
+    # The fifth was chosen after the touches, not taken from the plan.
+    assert np.linalg.norm(rec.targets[N_START] - rec.planned_targets[N_START]) > 1e-6
+    # The resumed session asks for what the recorded touches call for.
+    with SimulatedSkin(n_tx=8, n_rx=8, random_state=3, mesh=rec.mesh) as skin:
+        expected = CalibrationSession.resume(skin, out).target_for(5)
+    res = run(*_active_args(out, "--source", "sim", "--seed", "3"))
+    assert res.exit_code == 0, res.output
+    assert "Resuming" in res.output and "6/6" in res.output
+    rec = read_recording(out)
+    np.testing.assert_allclose(rec.targets[5], expected)
+    assert len(np.unique(np.round(rec.targets, 6), axis=0)) == 6  # no target asked twice
+    res = run(*_active_args(again, "--source", "sim", "--seed", "3", "--max-touches", "5"))
+    assert res.exit_code == 0, res.output
+    np.testing.assert_allclose(read_recording(again).targets, rec.targets[:5])
+
+
+def test_collect_active_rejects_a_bad_mode(tmp_path):
+    from skinloc.calibrate import SessionConfig
+
+    res = run("collect", "--source", "sim", "--mode", "smart", "--out", tmp_path / "x.h5")
+    assert res.exit_code != 0 and "Traceback" not in res.output
+    assert "active" in res.output  # the valid choices are named
+    assert not (tmp_path / "x.h5").exists()
+    with pytest.raises(ValueError, match="active"):
+        SessionConfig(mode="smart")
+
+
+@posix_only
+def test_collect_active_on_virtual_skin(tmp_path):
+    """Active mode drives a virtual skin's scripted finger to each chosen target."""
+    out = tmp_path / "cal.h5"
+    with VirtualSkin(fmt="binary", rate_hz=200) as dev:
+        res = run(*_active_args(out, "--port", dev.path, "--scripted-finger"))
+        assert res.exit_code == 0, res.output
+    rec = read_recording(out)
+    assert rec.n_point_logs == 6 and rec.frames.shape == (6, 5, 64)
+    assert np.linalg.norm(rec.targets[-1] - rec.planned_targets[-1]) > 1e-6

@@ -31,7 +31,13 @@ from skinloc.sources.base import FrameSource
 
 log = logging.getLogger(__name__)
 
+#: Sampling modes of a session: the planned ones and ``active`` (chosen touch by touch).
+SESSION_MODES = (*(m.value for m in SamplingMode), "active")
+#: Candidate targets an active session chooses from, per point log asked for (at least 64).
+ACTIVE_POOL_PER_POINT = 3
+
 __all__ = [
+    "SESSION_MODES",
     "CalibrationSession",
     "Prober",
     "ScriptedFinger",
@@ -50,7 +56,9 @@ class SessionConfig:
     n_points : int
         Point logs to record.
     mode : str
-        Target sampling: ``even``, ``random`` or ``edge``.
+        Target sampling: ``even``, ``random``, ``edge``, or ``active`` (the first
+        ``skinloc.active.N_START`` targets are spread evenly, then each next one is chosen
+        after the touch before it, from the touches recorded so far; see ``skinloc.active``).
     samples_per_touch : int
         Frames captured at each target (the paper: 50).
     n_baseline_frames : int
@@ -85,7 +93,10 @@ class SessionConfig:
     n_repeats: int = 0
 
     def __post_init__(self) -> None:
-        self.mode = SamplingMode(self.mode).value
+        if self.mode not in SESSION_MODES:
+            raise ValueError(
+                f"unknown sampling mode {self.mode!r}; choose one of: {', '.join(SESSION_MODES)}"
+            )
         if not 0 <= self.n_repeats <= self.n_points:
             raise ValueError(
                 f"SessionConfig.n_repeats must be in [0, n_points], got {self.n_repeats}"
@@ -207,14 +218,23 @@ class CalibrationSession:
         self.mesh = mesh
         self.path = Path(path)
         self.config = config or SessionConfig()
+        self._pool: Points | None = None
+        # Targets and mean images of the touches made, for the active choice (kept here
+        # because an incremental session's recording holds its header only).
+        self._done_targets: list[np.ndarray] = []
+        self._done_images: list[np.ndarray] = []
         if targets is None:
+            # An active session plans an even spread; all but its first targets are replaced
+            # as the touches come in (``target_for``).
+            plan_mode = "even" if self.config.mode == "active" else self.config.mode
             targets = sample_targets(
-                mesh, self.config.n_points, self.config.mode, random_state=self.config.random_state
+                mesh, self.config.n_points, plan_mode, random_state=self.config.random_state
             )
             if self.config.n_repeats:
                 again = np.linspace(0, len(targets) - 1, self.config.n_repeats).round().astype(int)
                 targets = np.concatenate([targets, targets[again]])
-        self.targets = np.asarray(targets, dtype=np.float64).reshape(-1, 3)
+        # A copy: an active session replaces its targets as it goes.
+        self.targets = np.array(targets, dtype=np.float64).reshape(-1, 3)
         self.source_name = source_name or source.name
         self.recording: Recording | None = None
         self.detector: TouchDetector | None = None
@@ -237,6 +257,12 @@ class CalibrationSession:
         )
         session = cls(source, rec.mesh, path, cfg, targets=rec.planned_targets)
         session.recording = rec
+        # What was touched is what counts: an active session recomputes its next target
+        # from these, whatever the plan in the file says.
+        if cfg.mode == "active":
+            n = min(rec.n_point_logs, len(session.targets))
+            session.targets[:n] = rec.targets[:n]
+
         session.detector = TouchDetector(
             rec.baseline, rec.noise, cfg.threshold_sigma, cfg.min_active
         )
@@ -270,7 +296,7 @@ class CalibrationSession:
             baseline_frames=frames,
             targets=np.zeros((0, 3)),
             frames=np.zeros((0, cfg.samples_per_touch, n), dtype=np.float32),
-            planned_targets=self.targets,
+            planned_targets=self.targets.copy(),  # an active session changes its own
             meta={
                 "sampling_mode": cfg.mode,
                 "samples_per_touch": cfg.samples_per_touch,
@@ -307,14 +333,75 @@ class CalibrationSession:
                     f"{self.config.touch_timeout_s:g} s"
                 )
 
+    def target_for(self, index: int) -> np.ndarray:
+        """The target of point log ``index``, ``(3,)`` m (stored in ``self.targets``).
+
+        Planned, except in an ``active`` session: after its first ``N_START`` (evenly spread)
+        targets, each next one is the pool target that lowers the expected localisation
+        error most given the touches recorded so far (``skinloc.active.next_targets``; only
+        their images are used), and the repeats at the end repeat recorded targets. The
+        choice depends only on what is recorded, so a resumed session asks the same.
+        """
+        cfg = self.config
+        if cfg.mode != "active":
+            return self.targets[index]
+        from skinloc.active import N_START, next_targets
+
+        n_points = cfg.n_points
+        done, images = self.touched()
+        if index < min(N_START, n_points) or index > len(done):
+            return self.targets[index]
+        if index >= n_points:
+            again = np.linspace(0, n_points - 1, cfg.n_repeats).round().astype(int)
+            target = done[again[index - n_points]]
+        else:
+            pool = self.active_pool()
+            # A target already touched is not asked again (the repeats come at the end).
+            dist = np.linalg.norm(pool[:, None, :] - done[None, :, :], axis=2).min(axis=1)
+            left = pool[dist > 1e-6]
+            assert self.recording is not None
+            cands = self.recording.surface_points
+            if cands is None:
+                cands = surface_points(self.mesh)
+            target = left[next_targets(done, images, left, cands)]
+        self.targets[index] = target
+        return self.targets[index]
+
+    def touched(self) -> tuple[Points, np.ndarray]:
+        """Targets ``(n, 3)`` m and mean baseline-subtracted images ``(n, k)`` of the touches.
+
+        From the recording when it holds them (whoever appended or removed point logs, e.g.
+        the app), else (an incremental session) from those this session recorded.
+        """
+        rec = self.recording
+        if self._appender is None and rec is not None:
+            return np.asarray(rec.targets, dtype=np.float64), rec.touch_means.astype(np.float64)
+        k = self.source.n_sensors if rec is None else rec.n_sensors
+        if not self._done_targets:
+            return np.zeros((0, 3)), np.zeros((0, k))
+        return np.asarray(self._done_targets), np.asarray(self._done_images)
+
+    def active_pool(self) -> Points:
+        """Candidate targets of an active session, ``(c, 3)`` m, evenly spread and seeded."""
+        if self._pool is None:
+            n = max(ACTIVE_POOL_PER_POINT * self.config.n_points, 64)
+            self._pool = sample_targets(
+                self.mesh, n, "even", random_state=self.config.random_state + 1
+            )
+        return self._pool
+
     def record_point(self, index: int, prober: Prober) -> None:
         """Prompt target ``index``, wait for a steady touch, capture and store its frames."""
         if self.recording is None:
             raise RecordingError("capture the baseline before recording point logs")
-        target = self.targets[index]
+        target = self.target_for(index)
         prober.prompt(index, target)
         self._wait(touched=True, n_consecutive=self.config.settle_frames)
         frames, times = self.source.read_many(self.config.samples_per_touch)
+        self._done_targets.append(np.array(target, dtype=np.float64))
+        # Computed as ``Recording.touch_means`` does, so a resumed session sees the same.
+        delta = np.asarray(frames, dtype=np.float32) - self.recording.baseline.astype(np.float32)
+        self._done_images.append(delta[None].mean(axis=1)[0].astype(np.float64))
         if self._appender is not None:
             self._appender.append(target, frames, times)
         else:

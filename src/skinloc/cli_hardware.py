@@ -44,6 +44,7 @@ class ModeChoice(StrEnum):
     even = "even"
     random = "random"
     edge = "edge"
+    active = "active"
 
 
 class UnitsChoice(StrEnum):
@@ -420,7 +421,13 @@ def register(app: typer.Typer) -> None:
         ] = None,
         units: Annotated[UnitsChoice, typer.Option(help="Units of --mesh.")] = UnitsChoice.auto,
         points: Annotated[int, typer.Option(min=1, help="Point logs to record.")] = 80,
-        mode: Annotated[ModeChoice, typer.Option(help="Target sampling.")] = ModeChoice.even,
+        mode: Annotated[
+            ModeChoice,
+            typer.Option(
+                help="Target sampling; 'active' chooses each next target from the touches "
+                "recorded so far (after a few evenly spread ones)."
+            ),
+        ] = ModeChoice.even,
         samples: Annotated[int, typer.Option(min=1, help="Frames per touch.")] = 50,
         baseline_frames: Annotated[int, typer.Option(min=2, help="No-touch frames first.")] = 50,
         touch_timeout: Annotated[

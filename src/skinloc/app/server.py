@@ -293,6 +293,10 @@ def create_app(
     def session() -> Response:
         return _json(workspace.session_detail())
 
+    @app.get("/api/session/coverage")
+    def session_coverage() -> Response:
+        return _json(workspace.coverage())
+
     @app.get("/api/session/mesh")
     def session_mesh() -> Response:
         return _json(workspace.session_mesh())

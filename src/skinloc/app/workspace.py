@@ -315,10 +315,12 @@ class Workspace:
             targets = self._parse_targets(targets_csv or "", mesh)
             cfg.n_points = len(targets)
         else:
-            SamplingMode(mode)
             from skinloc.geometry import sample_targets
 
-            targets = sample_targets(mesh, cfg.n_points, cfg.mode, random_state=cfg.random_state)
+            # An active session starts from an even plan and replaces all but its first
+            # targets, one after each touch (``_choose_next``).
+            plan = "even" if cfg.mode == "active" else SamplingMode(cfg.mode).value
+            targets = sample_targets(mesh, cfg.n_points, plan, random_state=cfg.random_state)
         info = {
             "config": asdict(cfg),
             "sampling": mode,
@@ -454,6 +456,37 @@ class Workspace:
             raise ValueError("no session open: open one on the Sessions page or start a new one")
         return self.active
 
+    def coverage(self, n_points: int = 300) -> dict[str, Any]:
+        """The trained model's expected localisation error over the skin, for the 3D view.
+
+        ``points`` ``(E, 3)`` m and ``expected_mm`` ``(E,)`` mm (``skinloc.coverage``), plus
+        the summary of ``skinloc coverage`` and the colour scale's range, mm. Computed once
+        per model (about a second), outside the lock.
+        """
+        from skinloc.coverage import coverage_map
+
+        with self._lock:
+            a = self._need_session()
+            model = a.model
+            cached = getattr(self, "_coverage_cache", None)
+        if model is None:
+            raise ValueError("train a model first: the coverage map comes from the trained model")
+        if getattr(model, "map_", None) is None:
+            raise ValueError("the coverage map needs a response-map model (the default)")
+        if cached is not None and cached[0] is model:
+            return cached[1]
+        temperature = float(getattr(model, "meta_", {}).get("coverage_temperature", 1.0))
+        cov = coverage_map(model.map_, None, n_points=n_points, temperature=temperature)
+        out = {k: v for k, v in cov.as_dict().items() if k != "blind_spots_m"}
+        out.update(
+            points=np.round(cov.points_m, 6),
+            expected_mm=np.round(cov.expected_mm, 2),
+            unit="mm",
+            scale_mm=[0.0, 20.0],  # the colours of the validation errors: green, yellow, red
+        )
+        self._coverage_cache = (model, out)
+        return out
+
     def session_mesh(self) -> dict[str, Any] | None:
         """The open session's skin mesh (m), for the 3D view."""
         with self._lock:
@@ -518,7 +551,8 @@ class Workspace:
         with self._lock:
             a = self._need_session()
             device = self._need_device()
-            if a.cal is None and a.folder.calibration.is_file():
+            resumed = a.cal is None and a.folder.calibration.is_file()
+            if resumed:
                 a.cal = CalibrationSession.resume(device.source, a.folder.calibration)
             if a.cal is not None and a.cal.recording is None:
                 # The baseline capture did not finish: take it again.
@@ -530,6 +564,8 @@ class Workspace:
                         f"the session has {a.cal.recording.n_sensors} sensors but the skin "
                         f"has {device.source.n_sensors}"
                     )
+                if resumed:
+                    self._choose_next(a.cal)
                 self._begin(Mode.CALIBRATE, a.cal)
                 return
             cfg_fields = SessionConfig.__dataclass_fields__
@@ -936,11 +972,26 @@ class Workspace:
         self.hub.publish({"type": "touch", "recording": what, "index": index, "flags": flags})
         if self.mode is Mode.CALIBRATE:
             self._update_session_snr()
+            self._choose_next(sess)
         if sess.finished:
             self._finish(self.mode)
         elif "drifted" not in self.message:
             self.message = f"touch target {sess.n_done + 1} of {len(sess.targets)}"
         self._publish_state()
+
+    def _choose_next(self, sess: CalibrationSession) -> None:
+        """In an ``active`` session, choose the next target from the touches recorded so far.
+
+        Runs once after each stored touch and on resuming (not after an undo, a retake or a
+        skip: the target they put next stays). The plan in the recording shows the choice.
+        Takes about a second (a map refit), under the lock: the next touch waits for it anyway.
+        """
+        rec = sess.recording
+        if sess.config.mode != "active" or sess.finished or rec is None:
+            return
+        sess.target_for(sess.n_done)
+        rec.planned_targets = sess.targets
+        write_recording(rec, sess.path)
 
     def _refresh_flags(self, rec: Recording) -> None:
         meta = _app_meta(rec)

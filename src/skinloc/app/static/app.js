@@ -123,7 +123,10 @@ const handlers = {
     renderSensors();
   },
   touch() { refreshSession(); },
-  train(msg) { renderTraining(msg); },
+  train(msg) {
+    renderTraining(msg);
+    if (app.coverageOn && msg && !msg.running && msg.result) toggleCoverage(true); // a new model
+  },
   live(msg) {
     // Every point joins the trail; the page is drawn once per display frame.
     app.lastLiveMsg = msg;
@@ -441,7 +444,9 @@ function guidedPanel(kind) {
     </div>
     <label class="check"><input type="checkbox" class="finger"> scripted finger touches each target</label>
     <div class="target-info hint"></div>
-    ${isCal ? `<div class="hint sheets">Printable targets: <a class="svg" target="_blank">SVG</a> · <a class="pdf" target="_blank">PDF</a></div>` : `<div class="val-result"></div>`}
+    ${isCal ? `<div class="hint sheets">Printable targets: <a class="svg" target="_blank">SVG</a> · <a class="pdf" target="_blank">PDF</a></div>` : `<div class="val-result"></div>
+    <label class="check"><input type="checkbox" class="coverage"> coverage map: the model's expected error on the skin</label>
+    <div class="coverage-legend hint hidden"></div>`}
     <canvas class="heat guided-heat"></canvas>
     <div class="touches"><table>
       <thead><tr><th>#</th><th>Position (mm)</th>${isCal ? "" : "<th>Error (mm)</th>"}<th>Flags</th><th></th></tr></thead>
@@ -454,6 +459,7 @@ function guidedPanel(kind) {
   $(".undo", el).addEventListener("click", () => api("/api/capture/undo"));
   $(".skip", el).addEventListener("click", () => api("/api/capture/skip"));
   $(".finger", el).addEventListener("change", (ev) => api("/api/finger", { on: ev.target.checked }));
+  if (!isCal) $(".coverage", el).addEventListener("change", (ev) => toggleCoverage(ev.target.checked));
   // A clicked button or box must not keep the keyboard: Space, Z and S drive the capture.
   el.addEventListener("click", (ev) => {
     if (ev.target.matches("button, input[type=checkbox]")) ev.target.blur();
@@ -489,6 +495,26 @@ async function offerSessions(el) {
     `<option value="${esc(s.id)}">${esc(s.name)} (${s.n_done ?? 0} / ${s.n_planned ?? "?"})</option>`).join("")
     || `<option value="">no session yet: create one on the Sessions page</option>`;
   $(".reopen-btn", el).disabled = !list.length;
+}
+
+// The coverage map (validate page): expected error of the trained model, GET /api/session/coverage.
+async function toggleCoverage(on) {
+  const legend = $(".coverage-legend", guidedPanel("validate"));
+  app.coverageOn = on;
+  app.viewer.clear("coverage");
+  legend.classList.toggle("hidden", !on);
+  if (!on) { renderSession(); return; }
+  legend.textContent = "computing the coverage map...";
+  const r = await fetch("/api/session/coverage");
+  const c = await r.json();
+  if (!r.ok) { legend.textContent = c.detail || "no coverage map"; return; }
+  app.viewer.setCoverage(c.points, c.expected_mm);
+  const [lo, hi] = c.scale_mm;
+  const e = c.expected_error_mm;
+  legend.innerHTML = `<div style="height:10px;border-radius:3px;background:linear-gradient(to right,hsl(119,80%,45%),hsl(60,80%,45%),hsl(0,80%,45%))"></div>
+    <div style="display:flex;justify-content:space-between"><span>${lo} mm</span><span>expected error (${c.unit})</span><span>${hi} ${c.unit} or more</span></div>
+    mean ${e.mean.toFixed(1)} mm, p90 ${e.p90.toFixed(1)} mm; ${(100 * c.blind_fraction).toFixed(0)} % above ${c.blind_threshold_mm} mm (blind spots).`;
+  renderSession();
 }
 
 function renderGuided(kind) {
@@ -655,7 +681,7 @@ function renderSession() {
   const page = app.page;
   if (!s) {
     // Nothing open (or the app restarted): no old progress, no old dots.
-    for (const g of ["planned", "done", "errors", "target"]) v.clear(g);
+    for (const g of ["planned", "done", "errors", "target", "coverage"]) v.clear(g);
     app.meshFor = null;
     app.targetKey = "";
     if (page === "calibrate") renderGuided("calibrate");
@@ -669,7 +695,7 @@ function renderSession() {
     const pred = val.predicted || [];
     v.setErrors(val.done.slice(0, pred.length), pred, val.errors_mm || []);
     v.setPlanned(val.planned.slice(val.done.length), val.done.length);
-    v.show(["errors", "planned", "target"]);
+    v.show(["errors", "planned", "target", ...(app.coverageOn ? ["coverage"] : [])]);
   } else if (page === "live") {
     v.show(["live"]);
   } else if (s.calibration.error) {

@@ -82,7 +82,7 @@ export class Viewer {
     sun.position.set(200, -300, 400);
     this.scene.add(sun);
     this.groups = {};
-    for (const name of ["skin", "axes", "planned", "done", "target", "live", "errors"]) {
+    for (const name of ["skin", "axes", "planned", "done", "target", "live", "errors", "coverage"]) {
       this.groups[name] = new THREE.Group();
       this.scene.add(this.groups[name]);
     }
@@ -357,6 +357,11 @@ export class Viewer {
       this.liveDot.visible = this.liveHalo.visible = false;
       this._drawTrail();
     }
+  }
+
+  setCoverage(points, errorsMm) {
+    // The expected error of a touch at each point (the colours of errorColor, mm).
+    this._dots("coverage", points, errorsMm.map(errorColor), 1.2, 0.9);
   }
 
   setErrors(targets, predicted, errors) {

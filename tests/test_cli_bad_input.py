@@ -249,7 +249,7 @@ def test_interrupted_simulation_keeps_the_old_file_and_the_complete_part(tmp_pat
 
 
 def test_signal_in_a_weakref_callback_is_raised_at_the_next_step():
-    from skinloc import cli
+    from skinloc import cli_common as cli
 
     class Code:
         co_filename = "/usr/lib/python3.11/weakref.py"
@@ -320,7 +320,7 @@ def test_one_signal_stops_a_long_job_cleanly(tmp_path, argv, sig, code, says):
 # ------------------------------------------------------------------------ off a terminal
 def test_progress_off_a_terminal_prints_plain_lines(monkeypatch, capsys):
     """A long job piped to a file is not silent: a line after 2 s, then every 10 s."""
-    from skinloc import cli
+    from skinloc import cli_common as cli
 
     clock = iter([0.0, 1.0, 2.5, 5.0, 13.0, 14.0])
     monkeypatch.setattr(time, "monotonic", lambda: next(clock))

@@ -201,3 +201,19 @@ def test_one_model_predicts_from_several_threads_at_once():
         got = list(pool.map(model.predict, rows + [X, X]))
     np.testing.assert_array_equal(np.concatenate(got[: len(rows)]), want[:120])
     np.testing.assert_array_equal(got[-1], want)
+
+
+def test_a_spec_with_a_mesh_but_no_snap_points_samples_them_in_the_engine():
+    # the sampling moved from skinloc.surface (which no longer imports skinloc.geometry) to here
+    from dataclasses import replace
+
+    from skinloc.surface import Surface
+
+    spec = ModelSpec.load(model_path("mlp"))
+    assert spec.constraint == "snap" and spec.vertices is not None
+    bare = replace(spec, surface_points=None)
+    X = calibration().deltas.reshape(-1, 64)[:20].astype(np.float32)
+    points = bare.engine().predict(X).points
+    np.testing.assert_allclose(points, spec.engine().predict(X).points, atol=1e-6)
+    with pytest.raises(ValueError, match="needs its surface points"):
+        Surface("snap", None, spec.vertices, spec.faces)

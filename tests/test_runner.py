@@ -10,8 +10,8 @@ import pytest
 
 from skinloc.errors import SkinlocError
 from skinloc.multiskin import load_skins, runner_from_config
-from skinloc.pipeline import Pipeline, PipelineConfig
-from skinloc.runner import Runner, SkinSpec
+from skinloc.pipeline import PipelineConfig
+from skinloc.runner import Pipeline, Runner, SkinSpec
 from skinloc.sinks import ListSink
 from tests._live import model_path, stream_recording
 

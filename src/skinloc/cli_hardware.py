@@ -189,7 +189,13 @@ class TerminalProber:
 
 def register(app: typer.Typer) -> None:
     """Add the hardware commands to the main ``skinloc`` app."""
-    from skinloc.cli import check_output, console, err_console, friendly_errors, progress_steps
+    from skinloc.cli_common import (
+        check_output,
+        console,
+        err_console,
+        friendly_errors,
+        progress_steps,
+    )
 
     # -------------------------------------------------------------------------------- ports
     @app.command()

@@ -74,7 +74,7 @@ def _sink_files(spec: str) -> list[Path]:
 
 def register(app: typer.Typer) -> None:
     """Add ``run`` and ``export`` to the main ``skinloc`` app."""
-    from skinloc.cli import check_output, err_console, friendly_errors
+    from skinloc.cli_common import check_output, err_console, friendly_errors
 
     @app.command()
     @friendly_errors
@@ -283,7 +283,7 @@ def register(app: typer.Typer) -> None:
 def bench_online(out: Path, as_json: bool) -> None:
     """``skinloc bench --online``: the live path's figures, written to ``out/online.json``."""
     from skinloc.bench_online import online_bench
-    from skinloc.cli import console, progress_steps
+    from skinloc.cli_common import console, progress_steps
 
     out.mkdir(parents=True, exist_ok=True)
     with progress_steps() as step:

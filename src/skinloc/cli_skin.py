@@ -110,7 +110,7 @@ def sensors_result(kind: str, obj: Any, n_boot: int, seed: int) -> tuple[dict, A
 
 def register(app: typer.Typer) -> None:
     """Add ``sensors`` and ``coverage`` to the main ``skinloc`` app."""
-    from skinloc.cli import console, friendly_errors
+    from skinloc.cli_common import console, friendly_errors
 
     @app.command()
     @friendly_errors

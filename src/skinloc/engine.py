@@ -25,12 +25,14 @@ from typing import Any, ClassVar
 import numpy as np
 
 from skinloc._jit import jit
+from skinloc._lazy import resolve
 from skinloc._typing import Frames, Points
 from skinloc.surface import CONSTRAINTS, Surface
 
 __all__ = ["Engine", "ModelSpec", "Prediction", "load_engine"]
 
 _NORMS = {"none": 0, "l1": 1, "l2": 2}
+_MODEL_CLASS = "skinloc.model:ContactLocalizer"
 
 
 @dataclass(frozen=True)
@@ -103,9 +105,8 @@ class ModelSpec:
     @classmethod
     def load(cls, path: str | Path) -> ModelSpec:
         """The spec of a saved model file."""
-        from skinloc.model import ContactLocalizer
-
-        return ContactLocalizer.load(path).spec()
+        # the file format belongs to the model class, which builds on this module: named only
+        return resolve(_MODEL_CLASS).load(path).spec()
 
 
 class Engine:
@@ -129,12 +130,14 @@ class Engine:
     def __init__(self, spec: ModelSpec, constraint: str | None = None) -> None:
         self.spec = spec
         self.n_features = int(spec.n_features)
-        self.surface = Surface(
-            spec.constraint if constraint is None else constraint,
-            spec.surface_points,
-            spec.vertices,
-            spec.faces,
-        )
+        mode = spec.constraint if constraint is None else constraint
+        points = spec.surface_points
+        if mode == "snap" and points is None and spec.vertices is not None:
+            # a mesh without snap points: sample them the way a fitted model does
+            from skinloc.geometry import mesh_from_arrays, surface_points
+
+            points = surface_points(mesh_from_arrays(spec.vertices, spec.faces))
+        self.surface = Surface(mode, points, spec.vertices, spec.faces)
         self.constraint = self.surface.constraint
         self._x = np.zeros(self.n_features, dtype=np.float32)
         self._out = np.zeros(7, dtype=np.float64)

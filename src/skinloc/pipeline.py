@@ -9,9 +9,10 @@ Per skin, ``SkinCore`` runs, for every frame::
                -> ``Contact``
 
 ``SkinCore`` is pure (no I/O, no threads, no clock of its own) and takes either decoded frames
-(``process``) or wire bytes (``feed``). ``Pipeline`` (one skin) and ``Runner`` (many skins, one
-process; ``skinloc.multiskin`` reads its configuration file) connect cores to frame sources and
-to sinks (``skinloc.sinks``).
+(``process``) or wire bytes (``feed``). ``skinloc.runner.Pipeline`` (one skin) and
+``skinloc.runner.Runner`` (many skins, one process; ``skinloc.multiskin`` reads its
+configuration file) connect cores to frame sources and to sinks (``skinloc.sinks``).
+``Contact`` lives in ``skinloc.contact`` (the sinks import it from there) and is re-exported here.
 
 Units: metres in the mesh frame, times in seconds (``time.monotonic`` for arrival and output
 times), latencies in microseconds, signals in raw counts or in noise standard deviations (z).
@@ -19,18 +20,18 @@ times), latencies in microseconds, signals in raw counts or in noise standard de
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass, fields
 from enum import StrEnum
 from typing import Any
 
 import numpy as np
 
 from skinloc._jit import jit
+from skinloc.contact import Contact
 from skinloc.engine import Engine, load_engine
 
 log = logging.getLogger(__name__)
@@ -56,64 +57,6 @@ class TouchState(StrEnum):
     def _missing_(cls, value: object) -> TouchState:
         valid = ", ".join(m.value for m in cls)
         raise ValueError(f"unknown touch state {value!r}; choose one of: {valid}")
-
-
-@dataclass(slots=True)
-class Contact:
-    """One output of the pipeline.
-
-    Attributes
-    ----------
-    skin : str
-        Name of the skin (pipeline) it comes from.
-    timestamp_s : float
-        The source frame's timestamp, s (serial ports: host ``time.monotonic()`` at arrival;
-        the simulated skin: its clock; recordings: their recorded times).
-    index : int
-        The source frame's counter.
-    state : str
-        ``start``, ``move``, ``end`` (or ``idle`` with ``emit_idle``).
-    position_m : tuple of 3 float
-        Filtered contact point on the skin, m, mesh frame (nan while idle).
-    raw_m : tuple of 3 float
-        Network output for this frame before constraint and filtering, m.
-    confidence : float
-        In [0, 1]: signal strength above the release threshold times agreement of the ensemble.
-    signal_z : float
-        Peak baseline-subtracted signal in units of each sensor's noise.
-    uncertainty_mm : float
-        Spread of the ensemble members, mm (nan for a single network).
-    latency_us : float
-        Processing latency, bytes (or frame) in to contact out, microseconds.
-    touch_id : int
-        Number of the touch since start (0 before the first).
-    """
-
-    skin: str
-    timestamp_s: float
-    index: int
-    state: str
-    position_m: tuple[float, float, float]
-    raw_m: tuple[float, float, float]
-    confidence: float
-    signal_z: float
-    uncertainty_mm: float
-    latency_us: float
-    touch_id: int
-
-    def to_dict(self) -> dict[str, Any]:
-        """A JSON-ready dict (nan becomes None)."""
-        d = asdict(self)
-        for k in ("position_m", "raw_m"):
-            d[k] = [None if math.isnan(v) else v for v in d[k]]
-        for k in ("confidence", "signal_z", "uncertainty_mm"):
-            if math.isnan(d[k]):
-                d[k] = None
-        return d
-
-    def to_json(self) -> str:
-        """One line of JSON (the wire format of the JSON-lines, WebSocket and UDP sinks)."""
-        return json.dumps(self.to_dict(), separators=(",", ":"))
 
 
 @dataclass
@@ -653,12 +596,3 @@ class SkinCore:
 
 
 ContactCallback = Callable[[Contact], None]
-
-
-def __getattr__(name: str) -> Any:
-    # The engine that connects cores to sources and sinks lives in skinloc.runner.
-    if name in ("Pipeline", "Runner", "SkinSpec"):
-        from skinloc import runner
-
-        return getattr(runner, name)
-    raise AttributeError(f"module 'skinloc.pipeline' has no attribute {name!r}")

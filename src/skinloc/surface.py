@@ -302,7 +302,8 @@ class Surface:
     constraint : {"snap", "project", "none"}
         How points are put on the skin.
     surface_points : (P, 3) float, optional
-        The discretised surface for ``snap``, m; by default sampled from the mesh.
+        The discretised surface for ``snap``, m (required for ``snap`` when a mesh is given;
+        ``skinloc.geometry.surface_points`` samples one).
     vertices : (V, 3) float, optional
         Skin mesh vertices, m (for ``project``, or to sample snap points).
     faces : (F, 3) int, optional
@@ -332,10 +333,11 @@ class Surface:
         self.tris = np.zeros((1, 3, 3))
         if constraint == "snap":
             if surface_points is None:
-                from skinloc.geometry import mesh_from_arrays
-                from skinloc.geometry import surface_points as make_points
-
-                surface_points = make_points(mesh_from_arrays(vertices, faces))
+                # sampling needs the mesh library, which sits above this module (skinloc.geometry)
+                raise ValueError(
+                    "a snap constraint needs its surface points; "
+                    "sample them with skinloc.geometry.surface_points"
+                )
             self.index = SnapIndex(surface_points)
         elif constraint == "project":
             v = np.asarray(vertices, dtype=np.float64)

@@ -46,7 +46,7 @@ def _bind(host: str, port: int) -> socket.socket:
 
 def register(app: typer.Typer) -> None:
     """Add ``skinloc app`` to the main command line."""
-    from skinloc.cli import console, err_console, friendly_errors
+    from skinloc.cli_common import console, err_console, friendly_errors
 
     @app.command("app")
     @friendly_errors

@@ -11,8 +11,10 @@ from urllib.parse import parse_qs, urlsplit
 
 import numpy as np
 
+from skinloc._lazy import resolve
+
 if TYPE_CHECKING:
-    from skinloc.pipeline import Contact
+    from skinloc.contact import Contact
 
 log = logging.getLogger(__name__)
 
@@ -139,6 +141,25 @@ def _host_port(spec: str, default_port: int) -> tuple[str, int]:
     return host, default_port if port is None else port
 
 
+# Each backend by name, imported when a spec asks for it: this module never imports a backend
+# (they import it), and optional dependencies load only when used.
+_BACKENDS: dict[str, str] = {
+    "jsonl": "skinloc.sinks.jsonl:JsonLinesSink",
+    "ws": "skinloc.sinks.websocket:WebSocketSink",
+    "udp": "skinloc.sinks.udp:UdpSink",
+    "foxglove": "skinloc.sinks.foxglove:FoxgloveSink",
+    "lsl": "skinloc.sinks.lsl:LslSink",
+    "ros2": "skinloc.sinks.ros2:Ros2Sink",
+    "mcap-ros2": "skinloc.sinks.ros2_bag:Ros2BagSink",
+}
+_WS_DEFAULT_PORT = "skinloc.sinks.websocket:DEFAULT_PORT"
+
+
+def _backend(name: str) -> Callable[..., Sink]:
+    """The sink class registered as ``name``, imported now."""
+    return resolve(_BACKENDS[name])
+
+
 def make_sink(spec: str | Sink) -> Sink:
     """Build a sink from a spec string (a ``Sink`` is returned as is).
 
@@ -160,43 +181,27 @@ def make_sink(spec: str | Sink) -> Sink:
     scheme, _, rest = text.partition(":")
     scheme = scheme.lower()
     if scheme == "jsonl":
-        from skinloc.sinks.jsonl import JsonLinesSink
-
-        return JsonLinesSink(rest or None)
+        return _backend("jsonl")(rest or None)
     if scheme in ("ws", "websocket"):
-        from skinloc.sinks.websocket import DEFAULT_PORT, WebSocketSink
-
-        return WebSocketSink(*_host_port(text, DEFAULT_PORT))
+        return _backend("ws")(*_host_port(text, resolve(_WS_DEFAULT_PORT)))
     if scheme == "udp":
-        from skinloc.sinks.udp import UdpSink
-
-        return UdpSink(*_host_port(text, 9870))
+        return _backend("udp")(*_host_port(text, 9870))
     if scheme == "foxglove":
-        from skinloc.sinks.foxglove import FoxgloveSink
-
         host, port = _host_port(text, 8766)
         query = parse_qs(urlsplit(text).query)
         mcap = query.get("mcap", [None])[0]
         live = query.get("live", ["1"])[0] not in ("0", "false", "no")
-        return FoxgloveSink(host=host, port=port, mcap_path=mcap, live=live)
+        return _backend("foxglove")(host=host, port=port, mcap_path=mcap, live=live)
     if scheme == "mcap":
-        from skinloc.sinks.foxglove import FoxgloveSink
-
         if not rest:
             raise ValueError("sink 'mcap:FILE' needs a file name")
-        return FoxgloveSink(mcap_path=rest, live=False)
+        return _backend("foxglove")(mcap_path=rest, live=False)
     if scheme == "lsl":
-        from skinloc.sinks.lsl import LslSink
-
-        return LslSink(rest or "skinloc")
+        return _backend("lsl")(rest or "skinloc")
     if scheme == "ros2":
-        from skinloc.sinks.ros2 import Ros2Sink
-
-        return Ros2Sink(rest or "skinloc")
+        return _backend("ros2")(rest or "skinloc")
     if scheme == "mcap-ros2":
-        from skinloc.sinks.ros2_bag import Ros2BagSink
-
         if not rest:
             raise ValueError("sink 'mcap-ros2:FILE' needs a file name")
-        return Ros2BagSink(rest)
+        return _backend("mcap-ros2")(rest)
     raise ValueError(f"unknown sink {text!r}; use one of: {'; '.join(SINK_SPECS)}")

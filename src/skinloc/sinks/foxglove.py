@@ -20,7 +20,7 @@ import numpy as np
 from skinloc.sinks.base import Sink, SkinInfo
 
 if TYPE_CHECKING:
-    from skinloc.pipeline import Contact
+    from skinloc.contact import Contact
 
 log = logging.getLogger(__name__)
 

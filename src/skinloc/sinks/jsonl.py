@@ -9,7 +9,7 @@ from typing import IO, TYPE_CHECKING
 from skinloc.sinks.base import Sink
 
 if TYPE_CHECKING:
-    from skinloc.pipeline import Contact
+    from skinloc.contact import Contact
 
 __all__ = ["JsonLinesSink"]
 

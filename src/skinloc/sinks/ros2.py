@@ -42,7 +42,7 @@ import numpy as np
 from skinloc.sinks.base import Sink, SkinInfo
 
 if TYPE_CHECKING:
-    from skinloc.pipeline import Contact
+    from skinloc.contact import Contact
 
 log = logging.getLogger(__name__)
 
@@ -92,7 +92,7 @@ def ros2_available() -> bool:
 
 def _require_msgs() -> Any:
     try:
-        from skinloc.sinks import ros2_msgs
+        import skinloc.sinks.ros2_msgs as ros2_msgs
     except ImportError:
         raise ImportError(
             "the ROS 2 sinks need the cyclonedds Python binding (ROS 2 message types and CDR): "

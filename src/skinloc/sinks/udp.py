@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 from skinloc.sinks.base import Sink
 
 if TYPE_CHECKING:
-    from skinloc.pipeline import Contact
+    from skinloc.contact import Contact
 
 log = logging.getLogger(__name__)
 

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 from skinloc.sinks.base import Sink, SkinInfo
 
 if TYPE_CHECKING:
-    from skinloc.pipeline import Contact
+    from skinloc.contact import Contact
 
 log = logging.getLogger(__name__)
 

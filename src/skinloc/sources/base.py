@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from skinloc._lazy import resolve
 from skinloc.errors import SourceAlreadyConnectedError, SourceNotConnectedError
 
 log = logging.getLogger(__name__)
@@ -121,6 +122,14 @@ class FrameSource(abc.ABC):
             self.disconnect()
 
 
+# Each kind's factory, by name: this module never imports a backend (they import it).
+_BACKENDS: dict[SourceKind, str] = {
+    SourceKind.SIM: "skinloc.sources.sim:SimulatedSkin",
+    SourceKind.SERIAL: "skinloc.sources.serial:SerialSource.from_options",
+    SourceKind.REPLAY: "skinloc.sources.replay:ReplaySource",
+}
+
+
 def make_source(kind: SourceKind | str, **config: Any) -> FrameSource:
     """Build a source by kind, importing its backend only now.
 
@@ -133,14 +142,4 @@ def make_source(kind: SourceKind | str, **config: Any) -> FrameSource:
     252
     """
     kind = SourceKind(kind)
-    if kind is SourceKind.SIM:
-        from skinloc.sources.sim import SimulatedSkin
-
-        return SimulatedSkin(**config)
-    if kind is SourceKind.SERIAL:
-        from skinloc.sources.serial import SerialSource, SerialSourceConfig
-
-        return SerialSource(SerialSourceConfig(**config))
-    from skinloc.sources.replay import ReplaySource
-
-    return ReplaySource(**config)
+    return resolve(_BACKENDS[kind])(**config)

@@ -22,6 +22,7 @@ import threading
 import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -298,6 +299,11 @@ class SerialSource(FrameSource):
         self._last_counter: int | None = None
         self._n_text = 0
         self._write_lock = threading.Lock()
+
+    @classmethod
+    def from_options(cls, **config: Any) -> SerialSource:
+        """A source from ``SerialSourceConfig``'s fields as keywords (``make_source("serial")``)."""
+        return cls(SerialSourceConfig(**config))
 
     # -- FrameSource -------------------------------------------------------------------------
     @property

@@ -1,0 +1,173 @@
+"""The package's import graph has no circle: each module depends only on modules below it.
+
+Every import counts, including those inside functions and under ``TYPE_CHECKING``: a lazy
+import hides a circle from Python but not from a reader. The one harmless circle, a package
+``__init__`` re-exporting its own children (which never import it back), is ignored.
+Registries name their backends as dotted strings (``skinloc._lazy.resolve``), so they make no
+edge here. Next step (issue 12): also assert that no module exceeds 500 lines; for now the sizes
+are only printed (``pytest -s``).
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+import skinloc
+
+ROOT = Path(skinloc.__file__).parent
+
+
+def _modules(root: Path) -> dict[str, Path]:
+    """Dotted module name -> file, for every ``.py`` under ``root`` (a package directory)."""
+    out = {}
+    for path in sorted(root.rglob("*.py")):
+        parts = (root.name, *path.relative_to(root).with_suffix("").parts)
+        out[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+    return out
+
+
+def import_graph(root: Path) -> tuple[dict[str, set[str]], dict[str, Path]]:
+    """Edges module -> the package modules it imports (anywhere in its source)."""
+    mods = _modules(root)
+    graph: dict[str, set[str]] = {m: set() for m in mods}
+    for mod, path in mods.items():
+        package = mod if path.name == "__init__.py" else mod.rpartition(".")[0]
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                base = node.module or ""
+                if node.level:  # relative: climb from this module's package
+                    up = package.split(".")[: len(package.split(".")) - node.level + 1]
+                    base = ".".join([*up, base] if base else up)
+                # "from pkg import name" imports pkg, and pkg.name when that is a module
+                targets = [base, *(f"{base}.{a.name}" for a in node.names)]
+            else:
+                continue
+            for target in targets:
+                while target and target not in mods:  # a name inside a module: the module
+                    target = target.rpartition(".")[0]
+                if target and target != mod:
+                    graph[mod].add(target)
+    return graph, mods
+
+
+def circles(graph: dict[str, set[str]], mods: dict[str, Path]) -> list[list[str]]:
+    """The strongly connected groups of more than one module, except harmless ``__init__`` ones."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    found: list[list[str]] = []
+
+    def visit(v: str) -> None:  # Tarjan's algorithm
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        for w in graph[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            group = []
+            while True:
+                w = stack.pop()
+                group.append(w)
+                if w == v:
+                    break
+            if len(group) > 1:
+                found.append(sorted(group))
+
+    for v in graph:
+        if v not in index:
+            visit(v)
+
+    def harmless(group: list[str]) -> bool:
+        inits = [m for m in group if mods[m].name == "__init__.py"]
+        if len(inits) != 1:
+            return False
+        pkg = inits[0]
+        children = [m for m in group if m != pkg]
+        return all(m.startswith(pkg + ".") and pkg not in graph[m] for m in children)
+
+    return [g for g in found if not harmless(g)]
+
+
+def test_no_import_circle_in_skinloc():
+    graph, mods = import_graph(ROOT)
+    assert circles(graph, mods) == []
+
+
+def test_module_sizes_are_reported():
+    _, mods = import_graph(ROOT)
+    sizes = sorted(((len(p.read_text().splitlines()), m) for m, p in mods.items()), reverse=True)
+    rows = [f"{n:5d}  {m}{'  (over 500)' if n > 500 else ''}" for n, m in sizes]
+    print("\nlines  module\n" + "\n".join(rows))  # noqa: T201 - the report (pytest -s)
+    # next step (issue 12): assert max(n for n, _ in sizes) <= 500 once the big modules are split
+    assert "skinloc.cli_common" in mods and "skinloc.contact" in mods
+
+
+def _write(root: Path, files: dict[str, str]) -> Path:
+    pkg = root / "pkg"
+    for rel, text in files.items():
+        path = pkg / rel
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+    return pkg
+
+
+@pytest.mark.parametrize(
+    ("files", "expected"),
+    [
+        # an import inside a function still closes a circle
+        (
+            {
+                "__init__.py": "",
+                "a.py": "import pkg.b\n",
+                "b.py": "def f():\n    from pkg import a\n",
+            },
+            [["pkg.a", "pkg.b"]],
+        ),
+        # so does one under TYPE_CHECKING, and a relative one
+        (
+            {
+                "__init__.py": "",
+                "a.py": (
+                    "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from .b import X\n"
+                ),
+                "b.py": "from pkg.a import Y\n",
+            },
+            [["pkg.a", "pkg.b"]],
+        ),
+        # a package __init__ re-exporting its children is harmless
+        (
+            {"__init__.py": "", "s/__init__.py": "from pkg.s.base import B\n", "s/base.py": ""},
+            [],
+        ),
+        # unless a child imports the package back
+        (
+            {
+                "__init__.py": "",
+                "s/__init__.py": "from pkg.s.base import B\n",
+                "s/base.py": "def f():\n    from pkg.s import other\n",
+                "s/other.py": "",
+            },
+            [["pkg.s", "pkg.s.base"]],
+        ),
+        # a registry naming its backends by string makes no edge
+        (
+            {
+                "__init__.py": "",
+                "base.py": "BACKENDS = {'x': 'pkg.backend:X'}\n",
+                "backend.py": "from pkg.base import BACKENDS\n",
+            },
+            [],
+        ),
+    ],
+)
+def test_the_checker_finds_circles(tmp_path, files, expected):
+    graph, mods = import_graph(_write(tmp_path, files))
+    assert circles(graph, mods) == expected

@@ -92,7 +92,7 @@ def test_actions_without_the_token_are_refused(app, page, path, body):
     for headers in (
         {},  # as fetch(..., {mode: "no-cors"}) from another page sends it
         {"X-Skinloc-Token": "guess"},
-        {"X-Skinloc-Token": app.state.token, "Origin": "http://127.0.0.1:9999"},
+        {"X-Skinloc-Token": app.state.token, "Origin": "http://127.0.0.1:9999"},  # any-port-ok
     ):
         r = evil.post(path, json=body, headers={**headers, "X-Skinloc-Client": "tab-evil"})
         assert r.status_code == 403, (path, headers, r.text)
@@ -119,8 +119,8 @@ def test_the_page_itself_may_send_its_own_origin(page):
 @pytest.mark.parametrize(
     "origin",
     [
-        "http://localhost:1234",
-        "http://127.0.0.1:9999",
+        "http://localhost:1234",  # any-port-ok: foreign origins, never bound
+        "http://127.0.0.1:9999",  # any-port-ok
         "https://localhost",
         "https://testserver",
         "null",

@@ -143,7 +143,7 @@ def test_websocket_port_in_use_is_one_clear_error():
             sink.open(_skins())
     assert sink._thread is None and sink._sock is None
     with pytest.raises(ValueError, match="0-65535"):
-        make_sink("ws://127.0.0.1:70000")
+        make_sink("ws://127.0.0.1:70000")  # any-port-ok: an invalid port, never bound
     with pytest.raises(ValueError, match="0 \\(any free port\\) or 1-65535"):
         WebSocketSink(port=-1)
 
@@ -189,7 +189,7 @@ def test_make_sink_errors_and_callback():
     with pytest.raises(ValueError, match="needs a file"):
         make_sink("mcap:")
     with pytest.raises(ValueError, match="port"):
-        make_sink("udp://127.0.0.1:99999")
+        make_sink("udp://127.0.0.1:99999")  # any-port-ok: an invalid port, never bound
     got = []
     sink = make_sink(CallbackSink(got.append))
     sink.emit(_contact())

@@ -19,11 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
-from skinloc.bench import REAL_DEC, REAL_MAY
-from skinloc.dataset import Recording, read_recording
-from skinloc.evaluation import evaluate, train_localizer, training_arrays
-from skinloc.geometry import SurfaceConstraint
-from skinloc.metrics import localisation_errors_mm
+from skinloc.data.recording import Recording, read_recording
+from skinloc.evaluation.metrics import localisation_errors_mm
+from skinloc.evaluation.paper_bench import REAL_DEC, REAL_MAY
+from skinloc.evaluation.scoring import evaluate, train_localizer, training_arrays
+from skinloc.geometry.mesh import SurfaceConstraint
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER_VALIDATION = {20: 22.4, 30: 16.5, 50: 6.8, 80: 5.7, 100: 7.4}  # data README, mm
@@ -52,7 +52,7 @@ def sklearn_model(make, clip_l2: bool = True) -> Fit:
     from sklearn.pipeline import make_pipeline
     from sklearn.preprocessing import StandardScaler
 
-    from skinloc.response_map import shape_features
+    from skinloc.models.response_map import shape_features
 
     def fit(recs: list[Recording]) -> Callable[[np.ndarray], np.ndarray]:
         X = np.concatenate([r.touch_means for r in recs])

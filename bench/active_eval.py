@@ -1,7 +1,7 @@
 """Figures of docs/accuracy.md, "Active calibration": which touches to ask for.
 
 Pool: the 2023-12-10 recordings other than the test one. Each strategy picks N point logs
-from the pool in its own order (``skinloc.active.select_point_logs``; active uses only the
+from the pool in its own order (``calibration.active.select_point_logs``; active uses only the
 images of touches already chosen); a default map is trained on them and scored on the test
 recording (mean error, mm). Orders are nested, so one 40-touch order gives N = 10, 20, 40.
 
@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from skinloc.active import select_point_logs, subset_recordings
-from skinloc.dataset import read_recording
-from skinloc.evaluation import evaluate, train_localizer
+from skinloc.calibration.active import select_point_logs, subset_recordings
+from skinloc.data.recording import read_recording
+from skinloc.evaluation.scoring import evaluate, train_localizer
 
 DAY = [
     "ConeSkinData_RND_20PL_1.mat",

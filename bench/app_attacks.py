@@ -156,7 +156,7 @@ class App:
 
 def prepare(app: App, n_points: int = 5) -> dict[str, Path]:
     """A session with ``n_points`` recorded touches and an uploaded ``cone.stl``, as the page."""
-    from skinloc.geometry import cone_skin
+    from skinloc.geometry.mesh import cone_skin
 
     page = app.page
     page.post("/api/connect", json={"source": "sim", "rate_hz": 200.0}).raise_for_status()
@@ -397,7 +397,7 @@ def attacks_sources(app: App, tmp: Path) -> list[Row]:
     """``/api/connect`` and the command line take ``sim`` or a serial device, nothing else."""
     from typer.testing import CliRunner
 
-    from skinloc.cli import app as cli
+    from skinloc.cli.main import app as cli
 
     victim = tmp / "precious.txt"
     victim.write_text("a file that spy:// would truncate\n")

@@ -200,8 +200,8 @@ def _skinloc(args: list[str], cwd: Path, timeout: float = 300) -> subprocess.Com
 
 def make_fixtures(d: Path) -> None:
     """Good and bad files in ``d``."""
-    from skinloc.dataset import Recording, read_recording, write_mat, write_recording
-    from skinloc.geometry import cone_skin
+    from skinloc.data.recording import Recording, read_recording, write_mat, write_recording
+    from skinloc.geometry.mesh import cone_skin
 
     def ok(args: str) -> None:
         res = _skinloc(args.split(), d)

@@ -16,11 +16,11 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import spearmanr
 
-from skinloc.coverage import calibrate_temperature, expected_error_mm, gp_state
-from skinloc.dataset import read_recording
-from skinloc.evaluation import evaluate, train_localizer
-from skinloc.geometry import farthest_point_sampling
-from skinloc.response_map import shape_features
+from skinloc.data.recording import read_recording
+from skinloc.evaluation.scoring import evaluate, train_localizer
+from skinloc.geometry.mesh import farthest_point_sampling
+from skinloc.models.response_map import shape_features
+from skinloc.sensors.coverage import calibrate_temperature, expected_error_mm, gp_state
 
 DAY = [
     "ConeSkinData_RND_20PL_1.mat",

@@ -23,8 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from skinloc.bench_online import _baseline_fn, touch_stream, train_bench_models
-from skinloc.model import ContactLocalizer
+from skinloc.live.bench import _baseline_fn, touch_stream, train_bench_models
+from skinloc.models.localizer import ContactLocalizer
 
 
 def main() -> None:

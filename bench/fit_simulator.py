@@ -44,12 +44,12 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-from skinloc.dataset import read_recording
-from skinloc.evaluation import evaluate, train_localizer
-from skinloc.geometry import cone_skin, farthest_point_sampling, sample_targets, surface_points
-from skinloc.metrics import snr_db
-from skinloc.response_map import shape_features
-from skinloc.sources.sim import SimulatedSkin, SkinParams
+from skinloc.data.recording import read_recording
+from skinloc.evaluation.metrics import snr_db
+from skinloc.evaluation.scoring import evaluate, train_localizer
+from skinloc.geometry.mesh import cone_skin, farthest_point_sampling, sample_targets, surface_points
+from skinloc.models.response_map import shape_features
+from skinloc.sim.skin import SimulatedSkin, SkinParams
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data" / "hiro-cone-skin"
@@ -241,8 +241,8 @@ def sim_model_errors(
     """Mean error, mm, per skin: a fresh even session of each size, 40 random touches to test."""
     import tempfile
 
-    from skinloc.calibrate import SessionConfig
-    from skinloc.calibrate import simulate_session as record_session
+    from skinloc.calibration.session import SessionConfig
+    from skinloc.calibration.session import simulate_session as record_session
 
     mesh = cone_skin()
     out: dict[str, dict[int, list[float]]] = {a: {n: [] for n in MODEL_SIZES} for a in archs}

@@ -18,10 +18,16 @@ from __future__ import annotations
 import sys
 
 import atheris
-import numpy  # noqa: F401 - imported first so that only skinloc.framing is instrumented
+import numpy  # noqa: F401 - imported first so that only skinloc.hardware.framing is instrumented
 
 with atheris.instrument_imports(include=["skinloc"]):
-    from skinloc.framing import AutoParser, BinaryParser, TextParser, encode_binary, encode_text
+    from skinloc.hardware.framing import (
+        AutoParser,
+        BinaryParser,
+        TextParser,
+        encode_binary,
+        encode_text,
+    )
 
 
 def feed(parser, data: bytes, fdp) -> list:
@@ -65,7 +71,7 @@ def one_input(raw: bytes) -> None:
         for f in feed(BinaryParser(n_tx, n_rx), bytes(data), fdp):
             assert (f.counter, tuple(f.values.tolist())) in sent, "wrong binary frame"
         return
-    # Text: the fault model of tests/test_framing.py::faulted_text_streams. Each fault hits one
+    # Text: the fault model of test_framing.py::faulted_text_streams; each fault hits one
     # line, no two hit neighbouring lines; exactly the untouched lines must come out.
     lines = [bytearray(encode_text(v)) for v in frames]
     destroyed: set[int] = set()
@@ -102,7 +108,7 @@ def one_input(raw: bytes) -> None:
 
 
 def garbage_changes_every_line(junk: bytes) -> bool:
-    """As in tests/test_framing.py: junk that cannot complete or form a data line."""
+    """As in tests/hardware/test_framing.py: junk that cannot complete or form a data line."""
     pieces = junk.split(b"\n")
     ends, middle = {pieces[0], pieces[-1]}, pieces[1:-1]
     return not any(_data_like(p) for p in ends) and not any(

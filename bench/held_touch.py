@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from skinloc.pipeline import PipelineConfig, SkinCore
-from skinloc.sources.sim import SimulatedSkin, SkinParams
+from skinloc.live.core import PipelineConfig, SkinCore
+from skinloc.sim.skin import SimulatedSkin, SkinParams
 
 
 def main() -> int:
@@ -62,7 +62,7 @@ def main() -> int:
     events += step(int(120 * skin.rate_hz))
     idle_events = len(events)
     baseline_before = core.baseline
-    from skinloc.geometry import sample_surface
+    from skinloc.geometry.mesh import sample_surface
 
     target = sample_surface(skin.mesh, 1, rng)[0][0]
     contact = skin.touch_near(target, rng)

@@ -15,9 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
-from skinloc.dataset import read_recording
-from skinloc.evaluation import train_localizer
-from skinloc.repeatability import probing_repeatability_mm, repeated_pairs
+from skinloc.calibration.repeatability import probing_repeatability_mm, repeated_pairs
+from skinloc.data.recording import read_recording
+from skinloc.evaluation.scoring import train_localizer
 
 DAY = [
     "ConeSkinData_RND_20PL_1.mat",

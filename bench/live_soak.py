@@ -29,8 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-from skinloc.geometry import sample_surface
-from skinloc.virtual_skin import FaultConfig, VirtualSkin
+from skinloc.geometry.mesh import sample_surface
+from skinloc.sim.virtual_device import FaultConfig, VirtualSkin
 
 
 def rss_mb(pid: int) -> float:

@@ -17,7 +17,7 @@ import sys
 
 import numpy as np
 
-from skinloc.framing import AutoParser, BinaryParser, TextParser
+from skinloc.hardware.framing import AutoParser, BinaryParser, TextParser
 
 
 def rss_mb() -> float:

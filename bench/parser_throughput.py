@@ -19,7 +19,13 @@ import time
 
 import numpy as np
 
-from skinloc.framing import AutoParser, BinaryParser, TextParser, encode_binary, encode_text
+from skinloc.hardware.framing import (
+    AutoParser,
+    BinaryParser,
+    TextParser,
+    encode_binary,
+    encode_text,
+)
 
 
 def naive(data: bytes) -> int:

@@ -16,7 +16,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from skinloc.bench_online import many_skins, sink_cost, train_bench_models
+from skinloc.live.bench import many_skins, sink_cost, train_bench_models
 
 
 def main() -> None:

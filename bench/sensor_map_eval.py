@@ -20,11 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
-from skinloc import sensor_map as S
-from skinloc.calibrate import SessionConfig, simulate_session
-from skinloc.dataset import read_recording
-from skinloc.geometry import cone_skin
-from skinloc.sources.sim import SimulatedSkin
+from skinloc.calibration.session import SessionConfig, simulate_session
+from skinloc.data.recording import read_recording
+from skinloc.geometry.mesh import cone_skin
+from skinloc.sensors import positions as S
+from skinloc.sim.skin import SimulatedSkin
 
 DAY = [
     "ConeSkinData_RND_20PL_1.mat",

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from skinloc.errors import FrameTimeoutError
-from skinloc.sources.serial import SerialSource, SerialSourceConfig
+from skinloc.hardware.serial import SerialSource, SerialSourceConfig
 
 
 def rss_mb() -> float:

@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from skinloc.dataset import read_recording
-from skinloc.evaluation import evaluate, train_localizer, training_arrays
-from skinloc.response_map import _fit_layer, shape_features
+from skinloc.data.recording import read_recording
+from skinloc.evaluation.scoring import evaluate, train_localizer, training_arrays
+from skinloc.models.response_map import _fit_layer, shape_features
 
 
 def structured_table(model, recs, mode: str) -> None:

@@ -1,5 +1,5 @@
 #!/usr/bin/env sh
-# Best effort: make Debian's chromium available for the browser test (tests/test_app_browser.py).
+# Best effort: make Debian's chromium available for the browser test (tests/app/test_app_browser.py).
 # Never fails (make test goes on either way). When another apt or dpkg process holds apt's lock,
 # waits for it, at most SKINLOC_APT_WAIT_S seconds (default 300). When chromium cannot be had,
 # the reason goes to build/chromium-status.txt, which the browser test quotes in its skip.

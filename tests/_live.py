@@ -17,9 +17,9 @@ atexit.register(shutil.rmtree, _DIR, ignore_errors=True)
 @functools.lru_cache(maxsize=1)
 def calibration():
     """A simulated calibration: 30 touches x 5 frames on the paper cone."""
-    from skinloc.calibrate import SessionConfig, simulate_session
-    from skinloc.geometry import cone_skin
-    from skinloc.sources.sim import SimulatedSkin
+    from skinloc.calibration.session import SessionConfig, simulate_session
+    from skinloc.geometry.mesh import cone_skin
+    from skinloc.sim.skin import SimulatedSkin
 
     mesh = cone_skin()
     with SimulatedSkin(mesh, random_state=0) as skin:
@@ -35,7 +35,7 @@ def calibration():
 def model_path(kind: str) -> Path:
     """A saved model: ``map`` (the default), ``mlp`` (small relu ensemble), ``paper`` (tanh),
     ``gelu`` (one gelu network, l1 normalised)."""
-    from skinloc.evaluation import train_localizer
+    from skinloc.evaluation.scoring import train_localizer
 
     cal = calibration()
     if kind == "map":
@@ -65,7 +65,7 @@ def model_path(kind: str) -> Path:
 @functools.lru_cache(maxsize=1)
 def stream(n_frames: int = 1500) -> tuple[np.ndarray, list]:
     """Raw frames of the simulated skin with a scripted finger and the script."""
-    from skinloc.bench_online import touch_stream
+    from skinloc.live.bench import touch_stream
 
     return touch_stream(n_frames, random_state=0)  # seed 0: the skin the models know
 
@@ -73,7 +73,7 @@ def stream(n_frames: int = 1500) -> tuple[np.ndarray, list]:
 @functools.lru_cache(maxsize=1)
 def stream_recording() -> Path:
     """``stream()`` as a ``skinloc record`` style recording (100 Hz)."""
-    from skinloc.geometry import cone_skin
+    from skinloc.geometry.mesh import cone_skin
     from skinloc.sources.replay import write_stream_recording
 
     frames, _ = stream()

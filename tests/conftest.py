@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, settings
 
-from skinloc.dataset import Recording
-from skinloc.geometry import cone_skin, sample_targets
+from skinloc.data.recording import Recording
+from skinloc.geometry.mesh import cone_skin, sample_targets
 
 # A busy machine may stall any example for seconds: no per-example deadline, and slow data
 # generation is no failure. Tests' own @settings override only what they name.
@@ -19,7 +19,7 @@ settings.load_profile("skinloc")
 
 REAL_DIR = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "hiro-cone-skin"
 #: Skips that must not pass unnoticed: the only test of the app in a real browser.
-LOUD_SKIPS = ("tests/test_app_browser.py",)
+LOUD_SKIPS = ("tests/app/test_app_browser.py",)
 
 
 def _skip_reason(report) -> str:

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from skinloc.calibrate import SessionConfig, simulate_session
-from skinloc.evaluation import evaluate, train_localizer
-from skinloc.sources.sim import SimulatedSkin
+from skinloc.calibration.session import SessionConfig, simulate_session
+from skinloc.evaluation.scoring import evaluate, train_localizer
+from skinloc.sim.skin import SimulatedSkin
 
 runner = CliRunner()
 
@@ -46,7 +46,9 @@ def test_default_beats_paper_on_simulated_skin(sessions):
 
 def test_cli_simulate_train_evaluate(tmp_path):
     def run(*a):
-        res = runner.invoke(__import__("skinloc.cli", fromlist=["app"]).app, [str(x) for x in a])
+        res = runner.invoke(
+            __import__("skinloc.cli.main", fromlist=["app"]).app, [str(x) for x in a]
+        )
         assert res.exit_code == 0, res.output
         return res.output
 
@@ -84,8 +86,8 @@ def test_cli_simulate_train_evaluate(tmp_path):
 
 
 def test_same_skin_seed_same_wiring_different_noise(tmp_path):
-    from skinloc.cli import app
-    from skinloc.dataset import read_recording
+    from skinloc.cli.main import app
+    from skinloc.data.recording import read_recording
 
     for s in (0, 1):
         res = runner.invoke(
@@ -110,8 +112,8 @@ def test_same_skin_seed_same_wiring_different_noise(tmp_path):
 
 
 def test_simulated_recording_keeps_the_true_sensor_positions(tmp_path):
-    from skinloc.cli import app
-    from skinloc.sources.sim import SimulatedSkin
+    from skinloc.cli.main import app
+    from skinloc.sim.skin import SimulatedSkin
 
     out = tmp_path / "s.h5"
     args = ["simulate", "--points", "2", "--samples", "2", "--seed", "3", "--skin-seed", "5"]

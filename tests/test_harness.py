@@ -97,7 +97,7 @@ def test_a_skipped_browser_test_is_announced_loudly(tmp_path):
     }
     res = subprocess.run(
         [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
-         str(ROOT / "tests" / "test_app_browser.py")],
+         str(ROOT / "tests" / "app" / "test_app_browser.py")],
         cwd=ROOT, env=env, capture_output=True, text=True, timeout=300,
     )  # fmt: skip
     assert res.returncode == 0, res.stdout + res.stderr

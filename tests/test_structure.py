@@ -107,7 +107,7 @@ def test_module_sizes_are_reported():
     rows = [f"{n:5d}  {m}{'  (over 500)' if n > 500 else ''}" for n, m in sizes]
     print("\nlines  module\n" + "\n".join(rows))  # noqa: T201 - the report (pytest -s)
     # next step (issue 12): assert max(n for n, _ in sizes) <= 500 once the big modules are split
-    assert "skinloc.cli_common" in mods and "skinloc.contact" in mods
+    assert "skinloc.cli.common" in mods and "skinloc.live.contact" in mods
 
 
 def _write(root: Path, files: dict[str, str]) -> Path:

@@ -1,5 +1,5 @@
 """Run the CLI with ``python -m skinloc``."""
 
-from skinloc.cli import main
+from skinloc.cli.main import main
 
 main()

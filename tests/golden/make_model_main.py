@@ -3,8 +3,8 @@
 import numpy as np
 import trimesh
 
-from skinloc.geometry import surface_points
-from skinloc.model import ContactLocalizer
+from skinloc.geometry.mesh import surface_points
+from skinloc.models.localizer import ContactLocalizer
 
 rng = np.random.default_rng(0)
 mesh = trimesh.creation.icosphere(subdivisions=1, radius=0.05)

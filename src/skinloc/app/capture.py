@@ -13,7 +13,7 @@ from enum import StrEnum
 
 import numpy as np
 
-from skinloc.calibrate import TouchDetector
+from skinloc.calibration.session import TouchDetector
 
 log = logging.getLogger(__name__)
 

@@ -309,7 +309,7 @@ def create_app(
     # ------------------------------------------------------------------ device
     @app.get("/api/ports")
     def ports() -> list[dict[str, Any]]:
-        from skinloc.sources.serial import list_ports
+        from skinloc.hardware.serial import list_ports
 
         return [p.__dict__ for p in list_ports()]
 
@@ -551,7 +551,7 @@ def _list_meshes(folder: Path) -> list[dict[str, Any]]:
 
 def _install_mesh(tmp: Path, path: Path) -> dict[str, Any]:
     """Load the uploaded ``tmp``; only if it is a mesh does it replace ``path`` (atomically)."""
-    from skinloc.geometry import load_mesh
+    from skinloc.geometry.mesh import load_mesh
 
     try:
         mesh = load_mesh(tmp)
@@ -570,8 +570,8 @@ def _sheet_input(workspace: Workspace, session_id: str):
     """Mesh, planned targets, which are done, and the name of a session."""
     import numpy as np
 
-    from skinloc.dataset import read_recording
-    from skinloc.geometry import mesh_from_arrays
+    from skinloc.data.recording import read_recording
+    from skinloc.geometry.mesh import mesh_from_arrays
 
     folder = workspace.store.get(session_id)
     vertices, faces, targets = folder.read_plan()

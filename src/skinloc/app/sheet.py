@@ -15,7 +15,7 @@ import numpy as np
 import trimesh
 
 from skinloc._typing import Points
-from skinloc.flatten import flatten
+from skinloc.geometry.flatten import flatten
 
 log = logging.getLogger(__name__)
 

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from skinloc.dataset import _atomic_write, read_recording
+from skinloc.data.recording import _atomic_write, read_recording
 from skinloc.errors import RecordingError, SkinlocError
 
 log = logging.getLogger(__name__)

@@ -32,10 +32,15 @@ from skinloc.app.capture import (
 from skinloc.app.device import DeviceLink, SourceSpec
 from skinloc.app.hub import Hub
 from skinloc.app.store import SessionFolder, SessionStore
-from skinloc.calibrate import CalibrationSession, ScriptedFinger, SessionConfig, TouchDetector
-from skinloc.dataset import Recording, read_recording, write_recording
+from skinloc.calibration.session import (
+    CalibrationSession,
+    ScriptedFinger,
+    SessionConfig,
+    TouchDetector,
+)
+from skinloc.data.recording import Recording, read_recording, write_recording
 from skinloc.errors import RecordingError, SkinlocError
-from skinloc.geometry import SamplingMode, cone_skin, mesh_from_arrays, nearest_on_surface
+from skinloc.geometry.mesh import SamplingMode, cone_skin, mesh_from_arrays, nearest_on_surface
 from skinloc.sources.base import Frame
 
 log = logging.getLogger(__name__)
@@ -305,7 +310,7 @@ class Workspace:
             description=name,
         )
         if mesh_file:
-            from skinloc.geometry import load_mesh
+            from skinloc.geometry.mesh import load_mesh
 
             path = self.mesh_dir / Path(mesh_file).name
             mesh, mesh_name = load_mesh(path), path.name
@@ -315,7 +320,7 @@ class Workspace:
             targets = self._parse_targets(targets_csv or "", mesh)
             cfg.n_points = len(targets)
         else:
-            from skinloc.geometry import sample_targets
+            from skinloc.geometry.mesh import sample_targets
 
             # An active session starts from an even plan and replaces all but its first
             # targets, one after each touch (``_choose_next``).
@@ -382,7 +387,7 @@ class Workspace:
                     folder, fd, folder.read_info(), mesh_from_arrays(vertices, faces), targets
                 )
                 if folder.model.is_file():
-                    from skinloc.model import ContactLocalizer
+                    from skinloc.models.localizer import ContactLocalizer
 
                     active.model = ContactLocalizer.load(folder.model)
             except BaseException:
@@ -459,11 +464,11 @@ class Workspace:
     def coverage(self, n_points: int = 300) -> dict[str, Any]:
         """The trained model's expected localisation error over the skin, for the 3D view.
 
-        ``points`` ``(E, 3)`` m and ``expected_mm`` ``(E,)`` mm (``skinloc.coverage``), plus
+        ``points`` ``(E, 3)`` m and ``expected_mm`` ``(E,)`` mm (``skinloc.sensors.coverage``), plus
         the summary of ``skinloc coverage`` and the colour scale's range, mm. Computed once
         per model (about a second), outside the lock.
         """
-        from skinloc.coverage import coverage_map
+        from skinloc.sensors.coverage import coverage_map
 
         with self._lock:
             a = self._need_session()
@@ -1023,7 +1028,7 @@ class Workspace:
         taken_back = meta.get("taken_back", [])
         if not errors and not taken_back:
             return
-        from skinloc.metrics import error_stats
+        from skinloc.evaluation.metrics import error_stats
 
         stats: dict[str, Any] = (
             error_stats(np.asarray(errors)).as_dict() if errors else {"n": 0, "mean_mm": None}
@@ -1067,7 +1072,7 @@ class Workspace:
         if rec is None or rec.n_point_logs < 15 or rec.n_sensors != self.device.source.n_sensors:
             self.device.monitor.session_snr = None
             return
-        from skinloc.metrics import snr_db
+        from skinloc.evaluation.metrics import snr_db
 
         self.device.monitor.session_snr = snr_db(rec.touch_means, rec.baseline_frames)
 
@@ -1143,8 +1148,8 @@ class Workspace:
 
     def _train(self, a: _Active, rec: Recording) -> None:
         from skinloc.errors import MissingExtraError
-        from skinloc.model import ARCHITECTURES
-        from skinloc.network_training import import_torch
+        from skinloc.models.localizer import ARCHITECTURES
+        from skinloc.models.network_training import import_torch
 
         arch = self.config.train_options.get("arch", "default")
         torch = None
@@ -1165,7 +1170,7 @@ class Workspace:
             torch.set_num_threads(threads)
 
     def _fit(self, a: _Active, rec: Recording) -> None:
-        from skinloc.evaluation import evaluate, train_localizer
+        from skinloc.evaluation.scoring import evaluate, train_localizer
 
         opts = self.config.train_options
         n = rec.n_point_logs

@@ -124,8 +124,8 @@ class FrameSource(abc.ABC):
 
 # Each kind's factory, by name: this module never imports a backend (they import it).
 _BACKENDS: dict[SourceKind, str] = {
-    SourceKind.SIM: "skinloc.sources.sim:SimulatedSkin",
-    SourceKind.SERIAL: "skinloc.sources.serial:SerialSource.from_options",
+    SourceKind.SIM: "skinloc.sim.skin:SimulatedSkin",
+    SourceKind.SERIAL: "skinloc.hardware.serial:SerialSource.from_options",
     SourceKind.REPLAY: "skinloc.sources.replay:ReplaySource",
 }
 

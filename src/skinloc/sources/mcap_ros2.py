@@ -83,8 +83,8 @@ class McapReplaySource(FrameSource):
         topic: str | None = None,
         loop: bool = False,
     ) -> None:
-        from skinloc.sinks.ros2 import topic_base
-        from skinloc.sinks.ros2_msgs import Image
+        from skinloc.live.sinks.ros2 import topic_base
+        from skinloc.live.sinks.ros2_msgs import Image
 
         self.path = Path(path)
         topics = image_topics(self.path)

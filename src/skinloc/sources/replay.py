@@ -59,8 +59,8 @@ def write_stream_recording(
     """
     import h5py
 
-    from skinloc.dataset import Recording, write_recording
-    from skinloc.geometry import surface_points
+    from skinloc.data.recording import Recording, write_recording
+    from skinloc.geometry.mesh import surface_points
 
     n = n_tx * n_rx
     frames = np.asarray(frames, dtype=np.float32).reshape(-1, n)
@@ -160,7 +160,7 @@ class ReplaySource(FrameSource):
     """
 
     def __init__(self, path: str | Path, *, loop: bool = False) -> None:
-        from skinloc.dataset import read_recording
+        from skinloc.data.recording import read_recording
 
         self.path = Path(path)
         rec = read_recording(self.path)

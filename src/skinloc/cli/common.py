@@ -1,0 +1,300 @@
+"""What every ``skinloc`` command group shares: the Typer ``app``, consoles, option types, errors.
+
+A leaf of the command line: ``skinloc.cli.main`` and each group module (``cli_hardware``,
+``cli_live``, ``cli_skin``, ``skinloc.cli.app``) import it, and ``skinloc.cli.main`` imports the
+groups to register their commands, so no group imports ``skinloc.cli.main``.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
+from enum import StrEnum
+from pathlib import Path
+from typing import Annotated, Any, TypeVar
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+
+from skinloc.errors import SkinlocError
+
+app = typer.Typer(
+    name="skinloc",
+    help="Contact localisation on 3D tactile skin: calibrate, simulate, train, evaluate.",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    add_completion=False,
+)
+console = Console()
+err_console = Console(stderr=True)
+log = logging.getLogger("skinloc")
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+class Arch(StrEnum):
+    """Localiser configurations."""
+
+    default = "default"
+    mlp = "mlp"
+    paper = "paper"
+
+
+class Constraint(StrEnum):
+    """Output constraints."""
+
+    snap = "snap"
+    project = "project"
+    none = "none"
+
+
+class Mode(StrEnum):
+    """Target sampling modes."""
+
+    even = "even"
+    random = "random"
+    edge = "edge"
+
+
+class Units(StrEnum):
+    """Mesh file units."""
+
+    auto = "auto"
+    m = "m"
+    mm = "mm"
+
+
+# ------------------------------------------------------------------------ signals and errors
+#: Signals received during the current command (SIGINT, SIGTERM), newest last.
+_signals: list[int] = []
+
+
+def _on_signal(signum: int, frame: Any) -> None:
+    """Ctrl-C and SIGTERM both become ``KeyboardInterrupt``, so both take the clean path.
+
+    An exception raised here can still be lost: inside a weakref callback (h5py frees its
+    objects through a WeakValueDictionary many times per write) Python prints "Exception
+    ignored" and drops it, so there the signal is only recorded; and C code that clears errors
+    (optional attribute lookups, destructors) drops it silently. Either way the signal stays
+    recorded, and the next ``check_interrupt`` (every progress step) raises it again.
+    """
+    _signals.append(signum)
+    if frame is not None and frame.f_code.co_filename.endswith("weakref.py"):
+        return
+    raise KeyboardInterrupt
+
+
+def check_interrupt() -> None:
+    """Raise ``KeyboardInterrupt`` once if a signal arrived since the last time.
+
+    Called from every progress update, so a long job stops within one step even when the
+    exception raised by the handler was lost. A job that handles the interruption itself
+    (``record`` keeps the stream so far) calls no progress step afterwards.
+    """
+    if _signals and _signals[-1] != 0:
+        _signals.append(0)  # delivered: later checks stay quiet while the job unwinds
+        raise KeyboardInterrupt
+
+
+@contextmanager
+def _signal_handlers() -> Iterator[None]:
+    import signal
+
+    _signals.clear()
+    old: dict[int, Any] = {}
+    try:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            current = signal.getsignal(sig)
+            if current is signal.SIG_IGN:  # started with nohup or in the background: keep it
+                continue
+            old[sig] = signal.signal(sig, _on_signal)
+    except ValueError:  # not the main thread (an embedding app, some tests): leave them alone
+        pass
+    try:
+        yield
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+
+
+def _exit_code_of_interrupt() -> int:
+    import signal
+
+    received = [s for s in _signals if s]
+    return 128 + (received[0] if received else signal.SIGINT)
+
+
+def friendly_errors(fn: F) -> F:
+    """Turn expected failures (bad files, bad values) into one line on stderr and exit 1.
+
+    Ctrl-C and SIGTERM end the command through ``KeyboardInterrupt`` (temporary files are
+    removed on the way out) with exit code 130 or 143; an ``Interrupted`` says what was kept.
+    """
+
+    @functools.wraps(fn)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        with _signal_handlers():
+            try:
+                return fn(*args, **kwargs)
+            except (SkinlocError, ValueError, OSError) as exc:
+                # escaped: a message may hold brackets (pip install 'skinloc[nets]', paths)
+                err_console.print(
+                    f"[bold red]error:[/] {escape(str(exc))}", highlight=False, soft_wrap=True
+                )
+                raise typer.Exit(1) from None
+            except MemoryError:
+                err_console.print(
+                    "[bold red]error:[/] out of memory: ask for less (fewer points, frames or "
+                    "files)",
+                    highlight=False,
+                    soft_wrap=True,
+                )
+                raise typer.Exit(1) from None
+            except KeyboardInterrupt as exc:
+                msg = f"interrupted: {exc}" if str(exc) else "interrupted"
+                err_console.print(msg, highlight=False, soft_wrap=True)
+                raise typer.Exit(_exit_code_of_interrupt()) from None
+
+    return wrapper  # type: ignore[return-value]
+
+
+# ------------------------------------------------------------------------ output paths
+def _same_file(a: Path, b: Path) -> bool:
+    """Whether ``a`` and ``b`` name one file (same resolved path, or hard links of one)."""
+    import os
+
+    if a.resolve() == b.resolve():
+        return True
+    try:
+        return a.exists() and b.exists() and os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def check_output(
+    path: Path,
+    *,
+    option: str,
+    inputs: Iterable[Path | None] = (),
+    force: bool = False,
+    folder: bool = False,
+) -> None:
+    """Refuse an output path before any work is done; every command that writes calls this.
+
+    Parameters
+    ----------
+    path : Path
+        What the user asked to write.
+    option : str
+        How the user named it (``--out``, ``DST``), for the message.
+    inputs : iterable of Path or None
+        Files the command reads: writing over one of them is refused, with or without
+        ``--force``.
+    force : bool
+        Allow replacing an existing file (the replacement is atomic).
+    folder : bool
+        ``path`` is a folder the command fills (created if missing, its parent must exist).
+
+    Raises
+    ------
+    ValueError
+        Naming ``path`` and what to do.
+    """
+    import tempfile
+
+    for src in inputs:
+        if src is not None and _same_file(path, src):
+            raise ValueError(f"{option} {path} is also an input ({src}): write to another file")
+    if folder:
+        if path.exists() and not path.is_dir():
+            raise ValueError(f"{option} {path} is a file, not a folder")
+        parent = path if path.is_dir() else path.parent
+    else:
+        if path.is_dir():
+            raise ValueError(f"{option} {path} is a folder: give a file name")
+        if path.exists() and not force:
+            raise ValueError(
+                f"{path} exists: pass --force to replace it, or choose another {option}"
+            )
+        parent = path.parent
+    if not parent.exists():
+        raise ValueError(f"cannot write {path}: folder {parent} does not exist")
+    if not parent.is_dir():
+        raise ValueError(f"cannot write {path}: {parent} is not a folder")
+    # Try it: permission bits do not tell root about read-only or virtual file systems.
+    try:
+        with tempfile.NamedTemporaryFile(dir=parent, prefix=f".{path.name}.", suffix=".probe"):
+            pass
+    except OSError as exc:
+        why = (exc.strerror or str(exc)).lower()
+        raise ValueError(f"cannot write {path}: folder {parent} is not writable ({why})") from None
+
+
+# ------------------------------------------------------------------------ progress
+@contextmanager
+def progress_steps() -> Iterator[Callable[[str, int, int], None]]:
+    """A ``step(label, done, total)`` callback drawing one rich progress bar per label.
+
+    Off a terminal (a pipe, a log file) it prints a plain line per label at most every 10 s,
+    the first after 2 s, so a long job is never silent. Every call checks for Ctrl-C/SIGTERM.
+    """
+    import time
+
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    live = err_console.is_terminal or _force_progress()
+    with Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        console=err_console,
+        transient=False,
+        disable=not live,
+    ) as bar:
+        tasks: dict[str, Any] = {}
+        started: dict[str, float] = {}
+        printed: dict[str, float] = {}
+
+        def step(label: str, done: int, total: int) -> None:
+            check_interrupt()
+            if label not in tasks:
+                tasks[label] = bar.add_task(label, total=total)
+                started[label] = printed[label] = time.monotonic()
+            bar.update(tasks[label], completed=done, total=total)
+            now = time.monotonic()
+            gap = 2.0 if printed[label] == started[label] else 10.0
+            if not live and (
+                now - printed[label] >= gap or (done >= total and printed[label] > started[label])
+            ):
+                printed[label] = now
+                err_console.print(
+                    f"{label}: {done}/{total} ({now - started[label]:.0f} s)", highlight=False
+                )
+
+        yield step
+
+
+def _force_progress() -> bool:
+    import os
+
+    return os.environ.get("SKINLOC_PROGRESS") == "1"
+
+
+@app.callback()
+def _main(
+    verbose: Annotated[bool, typer.Option("--verbose", "-v", help="Log what happens.")] = False,
+) -> None:
+    import os
+
+    # Off a terminal rich assumes 80 columns and cuts wide tables (bench): give them room.
+    for c in (console, err_console):
+        if not c.is_terminal and "COLUMNS" not in os.environ:
+            c.width = 200
+    logging.basicConfig(
+        level=logging.INFO if verbose else logging.WARNING,
+        format="%(levelname)s %(name)s: %(message)s",
+    )

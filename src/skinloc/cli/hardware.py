@@ -1,0 +1,659 @@
+"""Commands for a skin on a serial port: ports, monitor, record, collect, virtual-skin."""
+
+from __future__ import annotations
+
+import logging
+import signal
+import sys
+import time
+from enum import StrEnum
+from pathlib import Path
+from typing import Annotated, Any
+
+import numpy as np
+import typer
+
+log = logging.getLogger(__name__)
+
+
+class SourceChoice(StrEnum):
+    """Where frames come from."""
+
+    serial = "serial"
+    sim = "sim"
+
+
+class FormatChoice(StrEnum):
+    """Wire format of the port."""
+
+    auto = "auto"
+    text = "text"
+    binary = "binary"
+
+
+class DeviceFormat(StrEnum):
+    """Wire format the virtual skin speaks."""
+
+    text = "text"
+    binary = "binary"
+
+
+class ModeChoice(StrEnum):
+    """Target sampling modes."""
+
+    even = "even"
+    random = "random"
+    edge = "edge"
+    active = "active"
+
+
+class UnitsChoice(StrEnum):
+    """Mesh file units."""
+
+    auto = "auto"
+    m = "m"
+    mm = "mm"
+
+
+# Options shared by every command that reads a skin.
+PortOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--port", "-p", help="Serial port (see 'skinloc ports'); a pyserial URL needs --allow-url."
+    ),
+]
+AllowUrlOpt = Annotated[
+    bool,
+    typer.Option(
+        "--allow-url",
+        help="Let --port be a pyserial URL (socket://, rfc2217://, loop://, spy://...); these "
+        "reach the network or files, not only a skin.",
+    ),
+]
+SourceOpt = Annotated[
+    SourceChoice, typer.Option("--source", help="'sim' reads the simulated skin instead.")
+]
+BaudOpt = Annotated[
+    int, typer.Option(min=50, help="Baud rate (text firmware 115200, skinloc binary 1000000).")
+]
+FormatOpt = Annotated[FormatChoice, typer.Option("--format", help="Wire format of the port.")]
+TxOpt = Annotated[int, typer.Option(min=1, max=21, help="TX lines the device sends.")]
+RxOpt = Annotated[int, typer.Option(min=1, max=12, help="RX lines the device sends.")]
+TxMaskOpt = Annotated[
+    str | None, typer.Option(help="TX lines to keep, e.g. 11111111000 (default: all).")
+]
+RxMaskOpt = Annotated[str | None, typer.Option(help="RX lines to keep, e.g. 111111110000.")]
+SeedOpt = Annotated[int, typer.Option(min=0, help="Seed of the simulated skin (--source sim).")]
+ForceOpt = Annotated[bool, typer.Option("--force", help="Replace an existing --out.")]
+
+
+def _open_source(
+    port: str | None,
+    source: SourceChoice,
+    *,
+    baud: int = 115200,
+    fmt: FormatChoice = FormatChoice.auto,
+    tx: int = 8,
+    rx: int = 8,
+    tx_mask: str | None = None,
+    rx_mask: str | None = None,
+    realtime: bool = False,
+    seed: int = 0,
+    mesh: Any = None,
+    allow_url: bool = False,
+):
+    """Build (not connect) the frame source the options describe."""
+    if source is SourceChoice.sim:
+        if port is not None:
+            raise ValueError("give either --port or --source sim, not both")
+        from skinloc.sim.skin import SimulatedSkin
+
+        return SimulatedSkin(mesh, n_tx=tx, n_rx=rx, random_state=seed, realtime=realtime)
+    if port is None:
+        raise ValueError(
+            "give --port (a serial port: see 'skinloc ports') or --source sim for the simulator"
+        )
+    from skinloc.hardware.serial import SerialSource, SerialSourceConfig, check_source
+
+    check_source(port, allow_urls=allow_url, allow_sim=False, opt_in="pass --allow-url")
+    cfg = SerialSourceConfig(
+        port=port,
+        baud=baud,
+        n_tx=tx,
+        n_rx=rx,
+        tx_mask=tx_mask,
+        rx_mask=rx_mask,
+        format=fmt.value,
+    )
+    return SerialSource(cfg)
+
+
+#: Longest wait for a board's first frame, s: opening the port resets an Uno (DTR), and its
+#: bootloader and the controller's start-up take a second or two before frames flow.
+FIRST_FRAME_S = 5.0
+
+
+def _first_frame(src, timeout_s: float):
+    """The first frame after connecting, waited for at least ``FIRST_FRAME_S``."""
+    return src.read(max(timeout_s, FIRST_FRAME_S))
+
+
+def _load_surface(mesh: Path | None, units: UnitsChoice):
+    from skinloc.geometry.mesh import cone_skin, load_mesh
+
+    return cone_skin() if mesh is None else load_mesh(mesh, units.value)
+
+
+def _stats_line(src) -> str:
+    stats = getattr(src, "stats", None)
+    if stats is None:
+        return f"{src.name}: simulated, no link faults"
+    s = stats()
+    return (
+        f"{s.port} [{s.format}] {s.rate_hz:5.1f} Hz | received {s.n_received} | "
+        f"dropped {s.n_dropped} | corrupted {s.n_corrupted} | lost {s.n_lost} | "
+        f"overflow {s.n_overflow} | reconnects {s.n_reconnects}"
+        + ("" if s.link_up else " | LINK DOWN")
+    )
+
+
+class TerminalProber:
+    """Prompt a person in the terminal; optionally drive a scripted finger over the port.
+
+    With ``finger`` (a ``SerialSource`` on ``skinloc virtual-skin``), each prompt is also sent
+    as ``touch x y z`` (m) and each capture as ``lift``, so a session runs unattended.
+    """
+
+    def __init__(self, console, n_targets: int, finger=None) -> None:
+        self.console = console
+        self.n_targets = n_targets
+        self.finger = finger
+
+    def prompt(self, index: int, target: np.ndarray) -> None:
+        """Name target ``index`` by its coordinates in mm."""
+        x, y, z = (np.asarray(target) * 1e3).tolist()
+        self.console.print(
+            f"[bold]Touch target {index + 1}/{self.n_targets}[/] at "
+            f"x={x:.1f} y={y:.1f} z={z:.1f} mm and hold still"
+        )
+        if self.finger is not None:
+            tx, ty, tz = np.asarray(target, dtype=float).tolist()
+            self.finger.write(f"touch {tx:.6f} {ty:.6f} {tz:.6f}\n".encode())
+
+    def captured(self, index: int) -> None:
+        """Tell the person to lift."""
+        self.console.print(f"  captured point log {index + 1}: lift your finger")
+        if self.finger is not None:
+            self.finger.write(b"lift\n")
+
+
+def register(app: typer.Typer) -> None:
+    """Add the hardware commands to the main ``skinloc`` app."""
+    from skinloc.cli.common import (
+        check_output,
+        console,
+        err_console,
+        friendly_errors,
+        progress_steps,
+    )
+
+    # -------------------------------------------------------------------------------- ports
+    @app.command()
+    @friendly_errors
+    def ports(
+        as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
+    ) -> None:
+        """List serial ports; the likely Arduino is marked, running virtual skins are listed.
+
+        Example: skinloc ports
+        """
+        import json
+
+        from skinloc.hardware.serial import list_ports
+
+        found = list_ports()
+        if as_json:
+            sys.stdout.write(json.dumps([p.__dict__ for p in found], indent=2) + "\n")
+            return
+        if not found:
+            console.print(
+                "No serial port found. Plug the Arduino in (a data cable, not charge-only), "
+                "or start 'skinloc virtual-skin'."
+            )
+            return
+        from rich.table import Table
+
+        table = Table("", "port", "description", "hardware id")
+        for p in found:
+            mark = "* Arduino?" if p.likely_arduino else ("virtual" if p.virtual else "")
+            table.add_row(mark, p.device, p.description, p.hwid)
+        console.print(table)
+
+    # -------------------------------------------------------------------------------- monitor
+    @app.command()
+    @friendly_errors
+    def monitor(
+        port: PortOpt = None,
+        source: SourceOpt = SourceChoice.serial,
+        baud: BaudOpt = 115200,
+        fmt: FormatOpt = FormatChoice.auto,
+        tx: TxOpt = 8,
+        rx: RxOpt = 8,
+        tx_mask: TxMaskOpt = None,
+        rx_mask: RxMaskOpt = None,
+        seconds: Annotated[
+            float | None, typer.Option(min=0.0, help="Stop after this long (default: Ctrl-C).")
+        ] = None,
+        raw: Annotated[bool, typer.Option("--raw", help="Show raw counts, not deltas.")] = False,
+        timeout: Annotated[float, typer.Option(min=0.01, help="Longest wait for a frame, s.")] = 2,
+        seed: SeedOpt = 0,
+        allow_url: AllowUrlOpt = False,
+    ) -> None:
+        """Live view of the sensor image, the frame rate and the drop counts.
+
+        The image shows counts above the median of the first 30 frames (--raw: raw counts).
+
+        Example: skinloc monitor --port /dev/ttyACM0
+        """
+        from rich.live import Live
+        from rich.table import Table
+
+        src = _open_source(
+            port,
+            source,
+            baud=baud,
+            fmt=fmt,
+            tx=tx,
+            rx=rx,
+            tx_mask=tx_mask,
+            rx_mask=rx_mask,
+            realtime=True,
+            seed=seed,
+            allow_url=allow_url,
+        )
+
+        def render(values: np.ndarray, baseline: np.ndarray | None, n: int) -> Table:
+            img = values if raw or baseline is None else values - baseline
+            grid = img.reshape(src.n_tx, src.n_rx)
+            what = "raw counts" if raw or baseline is None else "counts above baseline"
+            table = Table(
+                "TX\\RX",
+                *[str(j) for j in range(src.n_rx)],
+                title=f"{src.name}: frame {n}, {what}",
+                caption=_stats_line(src),
+            )
+            scale = max(float(np.abs(grid).max()), 1.0) if not raw else 1.0
+            for i in range(src.n_tx):
+                cells = []
+                for v in grid[i]:
+                    level = min(abs(v) / scale, 1.0) if baseline is not None and not raw else 0
+                    style = "bold red" if level > 0.6 else "yellow" if level > 0.25 else ""
+                    cells.append(f"[{style}]{v:.0f}[/]" if style else f"{v:.0f}")
+                table.add_row(str(i), *cells)
+            return table
+
+        with src:
+            first = _first_frame(src, timeout)
+            warm = [first.values]
+            baseline = None
+            start = time.monotonic()
+            n = 1
+            with Live(
+                render(first.values, None, n),
+                console=console,
+                auto_refresh=False,
+                transient=False,
+            ) as live:
+                last_draw = 0.0
+                while seconds is None or time.monotonic() - start < seconds:
+                    frame = src.read(timeout)
+                    n += 1
+                    if baseline is None:
+                        warm.append(frame.values)
+                        if len(warm) >= 30:
+                            baseline = np.median(np.stack(warm), axis=0)
+                    now = time.monotonic()
+                    if now - last_draw > 0.05:
+                        live.update(render(frame.values, baseline, n), refresh=True)
+                        last_draw = now
+                live.update(
+                    render(frame.values if n > 1 else first.values, baseline, n), refresh=True
+                )
+
+    # -------------------------------------------------------------------------------- record
+    @app.command()
+    @friendly_errors
+    def record(
+        out: Annotated[Path, typer.Option(help="Recording to write (.h5).")],
+        port: PortOpt = None,
+        source: SourceOpt = SourceChoice.serial,
+        seconds: Annotated[float, typer.Option(min=0.0, help="Length of the raw stream, s.")] = 10,
+        baseline_frames: Annotated[
+            int, typer.Option(min=2, help="No-touch frames captured first.")
+        ] = 50,
+        baud: BaudOpt = 115200,
+        fmt: FormatOpt = FormatChoice.auto,
+        tx: TxOpt = 8,
+        rx: RxOpt = 8,
+        tx_mask: TxMaskOpt = None,
+        rx_mask: RxMaskOpt = None,
+        mesh: Annotated[
+            Path | None, typer.Option(help="Skin mesh; default: the paper's cone.")
+        ] = None,
+        units: Annotated[UnitsChoice, typer.Option(help="Units of --mesh.")] = UnitsChoice.auto,
+        timeout: Annotated[float, typer.Option(min=0.01, help="Longest wait for a frame, s.")] = 2,
+        seed: SeedOpt = 0,
+        allow_url: AllowUrlOpt = False,
+        force: ForceOpt = False,
+    ) -> None:
+        """Record a no-touch baseline, then the raw stream for --seconds, to an HDF5 recording.
+
+        The stream goes to the group 'stream' (frames, times_s, index) next to the usual
+        recording layout (docs/hardware.md); 'skinloc info' reads the file.
+
+        Example: skinloc record --port /dev/ttyACM0 --seconds 30 --out stream.h5
+        """
+        from skinloc.sources.replay import write_stream_recording
+
+        if out.suffix.lower() not in (".h5", ".hdf5"):
+            raise ValueError(f"--out must be an .h5 file, got {out}")
+        check_output(out, option="--out", inputs=[mesh], force=force)
+        surface = _load_surface(mesh, units)
+        src = _open_source(
+            port,
+            source,
+            baud=baud,
+            fmt=fmt,
+            tx=tx,
+            rx=rx,
+            tx_mask=tx_mask,
+            rx_mask=rx_mask,
+            seed=seed,
+            mesh=surface if source is SourceChoice.sim else None,
+            allow_url=allow_url,
+        )
+        frames, times, index = [], [], []
+        with src, progress_steps() as step:
+            _first_frame(src, timeout)
+            base, _ = src.read_many(baseline_frames, timeout)
+            step("baseline", baseline_frames, baseline_frames)
+            t0 = None
+            interrupted = False
+            try:
+                while True:
+                    f = src.read(timeout)
+                    t0 = f.timestamp_s if t0 is None else t0
+                    if f.timestamp_s - t0 > seconds:
+                        break
+                    frames.append(f.values)
+                    times.append(f.timestamp_s - t0)
+                    index.append(f.index)
+                    if len(frames) % 25 == 0:
+                        step("streaming (s)", int(f.timestamp_s - t0), int(np.ceil(seconds)))
+            except KeyboardInterrupt:  # Ctrl-C ends the stream early: keep what came
+                interrupted = True
+            summary = _stats_line(src)
+        n = src.n_sensors
+        write_stream_recording(
+            out,
+            n_tx=src.n_tx,
+            n_rx=src.n_rx,
+            mesh=surface,
+            baseline_frames=base,
+            frames=np.asarray(frames, dtype=np.float32).reshape(-1, n),
+            times_s=np.asarray(times),
+            index=np.asarray(index, dtype=np.int64),
+            meta={"source": src.name, "description": f"raw stream of {seconds:g} s"},
+        )
+        console.print(
+            f"Wrote {out}: {baseline_frames} baseline frames + {len(frames)} stream "
+            f"frames, {src.n_tx} TX x {src.n_rx} RX"
+        )
+        err_console.print(summary, highlight=False)
+        if interrupted:
+            from skinloc.errors import Interrupted
+
+            raise Interrupted(f"the stream was cut short; {out} holds the frames up to then")
+
+    # -------------------------------------------------------------------------------- collect
+    @app.command()
+    @friendly_errors
+    def collect(
+        out: Annotated[Path, typer.Option(help="Recording to write; an unfinished one resumes.")],
+        port: PortOpt = None,
+        source: SourceOpt = SourceChoice.serial,
+        mesh: Annotated[
+            Path | None, typer.Option(help="Skin mesh; default: the paper's cone.")
+        ] = None,
+        units: Annotated[UnitsChoice, typer.Option(help="Units of --mesh.")] = UnitsChoice.auto,
+        points: Annotated[int, typer.Option(min=1, help="Point logs to record.")] = 80,
+        mode: Annotated[
+            ModeChoice,
+            typer.Option(
+                help="Target sampling; 'active' chooses each next target from the touches "
+                "recorded so far (after a few evenly spread ones)."
+            ),
+        ] = ModeChoice.even,
+        samples: Annotated[int, typer.Option(min=1, help="Frames per touch.")] = 50,
+        baseline_frames: Annotated[int, typer.Option(min=2, help="No-touch frames first.")] = 50,
+        touch_timeout: Annotated[
+            float, typer.Option(min=0.1, help="Longest wait for a touch or a release, s.")
+        ] = 60.0,
+        max_touches: Annotated[
+            int | None, typer.Option(min=1, help="Stop after this many new point logs.")
+        ] = None,
+        new: Annotated[
+            bool, typer.Option("--new", help="Start over even if --out exists.")
+        ] = False,
+        scripted_finger: Annotated[
+            bool,
+            typer.Option(
+                "--scripted-finger",
+                help="Send 'touch x y z'/'lift' to the port (for 'skinloc virtual-skin').",
+            ),
+        ] = False,
+        baud: BaudOpt = 115200,
+        fmt: FormatOpt = FormatChoice.auto,
+        tx: TxOpt = 8,
+        rx: RxOpt = 8,
+        tx_mask: TxMaskOpt = None,
+        rx_mask: RxMaskOpt = None,
+        allow_url: AllowUrlOpt = False,
+        seed: Annotated[
+            int, typer.Option(min=0, help="Seed of the targets (and of --source sim).")
+        ] = 0,
+        force: Annotated[
+            bool, typer.Option("--force", help="With --new: replace an existing --out.")
+        ] = False,
+    ) -> None:
+        """Record a calibration session on the skin, resumable after a crash.
+
+        The terminal names each target by its index and coordinates; the recording is saved
+        after every touch, and rerunning the same command resumes it.
+
+        Example: skinloc collect --port /dev/ttyACM0 --points 80 --mode even --out cal.h5
+        """
+        from skinloc.calibration.session import CalibrationSession, ScriptedFinger, SessionConfig
+
+        if out.suffix.lower() not in (".h5", ".hdf5"):
+            raise ValueError(f"--out must be an .h5 file, got {out}")
+        resume = out.exists() and not new
+        if new and out.exists() and not force:
+            raise ValueError(
+                f"{out} exists: --new would replace it; pass --force too, or choose another --out"
+            )
+        # Resuming appends to --out on purpose; anything else must not clobber a file.
+        check_output(out, option="--out", inputs=[mesh], force=resume or force)
+        surface = None if resume else _load_surface(mesh, units)
+        if resume and mesh is not None:
+            raise ValueError(
+                f"{out} exists and is resumed with its own mesh: drop --mesh or "
+                "pass --new to start over"
+            )
+        if source is SourceChoice.sim:
+            from skinloc.data.recording import read_recording
+
+            sim_mesh = read_recording(out).mesh if resume else surface
+            src = _open_source(None, source, tx=tx, rx=rx, seed=seed, mesh=sim_mesh)
+        else:
+            src = _open_source(
+                port,
+                source,
+                baud=baud,
+                fmt=fmt,
+                tx=tx,
+                rx=rx,
+                tx_mask=tx_mask,
+                rx_mask=rx_mask,
+                allow_url=allow_url,
+            )
+        with src:
+            _first_frame(src, 1.0)
+            if resume:
+                session = CalibrationSession.resume(src, out)
+                if session.finished:
+                    raise ValueError(
+                        f"{out} is already complete ({session.n_done} point logs); "
+                        "pass --new to record it again"
+                    )
+                console.print(
+                    f"Resuming {out} at point log {session.n_done + 1}/{len(session.targets)}"
+                )
+            else:
+                cfg = SessionConfig(
+                    n_points=points,
+                    mode=mode.value,
+                    samples_per_touch=samples,
+                    n_baseline_frames=baseline_frames,
+                    touch_timeout_s=touch_timeout,
+                    random_state=seed,
+                    description=f"collected on {src.name}",
+                )
+                session = CalibrationSession(src, surface, out, cfg)
+            n_targets = len(session.targets)
+            if source is SourceChoice.sim:
+                prober: Any = ScriptedFinger(
+                    src, random_state=seed + 1 + session.n_done, move_time_s=1.0
+                )
+            else:
+                prober = TerminalProber(console, n_targets, finger=src if scripted_finger else None)
+            if session.recording is None:
+                console.print(
+                    f"Keep the skin untouched: capturing {baseline_frames} baseline frames"
+                )
+                session.capture_baseline()
+            stop_at = (
+                n_targets if max_touches is None else min(n_targets, session.n_done + max_touches)
+            )
+            try:
+                with progress_steps() as step:
+                    while session.n_done < stop_at:
+                        session.record_point(session.n_done, prober)
+                        step("point logs", session.n_done, n_targets)
+            except KeyboardInterrupt:
+                from skinloc.errors import Interrupted
+
+                raise Interrupted(
+                    f"{session.n_done}/{n_targets} point logs are saved in {out}; rerun the "
+                    "same command to resume"
+                ) from None
+            summary = _stats_line(src)
+        done = session.n_done
+        state = "complete" if done >= n_targets else "saved; rerun the same command to resume"
+        console.print(f"Wrote {out}: {done}/{n_targets} point logs ({state})")
+        err_console.print(summary, highlight=False)
+
+    # -------------------------------------------------------------------------------- virtual-skin
+    @app.command("virtual-skin")
+    @friendly_errors
+    def virtual_skin(
+        fmt: Annotated[
+            DeviceFormat, typer.Option("--format", help="Wire format.")
+        ] = DeviceFormat.binary,
+        rate: Annotated[float, typer.Option(min=0.1, max=2000, help="Frames per second.")] = 100,
+        faults: Annotated[
+            bool, typer.Option("--faults", help="Inject garbage, drops, splits, merges, unplugs.")
+        ] = False,
+        disconnect_every: Annotated[
+            float, typer.Option(min=0, help="With --faults: mean s between unplugs (0: none).")
+        ] = 30.0,
+        tx: TxOpt = 8,
+        rx: RxOpt = 8,
+        seed: Annotated[int, typer.Option(help="Seed of the skin and of the faults.")] = 0,
+        seconds: Annotated[
+            float | None, typer.Option(min=0, help="Stop after this long (default: Ctrl-C).")
+        ] = None,
+        truth: Annotated[
+            Path | None, typer.Option(help="On exit, save the ground truth per frame (.npz).")
+        ] = None,
+        force: Annotated[
+            bool, typer.Option("--force", help="Replace an existing --truth.")
+        ] = False,
+    ) -> None:
+        """Expose the simulated skin as a serial port; prints the port's path first.
+
+        The pseudo-terminal streams in real time in the chosen format and answers the firmware's
+        commands; 'touch x y z' (m) and 'lift' over the port move a scripted finger (collect
+        --scripted-finger sends them).
+
+        Example: skinloc virtual-skin --format text --rate 100 --faults
+        """
+        if sys.platform == "win32":
+            raise ValueError("virtual-skin needs a POSIX pseudo-terminal (Linux or macOS)")
+        from skinloc.sim.skin import SimulatedSkin
+        from skinloc.sim.virtual_device import FaultConfig, VirtualSkin
+
+        if truth is not None:
+            if truth.suffix.lower() != ".npz":
+                raise ValueError(f"--truth must name an .npz file, got {truth}")
+            check_output(truth, option="--truth", force=force)
+        skin = SimulatedSkin(n_tx=tx, n_rx=rx, random_state=seed, rate_hz=rate)
+        fault_cfg = (
+            FaultConfig(disconnect_every_s=disconnect_every, random_state=seed + 1)
+            if faults
+            else None
+        )
+        dev = VirtualSkin(
+            skin, fmt=fmt.value, rate_hz=rate, faults=fault_cfg, keep_truth=truth is not None
+        )
+        stopping = []
+
+        def on_signal(signum, _frame) -> None:
+            stopping.append(signum)
+
+        # Handle SIGINT too: a device started in the background inherits it ignored, and
+        # scripts (bench/soak.py) stop it with either signal.
+        old = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
+        try:
+            path = dev.start()
+            sys.stdout.write(path + "\n")
+            sys.stdout.flush()
+            err_console.print(
+                f"virtual skin {tx} x {rx}, {fmt.value}, {rate:g} Hz"
+                + (", faults on" if faults else "")
+                + f" on {path}; Ctrl-C stops",
+                highlight=False,
+            )
+            start = time.monotonic()
+            while not stopping and (seconds is None or time.monotonic() - start < seconds):
+                time.sleep(0.05)
+        finally:
+            dev.stop()
+            for sig, handler in old.items():
+                signal.signal(sig, handler)
+        if truth is not None:
+            from skinloc.data.recording import _atomic_write
+
+            data = dev.truth()
+
+            def write(tmp: Path) -> None:
+                with open(tmp, "wb") as fh:  # a file object: numpy adds no second .npz
+                    np.savez_compressed(fh, **data)
+
+            _atomic_write(truth, write)
+        c = dev.counts
+        err_console.print(
+            f"frames sent intact {c['sent']}, destroyed by faults {c['destroyed']}, "
+            f"unheard {c['unheard']}, disconnects {c['disconnects']}",
+            highlight=False,
+        )

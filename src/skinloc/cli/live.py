@@ -1,0 +1,309 @@
+"""Commands for the live path: ``run`` (the pipeline) and ``export`` (ONNX, C header)."""
+
+from __future__ import annotations
+
+import json
+import logging
+import signal
+import sys
+import time
+from enum import StrEnum
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+log = logging.getLogger(__name__)
+
+
+class WireChoice(StrEnum):
+    """Wire format of a serial port."""
+
+    auto = "auto"
+    text = "text"
+    binary = "binary"
+
+
+class FilterChoice(StrEnum):
+    """Temporal filter of the position."""
+
+    one_euro = "one-euro"
+    none = "none"
+
+
+def _served_urls(runner: Any) -> list[str]:
+    """``ws://host:port`` of every server sink of ``runner`` (after ``open``: ports bound)."""
+    sinks = [*runner.global_sinks, *(s for per_skin in runner.skin_sinks for s in per_skin)]
+    return [url for url in (getattr(s, "url", None) for s in sinks) if url]
+
+
+def _sigterm_as_interrupt() -> Any:
+    def handler(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    try:
+        return signal.signal(signal.SIGTERM, handler)
+    except ValueError:  # not the main thread (tests)
+        return None
+
+
+def _check_sources(specs: list[Any], allow_url: bool) -> None:
+    """Refuse a port that is a pyserial URL (without ``--allow-url``) or not a serial device."""
+    from skinloc.hardware.serial import check_source
+    from skinloc.live.runner import _is_recording
+
+    for spec in specs:
+        src = spec.source
+        if not isinstance(src, str) or src == "sim" or src.startswith("sim:"):
+            continue
+        if not _is_recording(src):
+            check_source(src, allow_urls=allow_url, allow_sim=False, opt_in="pass --allow-url")
+
+
+def _sink_files(spec: str) -> list[Path]:
+    """Files a ``--sink`` writes: ``jsonl:F``, ``mcap:F``, ``mcap-ros2:F``, ``...?mcap=F``."""
+    from urllib.parse import parse_qs, urlsplit
+
+    for scheme in ("jsonl:", "mcap:", "mcap-ros2:"):
+        if spec.startswith(scheme) and len(spec) > len(scheme):
+            return [Path(spec[len(scheme) :])]
+    if "://" in spec:
+        return [Path(p) for p in parse_qs(urlsplit(spec).query).get("mcap", [])]
+    return []
+
+
+def register(app: typer.Typer) -> None:
+    """Add ``run`` and ``export`` to the main ``skinloc`` app."""
+    from skinloc.cli.common import check_output, err_console, friendly_errors
+
+    @app.command()
+    @friendly_errors
+    def run(
+        model: Annotated[
+            Path | None, typer.Option("--model", "-m", help="Model file ('skinloc train').")
+        ] = None,
+        source: Annotated[
+            str,
+            typer.Option(
+                "--source",
+                "-s",
+                help="'sim' (simulated skin, scripted finger), a serial port, or a "
+                "recording (.h5/.mat) to replay; a pyserial URL needs --allow-url.",
+            ),
+        ] = "sim",
+        sink: Annotated[
+            list[str] | None,
+            typer.Option(
+                "--sink",
+                help="Where contacts go, repeatable: jsonl, jsonl:FILE, ws://HOST:PORT, "
+                "udp://HOST:PORT, foxglove://HOST:PORT[?mcap=FILE], mcap:FILE, lsl[:NAME], "
+                "ros2. Default: jsonl (stdout).",
+            ),
+        ] = None,
+        config: Annotated[
+            Path | None,
+            typer.Option("--config", help="Skins file (TOML) for many skins; see docs/live.md."),
+        ] = None,
+        fast: Annotated[
+            bool, typer.Option("--fast", help="Replay a recording as fast as possible.")
+        ] = False,
+        loop: Annotated[bool, typer.Option("--loop", help="Replay a recording forever.")] = False,
+        baud: Annotated[int, typer.Option(min=50, help="Baud rate of a serial port.")] = 115200,
+        wire_format: Annotated[
+            WireChoice, typer.Option("--format", help="Wire format of a serial port.")
+        ] = WireChoice.auto,
+        tx: Annotated[int | None, typer.Option(min=1, max=21, help="TX lines sent.")] = None,
+        rx: Annotated[int | None, typer.Option(min=1, max=12, help="RX lines sent.")] = None,
+        name: Annotated[str, typer.Option(help="Skin name carried by the contacts.")] = "skin",
+        duration: Annotated[
+            float | None, typer.Option(min=0.0, help="Stop after this many seconds.")
+        ] = None,
+        drift: Annotated[
+            bool, typer.Option("--drift/--no-drift", help="Track baseline drift while untouched.")
+        ] = True,
+        filter_: Annotated[
+            FilterChoice, typer.Option("--filter", help="Temporal filter on the surface.")
+        ] = FilterChoice.one_euro,
+        on_z: Annotated[
+            float, typer.Option(help="Touch starts above this signal (noise std).")
+        ] = 8.0,
+        off_z: Annotated[
+            float, typer.Option(help="Touch ends below this signal (noise std).")
+        ] = 4.0,
+        baseline: Annotated[
+            Path | None,
+            typer.Option(help="Take the baseline from this recording instead of capturing it."),
+        ] = None,
+        emit_idle: Annotated[
+            bool, typer.Option("--emit-idle", help="Also output untouched frames.")
+        ] = False,
+        stats: Annotated[
+            bool, typer.Option("--stats", help="Print per-skin counters as JSON on stderr at exit.")
+        ] = False,
+        allow_url: Annotated[
+            bool,
+            typer.Option(
+                "--allow-url",
+                help="Let a source be a pyserial URL (socket://, rfc2217://, loop://, spy://...); "
+                "these reach the network or files, not only a skin.",
+            ),
+        ] = False,
+    ) -> None:
+        """Run the live pipeline: frames -> baseline -> touch -> localiser -> surface -> sinks.
+
+        Example: skinloc run --model model.h5 --source /dev/ttyACM0 --sink jsonl --sink ws://127.0.0.1:8767
+        """
+        from skinloc.live.core import PipelineConfig
+        from skinloc.live.runner import Runner, SkinSpec
+
+        sinks = list(sink) if sink else ["jsonl"]
+        inputs = [model, baseline, config, Path(source)]
+        for spec_text in sinks:
+            for path in _sink_files(spec_text):
+                # Sink files are logs that may be appended to; only an input is off limits.
+                check_output(path, option="--sink", inputs=inputs, force=True)
+        if config is not None:
+            from skinloc.live.skins_file import load_skins
+
+            if model is not None:
+                raise ValueError("give either --config (many skins) or --model, not both")
+            specs, global_sinks = load_skins(config)
+            _check_sources(specs, allow_url)
+            runner = Runner(specs, sinks=[*global_sinks, *(sink or [])] or ["jsonl"])
+        else:
+            if model is None:
+                raise ValueError("give --model MODEL (from 'skinloc train') or --config SKINS.toml")
+            if not model.is_file():
+                raise ValueError(f"model not found: {model}")
+            cfg = PipelineConfig(
+                drift_tracking=drift,
+                filter=filter_.value,
+                touch_on_z=on_z,
+                touch_off_z=off_z,
+                emit_idle=emit_idle,
+            )
+            spec = SkinSpec(
+                model=model,
+                source=source,
+                name=name,
+                config=cfg,
+                baud=baud,
+                wire_format=wire_format.value,
+                n_tx=tx,
+                n_rx=rx,
+                realtime=not fast,
+                loop=loop,
+                baseline=baseline,
+            )
+            _check_sources([spec], allow_url)
+            runner = Runner([spec], sinks=sinks)
+        previous = _sigterm_as_interrupt()
+        t0 = time.monotonic()
+        try:
+            with runner:
+                err_console.print(
+                    f"running {len(runner.specs)} skin(s): "
+                    + ", ".join(f"{s.name} <- {s.source}" for s in runner.specs),
+                    highlight=False,
+                )
+                # Servers asked for port 0 got a free one: say which.
+                for url in _served_urls(runner):
+                    err_console.print(f"serving contacts on {url}", highlight=False)
+                try:
+                    runner.run(duration)
+                except KeyboardInterrupt:
+                    pass
+                except BrokenPipeError:  # stdout closed by the reader (| head): stop quietly
+                    import os
+
+                    os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+                counters = runner.stats()
+        finally:
+            if previous is not None:
+                signal.signal(signal.SIGTERM, previous)
+        elapsed = time.monotonic() - t0
+        for c in counters:
+            err_console.print(
+                f"{c['skin']}: {c['frames']} frames, {c['touches']} touches, "
+                f"{c['contacts']} contacts in {elapsed:.1f} s"
+                + (f", {c['reconnects']} reconnects" if "reconnects" in c else ""),
+                highlight=False,
+            )
+        if stats:
+            sys.stderr.write(json.dumps(counters, default=str) + "\n")
+
+    @app.command()
+    @friendly_errors
+    def export(
+        model: Annotated[Path, typer.Argument(help="Model file ('skinloc train').")],
+        onnx: Annotated[Path | None, typer.Option("--onnx", help="Write an ONNX file.")] = None,
+        c_header: Annotated[
+            Path | None, typer.Option("--c-header", help="Write a C header for a microcontroller.")
+        ] = None,
+        surface: Annotated[
+            bool,
+            typer.Option("--surface/--no-surface", help="Include the snap to the surface points."),
+        ] = True,
+        prefix: Annotated[str, typer.Option(help="Prefix of the C names.")] = "skinloc",
+        force: Annotated[bool, typer.Option("--force", help="Replace existing files.")] = False,
+    ) -> None:
+        """Export a model to ONNX (robot computer) or a C header (Arduino, ESP32).
+
+        Example: skinloc export model.h5 --onnx model.onnx --c-header skinloc_model.h
+        """
+        from skinloc.data.recording import _atomic_write
+        from skinloc.models.engine import ModelSpec
+        from skinloc.models.export import export_c_header, export_onnx
+
+        if onnx is None and c_header is None:
+            raise ValueError("nothing to do: give --onnx FILE and/or --c-header FILE")
+        if not model.is_file():
+            raise ValueError(f"model not found: {model}")
+        if onnx is not None and c_header is not None and onnx.resolve() == c_header.resolve():
+            raise ValueError("--onnx and --c-header name the same file")
+        if onnx is not None:
+            check_output(onnx, option="--onnx", inputs=[model], force=force)
+        if c_header is not None:
+            check_output(c_header, option="--c-header", inputs=[model], force=force)
+        spec = ModelSpec.load(model)
+        if onnx is not None:
+            _atomic_write(onnx, lambda tmp: export_onnx(spec, tmp, include_surface=surface))
+            err_console.print(f"wrote {onnx}", highlight=False)
+        if c_header is not None:
+            _atomic_write(
+                c_header,
+                lambda tmp: export_c_header(spec, tmp, include_surface=surface, prefix=prefix),
+            )
+            size = c_header.stat().st_size
+            err_console.print(
+                f"wrote {c_header} ({size / 1024:.0f} KiB of source)", highlight=False
+            )
+
+
+def bench_online(out: Path, as_json: bool) -> None:
+    """``skinloc bench --online``: the live path's figures, written to ``out/online.json``."""
+    from skinloc.cli.common import console, progress_steps
+    from skinloc.live.bench import online_bench
+
+    out.mkdir(parents=True, exist_ok=True)
+    with progress_steps() as step:
+        res = online_bench(out=out, step=step)
+    (out / "online.json").write_text(json.dumps(res, indent=2, default=float))
+    if as_json:
+        sys.stdout.write(json.dumps(res, indent=2, default=float) + "\n")
+        return
+    for r in res["single_stream"]:
+        console.print(
+            f"[bold]{r['arch']}[/] ({r['kind']}): bytes in -> contact out median "
+            f"{r['latency_touched_median_us']:.1f} us, p99 {r['latency_touched_p99_us']:.0f} us; "
+            f"baseline {r['baseline_median_us']:.0f} us (x{r['speedup_median']:.1f}); "
+            f"stream {r['stream_frames_per_s']:.0f} frames/s; "
+            f"batched {r['batch_frames_per_s']:.0f} frames/s"
+        )
+    m = res["many_skins"]
+    console.print(
+        f"{m['skins']} skins at {m['rate_hz']:g} Hz for {m['duration_s']:g} s: latency p99 "
+        f"{m['latency_p99_us']:.0f} us (end to end {m['end_to_end_p99_us']:.0f} us), "
+        f"{m['frames_dropped']} frames dropped of {m['frames_sent']}"
+    )
+    console.print(f"Results in {out}/online.json")

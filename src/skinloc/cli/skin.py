@@ -1,0 +1,262 @@
+"""Commands about the skin itself: ``skinloc sensors`` and ``skinloc coverage``."""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import tempfile
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+__all__ = ["register", "load_skin_input"]
+
+
+def load_skin_input(paths: list[Path]) -> tuple[str, Any]:
+    """Read recordings of one skin, or one model file.
+
+    Returns ``("recordings", [Recording, ...])`` or ``("model", ContactLocalizer)``.
+
+    Raises
+    ------
+    ValueError
+        For a model given with other files.
+    """
+    import h5py
+
+    from skinloc.data.recording import read_recording
+    from skinloc.models.localizer import ContactLocalizer
+
+    def is_model(p: Path) -> bool:
+        try:
+            with h5py.File(p, "r") as f:
+                return f.attrs.get("format") == "skinloc-model"
+        except OSError:
+            return False
+
+    models = [p for p in paths if p.is_file() and is_model(p)]
+    if models:
+        if len(paths) > 1:
+            raise ValueError("give one model file, or one or more recordings, not both")
+        return "model", ContactLocalizer.load(models[0])
+    return "recordings", [read_recording(p) for p in paths]
+
+
+def _write_text_atomic(path: Path, text: str) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    try:
+        with os.fdopen(fd, "w") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _check_out(out: Path, inputs: list[Path], names: tuple[str, ...]) -> None:
+    """Refuse a report folder that is, or would overwrite, an input."""
+    res = out.resolve()
+    for p in inputs:
+        if p.resolve() == res or p.resolve().parent == res and p.name in names:
+            raise ValueError(f"--out {out} would overwrite the input {p}")
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out} exists and is not a folder")
+
+
+def sensors_result(kind: str, obj: Any, n_boot: int, seed: int) -> tuple[dict, Any, Any, Any]:
+    """The sensor map as JSON, with a truth comparison when the recording knows its layout.
+
+    Returns ``(result, SensorMap, mesh, truth or None)``.
+    """
+    import numpy as np
+
+    from skinloc.geometry.mesh import mesh_from_arrays
+    from skinloc.sensors import positions as S
+
+    if kind == "model":
+        smap = S.sensor_map_from_model(obj)
+        mesh = (
+            mesh_from_arrays(obj.mesh_vertices_, obj.mesh_faces_)
+            if getattr(obj, "mesh_vertices_", None) is not None
+            else None
+        )
+        truth = None
+    else:
+        smap = S.sensor_map_from_recordings(obj, n_boot=n_boot, random_state=seed)
+        mesh = obj[0].mesh
+        truth = S.truth_sensor_positions(obj[0].meta)
+    result = smap.as_dict()
+    if kind != "model" and len(obj) == 1:
+        from skinloc.calibration.repeatability import session_repeatability
+
+        rep = session_repeatability(obj[0])
+        if rep is not None:
+            result["probing_repeatability_mm"] = round(rep["rms_mm"], 2)
+            result["n_repeated_targets"] = rep["n_pairs"]
+    if truth is not None and truth.shape == smap.positions_m.shape:
+        err = S.position_errors_mm(smap.positions_m, truth)
+        alive = smap.status != "dead"
+        result["truth"] = {
+            "median_mm": round(float(np.median(err[alive])), 2),
+            "p90_mm": round(float(np.percentile(err[alive], 90)), 2),
+            "max_mm": round(float(err[alive].max()), 2),
+            "n_scored": int(alive.sum()),
+            "note": "against the simulator's true crossings, sensors not flagged dead",
+        }
+    return result, smap, mesh, truth
+
+
+def register(app: typer.Typer) -> None:
+    """Add ``sensors`` and ``coverage`` to the main ``skinloc`` app."""
+    from skinloc.cli.common import console, friendly_errors
+
+    @app.command()
+    @friendly_errors
+    def sensors(
+        data: Annotated[
+            list[Path],
+            typer.Argument(help="Calibration recordings of one skin, or one model file."),
+        ],
+        as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+        out: Annotated[
+            Path | None,
+            typer.Option(help="Report folder: sensors.json and sensors.png (mesh, wires)."),
+        ] = None,
+        boot: Annotated[
+            int, typer.Option(min=0, max=100, help="Bootstrap resamples for the uncertainty.")
+        ] = 8,
+        seed: Annotated[int, typer.Option(help="Seed of the bootstrap.")] = 0,
+    ) -> None:
+        """Locate every TX x RX crossing and wire on the surface; flag dead, weak, noisy lines.
+
+        Example: skinloc sensors cal.h5 --json --out sensors-report/
+        """
+        if out is not None:
+            _check_out(out, data, ("sensors.json", "sensors.png"))
+        kind, obj = load_skin_input(data)
+        result, smap, mesh, truth = sensors_result(kind, obj, boot, seed)
+        result["source"] = [str(p) for p in data]
+        if out is not None:
+            from skinloc.sensors.figures import plot_sensor_map
+
+            out.mkdir(parents=True, exist_ok=True)
+            _write_text_atomic(out / "sensors.json", json.dumps(result, indent=1) + "\n")
+            if mesh is not None:
+                plot_sensor_map(mesh, smap, out / "sensors.png", truth)
+        if as_json:
+            sys.stdout.write(json.dumps(result, indent=1) + "\n")
+            return
+        _print_summary(console, result)
+        if out is not None:
+            console.print(f"Report in {out}/")
+
+    @app.command()
+    @friendly_errors
+    def coverage(
+        data: Annotated[
+            list[Path],
+            typer.Argument(help="A model file, or calibration recordings (a map is fitted)."),
+        ],
+        as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+        out: Annotated[
+            Path | None,
+            typer.Option(help="Report folder: coverage.json and coverage.png (the skin)."),
+        ] = None,
+        points: Annotated[
+            int, typer.Option(min=20, max=3000, help="Evaluation points on the surface.")
+        ] = 400,
+    ) -> None:
+        """Expected localisation error over the skin, and its blind spots.
+
+        Example: skinloc coverage model.h5 --json --out coverage-report/
+        """
+        if out is not None:
+            _check_out(out, data, ("coverage.json", "coverage.png"))
+        kind, obj = load_skin_input(data)
+        result, cov, mesh = coverage_result(kind, obj, points)
+        result["source"] = [str(p) for p in data]
+        if out is not None:
+            from skinloc.sensors.figures import plot_coverage
+
+            out.mkdir(parents=True, exist_ok=True)
+            _write_text_atomic(out / "coverage.json", json.dumps(result, indent=1) + "\n")
+            if mesh is not None:
+                plot_coverage(
+                    mesh, cov.points_m, cov.expected_mm, out / "coverage.png", cov.blind_m
+                )
+        if as_json:
+            sys.stdout.write(json.dumps(result, indent=1) + "\n")
+            return
+        e = result["expected_error_mm"]
+        console.print(
+            f"expected error: mean {e['mean']} mm, median {e['median']} mm, p90 {e['p90']} mm; "
+            f"blind (> {result['blind_threshold_mm']:.0f} mm): "
+            f"{100 * result['blind_fraction']:.0f}% of the skin"
+        )
+
+
+def coverage_result(kind: str, obj: Any, n_points: int) -> tuple[dict, Any, Any]:
+    """Coverage of a model, or of a default map trained on the recordings.
+
+    Returns ``(result, Coverage, mesh or None)``.
+    """
+    from skinloc.geometry.mesh import mesh_from_arrays
+    from skinloc.sensors.coverage import calibrate_temperature, coverage_map
+
+    temperature = float(getattr(obj, "meta_", {}).get("coverage_temperature", 1.0))
+    if kind == "model":
+        model, F = obj, None
+        mesh = (
+            mesh_from_arrays(model.mesh_vertices_, model.mesh_faces_)
+            if getattr(model, "mesh_vertices_", None) is not None
+            else None
+        )
+    else:
+        import numpy as np
+
+        from skinloc.evaluation.scoring import train_localizer
+        from skinloc.models.response_map import shape_features
+
+        model = train_localizer(obj)
+        F = shape_features(np.concatenate([r.touch_means for r in obj]))
+        targets = np.concatenate([r.targets for r in obj])
+        temperature = calibrate_temperature(targets, F, model.map_.candidates)
+        mesh = obj[0].mesh
+    if getattr(model, "map_", None) is None:
+        raise ValueError("coverage needs a response-map model (arch 'default'), or recordings")
+    cov = coverage_map(model.map_, F, n_points=n_points, temperature=temperature)
+    return cov.as_dict(), cov, mesh
+
+
+def _print_summary(console: Any, result: dict) -> None:
+    from rich.table import Table
+
+    n_rx = result["n_rx"]
+    grid = Table("TX \\ RX", *[str(j) for j in range(n_rx)], title="sensor status / gain")
+    rows: dict[int, list[str]] = {}
+    for s in result["sensors"]:
+        mark = "" if s["status"] == "ok" else f" {s['status']}"
+        rows.setdefault(s["tx"], []).append(f"{s['gain']:.2f}{mark}")
+    for i, cells in rows.items():
+        grid.add_row(str(i), *cells)
+    console.print(grid)
+    bad = [f"{ln['kind'].upper()} {ln['index']}: {ln['status']}" for ln in result["lines"]]
+    bad = [b for b in bad if not b.endswith(": ok")]
+    console.print("lines flagged: " + (", ".join(bad) if bad else "none"))
+    unc = [s["uncertainty_mm"] for s in result["sensors"] if s["uncertainty_mm"] is not None]
+    if unc:
+        unc.sort()
+        console.print(f"position uncertainty: median {unc[len(unc) // 2]:.1f} mm")
+    if "probing_repeatability_mm" in result:
+        console.print(
+            f"your probing repeatability: {result['probing_repeatability_mm']:.1f} mm "
+            f"({result['n_repeated_targets']} repeated targets): no accuracy figure of this "
+            "session can be trusted below it"
+        )
+    if "truth" in result:
+        t = result["truth"]
+        console.print(
+            f"against the true crossings: median {t['median_mm']} mm, 90th pct {t['p90_mm']} mm"
+        )

@@ -1,0 +1,354 @@
+"""``skinloc demo``: simulate the paper's skin, calibrate, train, validate and report.
+
+The report is meant to be pasted into a paper or a lab notebook: it states the seed, skinloc's
+version and what "default" is, shows the error against the number of calibration touches
+over several simulated skins with the paper's network beside it and the real skin's figures
+(``docs/benchmarks.md``), and writes every figure as PNG and SVG.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import logging
+import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from skinloc.calibration.session import SessionConfig, simulate_session
+from skinloc.evaluation.metrics import ErrorStats, mean_snr_db
+from skinloc.evaluation.scoring import evaluate, train_localizer
+from skinloc.geometry.mesh import cone_skin, farthest_point_sampling
+
+log = logging.getLogger(__name__)
+
+__all__ = ["REAL_SKIN_ERROR_MM", "DemoConfig", "DemoResult", "SkinCurve", "run_demo"]
+
+#: Mean error (mm) on the real skin of models trained on evenly spread subsets of the
+#: 80-point-log recording of 2023-12-10 and tested on the 50 and 30 point logs recorded the
+#: same day (80 touches): ``docs/benchmarks.md``, "Error against point logs on the real skin",
+#: from ``python bench/fit_simulator.py --model-error``.
+REAL_SKIN_ERROR_MM: dict[str, dict[int, float]] = {
+    "default": {10: 16.9, 20: 13.8, 40: 11.2, 80: 9.9},
+    "paper": {10: 36.4, 20: 21.5, 40: 17.7, 80: 14.5},
+}
+
+
+@dataclass
+class DemoConfig:
+    """Settings of the demo.
+
+    Attributes
+    ----------
+    out_dir : Path
+        Report folder (recordings, model, PNG and SVG figures, index.html).
+    n_points : int
+        Calibration point logs (the paper's best model: 80).
+    n_validation : int
+        Fresh random validation touches on the first skin (the paper: 20).
+    samples_per_touch : int
+        Frames per touch.
+    curve_sizes : tuple of int
+        Point-log counts for the error-against-point-logs figure.
+    random_state : int
+        Seed of the first simulated skin and its sessions; the other skins use the next seeds.
+    arch : str
+        Localiser configuration.
+    n_skins : int
+        Simulated skins (wirings) the error curve is measured on, the first included.
+    n_validation_extra : int
+        Fresh random validation touches on each of the other skins.
+    compare_paper : bool
+        Also train the paper's 64-32-3 network at every size, for the curve.
+    """
+
+    out_dir: Path = Path("skinloc-demo")
+    n_points: int = 80
+    n_validation: int = 20
+    samples_per_touch: int = 50
+    curve_sizes: tuple[int, ...] = (10, 20, 40, 80)
+    random_state: int = 0
+    arch: str = "default"
+    n_skins: int = 3
+    n_validation_extra: int = 20
+    compare_paper: bool = True
+
+
+@dataclass
+class SkinCurve:
+    """Mean error (mm) per calibration size on each simulated skin, for one configuration."""
+
+    arch: str
+    sizes: list[int]
+    per_skin: list[list[float]]  # per_skin[s][i]: skin s, size sizes[i]
+
+    def mean(self) -> np.ndarray:
+        """Mean over skins per size, mm."""
+        return np.mean(np.asarray(self.per_skin), axis=0)
+
+    def spread(self) -> np.ndarray:
+        """Standard deviation over skins per size, mm (0 with one skin)."""
+        return np.std(np.asarray(self.per_skin), axis=0)
+
+
+@dataclass
+class DemoResult:
+    """What the demo measured."""
+
+    stats: ErrorStats
+    mean_snr_db: float
+    curve: dict[int, ErrorStats] = field(default_factory=dict)
+    report: Path | None = None
+    fit_time_s: float = float("nan")
+    skins: dict[str, SkinCurve] = field(default_factory=dict)
+    uncertainty_spearman: float = float("nan")
+
+    def headline(self) -> tuple[float, float, int]:
+        """Mean and spread (std over skins) of the error at the largest size, mm; skins."""
+        c = self.skins.get("main")
+        if c is None or not c.per_skin:
+            return self.stats.mean_mm, 0.0, 1
+        return float(c.mean()[-1]), float(c.spread()[-1]), len(c.per_skin)
+
+
+def _even_subset(targets: np.ndarray, n: int) -> np.ndarray:
+    """``n`` indices of ``targets`` spread evenly over them (farthest-point sampling)."""
+    return farthest_point_sampling(targets, n, start=0)
+
+
+def _session(skin, mesh, path: Path, n: int, mode: str, cfg: DemoConfig, seed: int, say, label):
+    return simulate_session(
+        skin,
+        mesh,
+        path,
+        SessionConfig(
+            n_points=n,
+            mode=mode,
+            samples_per_touch=cfg.samples_per_touch,
+            random_state=seed,
+            description=f"skinloc demo {label}",
+        ),
+        progress=lambda d, t: say(label, d, t),
+    )
+
+
+def run_demo(cfg: DemoConfig, step: Callable[[str, int, int], None] | None = None) -> DemoResult:
+    """Run the whole path on simulated paper skins and write the report folder (see ``_run``)."""
+    try:
+        import torch
+    except ImportError:  # a plain install: no network is trained (see _run)
+        return _run(cfg, step)
+    # Many small networks: one thread each is several times faster than two fighting over a
+    # busy machine's cores (measured: 9 s against 127 s for the paper net under load).
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        return _run(cfg, step)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _run(cfg: DemoConfig, step: Callable[[str, int, int], None] | None) -> DemoResult:
+    """Run the whole path on simulated paper skins and write the report folder.
+
+    The first skin (seed ``random_state``) is calibrated with ``n_points`` even touches and
+    validated on ``n_validation`` fresh random ones; its recordings and model are kept. The
+    error curve repeats the calibration on ``n_skins`` skins (the next seeds), each validated
+    on its own fresh touches. ``step(label, done, total)`` reports progress.
+    """
+    from skinloc import __version__
+    from skinloc.evaluation import report
+    from skinloc.models.localizer import ARCHITECTURES
+    from skinloc.sim.skin import SimulatedSkin
+
+    say = step or (lambda *a: None)
+    out = Path(cfg.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    mesh = cone_skin()
+    seeds = [cfg.random_state + k for k in range(max(1, cfg.n_skins))]
+    compare = cfg.compare_paper and cfg.arch != "paper"
+    # The paper's network trains in PyTorch, the [nets] extra; the plain install skips it.
+    without_torch = compare and importlib.util.find_spec("torch") is None
+    if without_torch:
+        log.warning("the paper's network is left out: it trains in PyTorch (skinloc[nets])")
+    archs = [cfg.arch] + (["paper"] if compare and not without_torch else [])
+    sizes = sorted({n for n in cfg.curve_sizes if 1 <= n <= cfg.n_points} | {cfg.n_points})
+    per_skin: dict[str, list[list[float]]] = {a: [] for a in archs}
+    ev = cal = val = model = None
+    curve: dict[int, ErrorStats] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for k, seed in enumerate(seeds):
+            first = k == 0
+            where = out if first else Path(tmp)
+            skin = SimulatedSkin(mesh, random_state=seed)
+            tag = "" if first else f" (skin {k + 1} of {len(seeds)})"
+            with skin:
+                c = _session(
+                    skin,
+                    mesh,
+                    where / "calibration.h5",
+                    cfg.n_points,
+                    "even",
+                    cfg,
+                    seed,
+                    say,
+                    "calibrating (simulated touches)" + tag,
+                )
+                v = _session(
+                    skin,
+                    mesh,
+                    where / "validation.h5",
+                    cfg.n_validation if first else cfg.n_validation_extra,
+                    "random",
+                    cfg,
+                    seed + 1000,
+                    say,
+                    "validating (fresh random touches)" + tag,
+                )
+            for arch in archs:
+                row = []
+                for i, n in enumerate(sizes):
+                    say("error against point logs" + tag, i, len(sizes))
+                    sub = c if n == c.n_point_logs else c.subset(_even_subset(c.targets, n))
+                    m = train_localizer([sub], arch=arch, random_state=seed)
+                    e = evaluate(m, [v])
+                    row.append(e.stats.mean_mm)
+                    if first and arch == cfg.arch:
+                        curve[n] = e.stats
+                        if n == c.n_point_logs:
+                            model, ev = m, e
+                per_skin[arch].append(row)
+            if first:
+                cal, val = c, v
+    assert ev is not None and cal is not None and val is not None and model is not None
+    model.save(out / "model.h5")
+    snr = mean_snr_db(cal.touch_means, cal.baseline_frames)
+    skins = {"main": SkinCurve(cfg.arch, sizes, per_skin[cfg.arch])}
+    if "paper" in per_skin and cfg.arch != "paper":
+        skins["paper"] = SkinCurve("paper", sizes, per_skin["paper"])
+
+    figs = _figures(cfg, out, mesh, cal, ev, skins, report)
+    mean, spread, n_sk = (
+        float(skins["main"].mean()[-1]),
+        float(skins["main"].spread()[-1]),
+        len(seeds),
+    )
+    real = REAL_SKIN_ERROR_MM.get(cfg.arch, {}).get(cfg.n_points)
+    what = ARCHITECTURES[cfg.arch]
+    summary = {
+        "skinloc version": __version__,
+        "seed": f"{cfg.random_state} (skins {seeds[0]}-{seeds[-1]}; validation sessions "
+        f"seed + 1000)",
+        "model": f"{cfg.arch}: {_describe(cfg.arch, what)}; trained in {model.fit_time_s_:.1f} s",
+        "skin": "simulated semi-conical skin of the paper (8 TX x 8 RX), physics fitted to the "
+        "real recordings (docs/simulator.md)",
+        "calibration": f"{cal.n_point_logs} point logs (even), {cal.samples_per_touch} frames "
+        "each; smaller sizes are evenly spread subsets of them",
+        "validation": f"{val.n_point_logs} fresh random touches on skin 1, "
+        f"{cfg.n_validation_extra} on each other skin; the label is the prompted target "
+        "(the simulated person misses it, as a real one does)",
+        f"expected error, {cal.n_point_logs} touches": f"{mean:.1f} +- {spread:.1f} mm "
+        f"(mean +- std over {n_sk} simulated skins)"
+        + (f"; real skin: {real:.1f} mm (docs/benchmarks.md)" if real else ""),
+        **(
+            {
+                f"paper 64-32-3 network, {cal.n_point_logs} touches": (
+                    f"{skins['paper'].mean()[-1]:.1f} +- {skins['paper'].spread()[-1]:.1f} mm "
+                    f"(same skins and touches)"
+                    + (
+                        f"; real skin: {REAL_SKIN_ERROR_MM['paper'][cal.n_point_logs]:.1f} mm"
+                        if cal.n_point_logs in REAL_SKIN_ERROR_MM["paper"]
+                        else ""
+                    )
+                )
+            }
+            if "paper" in skins
+            else {}
+        ),
+        **(
+            {
+                "paper 64-32-3 network": "not trained here: it needs PyTorch "
+                "(pip install 'skinloc[nets]')"
+            }
+            if without_torch
+            else {}
+        ),
+        "this skin's error": str(ev.stats),
+        "uncertainty vs error": f"Spearman {ev.uncertainty_spearman:.2f}",
+        "mean SNR (Eq. 1)": f"{snr:.1f} dB",
+        **{f"skin 1, {n} point logs": str(s) for n, s in curve.items()},
+    }
+    page = report.write_html(
+        out / "index.html",
+        "skinloc demo: simulated paper skin",
+        summary,
+        figs,
+        notes="Recordings and the model are in this folder: calibration.h5, validation.h5, "
+        "model.h5. Every figure is also saved as SVG beside its PNG. Reproduce with "
+        f"`skinloc demo --seed {cfg.random_state} --points {cfg.n_points} "
+        f"--validation {cfg.n_validation} --skins {len(seeds)}`.",
+    )
+    return DemoResult(ev.stats, snr, curve, page, model.fit_time_s_, skins, ev.uncertainty_spearman)
+
+
+def _describe(arch: str, cfg: dict) -> str:
+    if cfg.get("kind") == "map":
+        return (
+            "a response map (Gaussian-process interpolation of each sensor's normalised "
+            "response over the surface, matched by image shape)"
+        )
+    if arch == "paper":
+        return "the paper's 64-32-3 tanh network, outputs snapped to the surface"
+    return "an ensemble of fully connected networks, outputs snapped to the surface"
+
+
+def _figures(cfg, out, mesh, cal, ev, skins, report) -> list[tuple[str, str]]:
+    """Write the figures (PNG + SVG) and return ``(png name, caption)`` pairs."""
+    strongest = int(np.argmax(cal.touch_means.max(axis=1)))
+    main = skins["main"]
+    n_sk = len(main.per_skin)
+    curves = {
+        f"{main.arch} (simulated, {n_sk} skins)": (main.sizes, main.mean(), main.spread()),
+    }
+    if "paper" in skins:
+        p = skins["paper"]
+        curves[f"paper 64-32-3 (simulated, {n_sk} skins)"] = (p.sizes, p.mean(), p.spread())
+    shown = [main.arch] + (["paper"] if "paper" in skins else [])
+    real = {
+        f"{a} (real skin)": (list(REAL_SKIN_ERROR_MM[a]), list(REAL_SKIN_ERROR_MM[a].values()))
+        for a in shown
+        if a in REAL_SKIN_ERROR_MM
+    }
+    paths = [
+        (
+            report.plot_sensor_image(
+                cal.touch_means[strongest],
+                cal.n_tx,
+                cal.n_rx,
+                out / "sensor_image.png",
+                f"Touch {strongest}: mean of {cal.samples_per_touch} frames",
+            ),
+            "A touch's sensor image (TX x RX), counts above baseline.",
+        ),
+        (
+            report.plot_predictions_3d(mesh, ev.true, ev.predicted, out / "predictions_3d.png"),
+            f"{len(ev.true)} validation touches on skin 1: each segment joins the prompted "
+            "target (o) to the prediction (x); colour is the error.",
+        ),
+        (
+            report.plot_error_curves(curves, real, out / "error_vs_points.png"),
+            f"Validation error against calibration point logs. Simulated: mean over {n_sk} "
+            "skins, error bars one standard deviation between skins (each skin's error is "
+            f"the mean over its validation touches). Real skin: {', '.join(real)} from "
+            "docs/benchmarks.md (trained on evenly spread subsets of one real recording, "
+            "tested on two others of the same day).",
+        ),
+        (
+            report.plot_uncertainty(ev.uncertainty_mm, ev.errors_mm, out / "uncertainty.png"),
+            f"The model's own uncertainty against its error, per validation touch "
+            f"(Spearman {ev.uncertainty_spearman:.2f}).",
+        ),
+    ]
+    return [(p.name, cap) for p, cap in paths]

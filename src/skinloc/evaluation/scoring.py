@@ -1,0 +1,167 @@
+"""Glue between recordings and the localiser: training arrays and scored evaluations."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from skinloc.data.recording import Recording
+from skinloc.errors import RecordingError
+from skinloc.evaluation.metrics import ErrorStats, error_stats, localisation_errors_mm
+
+__all__ = [
+    "Evaluation",
+    "check_compatible",
+    "evaluate",
+    "recalibrate_localizer",
+    "train_localizer",
+    "training_arrays",
+]
+
+
+def check_compatible(recordings: Sequence[Recording], n_sensors: int | None = None) -> int:
+    """Check that all recordings share one sensor count (and ``n_sensors`` if given)."""
+    if not recordings:
+        raise RecordingError("no recordings given")
+    counts = {r.n_sensors for r in recordings}
+    if len(counts) > 1:
+        raise RecordingError(f"recordings have different sensor counts: {sorted(counts)}")
+    (count,) = counts
+    if n_sensors is not None and count != n_sensors:
+        raise RecordingError(f"the recording has {count} sensors but the model expects {n_sensors}")
+    for r in recordings:
+        if r.n_point_logs == 0:
+            raise RecordingError("a recording holds no point logs")
+    return count
+
+
+def training_arrays(recordings: Sequence[Recording]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every frame of every point log, baseline-subtracted with its own recording's baseline.
+
+    Returns
+    -------
+    X : (N, n_sensors) float32
+        Frames, counts.
+    y : (N, 3) float
+        Targets, m.
+    groups : (N,) int
+        Touch index, unique across recordings.
+    """
+    check_compatible(recordings)
+    X, y, groups, offset = [], [], [], 0
+    for rec in recordings:
+        d = rec.deltas
+        n, s = d.shape[:2]
+        X.append(d.reshape(n * s, -1))
+        y.append(np.repeat(rec.targets, s, axis=0))
+        groups.append(np.repeat(np.arange(n) + offset, s))
+        offset += n
+    return np.concatenate(X), np.concatenate(y), np.concatenate(groups)
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """Scored predictions.
+
+    Attributes
+    ----------
+    stats : ErrorStats
+        Error summary, mm.
+    errors_mm : (n,) float
+        Error of each scored sample.
+    predicted, true : (n, 3) float
+        Points, m.
+    uncertainty_mm : (n,) float
+        Predicted uncertainty of each sample, mm.
+    uncertainty_spearman : float
+        Rank correlation of uncertainty with error (nan for a single network).
+    """
+
+    stats: ErrorStats
+    errors_mm: np.ndarray
+    predicted: np.ndarray
+    true: np.ndarray
+    uncertainty_mm: np.ndarray
+    uncertainty_spearman: float
+
+    def as_dict(self) -> dict[str, float | int]:
+        """Summary for JSON output."""
+        return {**self.stats.as_dict(), "uncertainty_spearman": self.uncertainty_spearman}
+
+
+def evaluate(model, recordings: Sequence[Recording], per_frame: bool = False) -> Evaluation:
+    """Score ``model`` on recordings: each touch's mean image, or every frame."""
+    check_compatible(recordings, getattr(model, "n_features_in_", None))
+    if per_frame:
+        X, y, _ = training_arrays(recordings)
+    else:
+        X = np.concatenate([r.touch_means for r in recordings])
+        y = np.concatenate([r.targets for r in recordings])
+    pred = model.predict_full(X)
+    errors = localisation_errors_mm(pred.points, y)
+    rho = float("nan")
+    if np.all(np.isfinite(pred.uncertainty_mm)) and len(errors) > 2:
+        from scipy.stats import spearmanr
+
+        rho = float(spearmanr(pred.uncertainty_mm, errors).statistic)
+    return Evaluation(error_stats(errors), errors, pred.points, y, pred.uncertainty_mm, rho)
+
+
+def train_localizer(
+    recordings: Sequence[Recording],
+    *,
+    arch: str = "default",
+    constraint: str = "snap",
+    random_state: int = 0,
+    mesh=None,
+    progress=None,
+    **overrides,
+):
+    """Fit a ``ContactLocalizer`` on recordings of one skin.
+
+    The surface constraint uses ``mesh`` if given, else the first recording's mesh and its
+    discretised surface points. Extra keyword arguments override the architecture's settings.
+    """
+    from skinloc.models.localizer import ContactLocalizer
+
+    X, y, groups = training_arrays(recordings)
+    first = recordings[0]
+    model = ContactLocalizer(
+        arch=arch, constraint=constraint, random_state=random_state, **overrides
+    )
+    model.fit(
+        X,
+        y,
+        groups=groups,
+        mesh=first.mesh if mesh is None else mesh,
+        surface_points=first.surface_points if mesh is None else None,
+        progress=progress,
+    )
+    model.training_meta_ = {
+        "n_recordings": len(recordings),
+        "n_point_logs": int(sum(r.n_point_logs for r in recordings)),
+        "sources": [r.meta.get("description") or r.meta.get("source", "") for r in recordings],
+        "n_tx": first.n_tx,
+        "n_rx": first.n_rx,
+    }
+    return model
+
+
+def recalibrate_localizer(model, recordings: Sequence[Recording], *, progress=None):
+    """Adapt a trained model to new recordings of the same skin (``ContactLocalizer.recalibrate``).
+
+    Each recording's frames are taken against its own (fresh) baseline, so a moved baseline
+    is absorbed here; the model then corrects for the moved response.
+    """
+    check_compatible(recordings, getattr(model, "n_features_in_", None))
+    X, y, groups = training_arrays(recordings)
+    new = model.recalibrate(X, y, groups=groups, progress=progress)
+    previous = getattr(model, "meta_", {}).get("training") or getattr(model, "training_meta_", {})
+    new.training_meta_ = {
+        "recalibrated_from": previous,
+        "n_recordings": len(recordings),
+        "n_point_logs": int(sum(r.n_point_logs for r in recordings)),
+    }
+    return new

@@ -1,0 +1,618 @@
+"""A skin on a serial port (a Muca board behind an Arduino), read on a background thread.
+
+The port is anything pyserial opens: a device (``/dev/ttyACM0``, ``COM3``) or a URL such as
+``loop://`` (tests) or ``socket://host:port``. Ports a person or a page names go through
+``check_source`` first, which lets only ``sim`` and serial devices through (URLs on opt-in). A
+reader thread feeds the bytes to a pure parser
+from ``hardware.framing`` (text, binary or auto-detected), keeps the frames in a bounded buffer
+and reopens the port by itself when the device goes away and comes back.
+"""
+
+from __future__ import annotations
+
+import collections
+import errno
+import glob
+import logging
+import os
+import re
+import stat
+import tempfile
+import threading
+import time
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from skinloc.errors import FrameTimeoutError, SourceNotConnectedError
+from skinloc.hardware.framing import MAX_RX, MAX_TX, ParserStats, WireFormat, make_parser
+from skinloc.sources.base import Frame, FrameSource
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "PortInfo",
+    "SerialSource",
+    "SerialSourceConfig",
+    "SourceStats",
+    "check_source",
+    "list_ports",
+    "parse_line_mask",
+]
+
+#: USB vendor ids of Arduino boards and the USB-serial chips on their clones.
+ARDUINO_VIDS = {
+    0x2341: "Arduino",
+    0x2A03: "Arduino",
+    0x1B4F: "SparkFun",
+    0x239A: "Adafruit",
+    0x1A86: "CH340 (Arduino clone)",
+    0x0403: "FTDI",
+    0x10C4: "CP210x",
+}
+#: Where ``skinloc virtual-skin`` puts the stable links to its pseudo-terminals.
+VIRTUAL_GLOB = os.path.join(tempfile.gettempdir(), "skinloc-virtual-*", "ttySKIN*")
+
+
+#: What ``check_source`` lets through, for its messages.
+ALLOWED_SOURCES = (
+    "'sim' (the simulated skin), a serial port such as /dev/ttyACM0 or COM3, or a running "
+    "virtual skin's port (`skinloc ports` lists both)"
+)
+
+
+def check_source(
+    source: str, *, allow_urls: bool = False, allow_sim: bool = True, opt_in: str = ""
+) -> str:
+    """``source`` if it names ``sim`` or a serial device; raise ``ValueError`` otherwise.
+
+    A pyserial URL (anything with ``://``: ``spy://`` writes a log to any file, ``socket://``
+    opens a network connection, ``loop://``, ``rfc2217://``, ``hwgrep://``) reaches far more
+    than a skin, so it passes only with ``allow_urls``. A path must be a character device (a
+    USB serial port, or the pseudo-terminal of ``skinloc virtual-skin``); nothing is opened.
+
+    Parameters
+    ----------
+    source : str
+        What a person or a page named.
+    allow_urls : bool
+        Let pyserial URLs through (the command line's ``--allow-url``; the app never does).
+    allow_sim : bool
+        Accept ``sim``.
+    opt_in : str
+        How to opt in to URLs, added to the message (e.g. ``"pass --allow-url"``).
+
+    Examples
+    --------
+    >>> check_source("sim")
+    'sim'
+    >>> check_source("loop://", allow_urls=True)
+    'loop://'
+    """
+    if not isinstance(source, str) or not source.strip():
+        raise ValueError(f"choose a source: {ALLOWED_SOURCES}")
+    if allow_sim and source == "sim":
+        return source
+    if "://" in source:
+        if allow_urls:
+            return source
+        hint = f"; {opt_in} to open it anyway" if opt_in else ""
+        raise ValueError(
+            f"{source!r} is a pyserial URL, which is not accepted{hint}: give {ALLOWED_SOURCES}"
+        )
+    if os.name == "nt" and re.fullmatch(r"(\\\\\.\\)?COM\d+", source, re.IGNORECASE):
+        return source  # Windows ports are names, not files
+    try:
+        mode = os.stat(source).st_mode
+    except (OSError, ValueError):
+        raise ValueError(
+            f"cannot open serial port {source}: no such device (is the board plugged in? "
+            "`skinloc ports` lists the ports)"
+        ) from None
+    if not stat.S_ISCHR(mode):
+        raise ValueError(f"{source} is not a serial port: give {ALLOWED_SOURCES}")
+    return source
+
+
+def parse_line_mask(mask: str | Sequence[bool] | Sequence[int] | None, n: int, what: str):
+    """A line mask as a boolean array of length ``n``.
+
+    Parameters
+    ----------
+    mask : str, sequence or None
+        ``"11110000"`` (the firmware's notation), a sequence of bools or 0/1, or ``None`` for
+        all lines.
+    n : int
+        Lines the device sends.
+    what : str
+        ``"tx_mask"`` or ``"rx_mask"`` for messages.
+
+    Examples
+    --------
+    >>> parse_line_mask("1101", 4, "rx_mask").tolist()
+    [True, True, False, True]
+    """
+    if mask is None:
+        return np.ones(n, dtype=bool)
+    if isinstance(mask, str):
+        text = mask.strip()
+        if not text or set(text) - {"0", "1"}:
+            raise ValueError(f"{what} must be a string of 0 and 1 like '11110000', got {mask!r}")
+        arr = np.array([c == "1" for c in text])
+    else:
+        arr = np.asarray(mask)
+        if arr.ndim != 1 or not np.isin(arr, (0, 1)).all():
+            raise ValueError(f"{what} must be a sequence of 0/1 or bools, got {mask!r}")
+        arr = arr.astype(bool)
+    if arr.size != n:
+        raise ValueError(f"{what} must have {n} entries (one per line), got {arr.size}: {mask!r}")
+    if not arr.any():
+        raise ValueError(f"{what} selects no line: {mask!r}")
+    return arr
+
+
+@dataclass
+class SerialSourceConfig:
+    """Settings of a ``SerialSource``.
+
+    Attributes
+    ----------
+    port : str
+        Device (``/dev/ttyACM0``, ``COM3``) or pyserial URL (``loop://``).
+    baud : int
+        Baud rate: 115200 for the paper's text firmware; skinloc's firmware streams binary at
+        1000000.
+    n_tx, n_rx : int
+        Grid the device sends, at most 21 x 12.
+    tx_mask, rx_mask : str or None
+        Lines to keep, e.g. ``"11111111000"``: one 0/1 per line the device sends; ``None`` keeps
+        all. The source's grid is the number of ones.
+    format : str
+        ``auto`` (detect), ``text`` or ``binary``.
+    timeout_s : float
+        Default wait of ``read``, s.
+    buffer_frames : int
+        Frames kept for ``read`` and ``frames``; the oldest are dropped (and counted) beyond.
+    max_age_ms : float
+        Default age limit of ``latest``, ms.
+    reconnect : bool
+        Reopen the port by itself after the device goes away.
+    reconnect_interval_s : float
+        Pause between attempts to reopen, s.
+    """
+
+    port: str
+    baud: int = 115200
+    n_tx: int = 8
+    n_rx: int = 8
+    tx_mask: str | None = None
+    rx_mask: str | None = None
+    format: str = "auto"
+    timeout_s: float = 1.0
+    buffer_frames: int = 1024
+    max_age_ms: float = 100.0
+    reconnect: bool = True
+    reconnect_interval_s: float = 0.1
+    _tx_keep: np.ndarray = field(init=False, repr=False)
+    _rx_keep: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.port, str) or not self.port.strip():
+            raise ValueError(f"SerialSourceConfig.port must name a port or URL, got {self.port!r}")
+        if not (isinstance(self.baud, int) and 50 <= self.baud <= 12_000_000):
+            raise ValueError(f"SerialSourceConfig.baud must be 50-12000000, got {self.baud!r}")
+        if not (isinstance(self.n_tx, int) and 1 <= self.n_tx <= MAX_TX):
+            raise ValueError(f"SerialSourceConfig.n_tx must be 1-{MAX_TX}, got {self.n_tx!r}")
+        if not (isinstance(self.n_rx, int) and 1 <= self.n_rx <= MAX_RX):
+            raise ValueError(f"SerialSourceConfig.n_rx must be 1-{MAX_RX}, got {self.n_rx!r}")
+        self.format = WireFormat(self.format).value
+        for name in ("timeout_s", "max_age_ms", "reconnect_interval_s"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and np.isfinite(value) and value > 0):
+                raise ValueError(f"SerialSourceConfig.{name} must be > 0, got {value!r}")
+        if not (isinstance(self.buffer_frames, int) and self.buffer_frames >= 1):
+            raise ValueError(
+                f"SerialSourceConfig.buffer_frames must be >= 1, got {self.buffer_frames!r}"
+            )
+        self._tx_keep = parse_line_mask(self.tx_mask, self.n_tx, "tx_mask")
+        self._rx_keep = parse_line_mask(self.rx_mask, self.n_rx, "rx_mask")
+
+
+@dataclass(frozen=True)
+class SourceStats:
+    """Counters of a ``SerialSource`` since ``connect``.
+
+    ``n_received`` frames were parsed; ``n_dropped`` lines or frames were malformed
+    (partial, merged, garbled, wrong length); ``n_corrupted`` failed the CRC; ``n_lost`` never
+    arrived (gaps in the device's counter); ``n_overflow`` were received but pushed out of the
+    full buffer before anyone read them. ``rate_hz`` is measured over the last 100 frames.
+    """
+
+    port: str
+    format: str
+    n_received: int
+    n_dropped: int
+    n_corrupted: int
+    n_lost: int
+    n_wrong_grid: int
+    n_overflow: int
+    n_chatter: int
+    n_bytes: int
+    n_disconnects: int
+    n_reconnects: int
+    link_up: bool
+    rate_hz: float
+
+    def as_dict(self) -> dict:
+        """The counters as a plain dict."""
+        return dict(self.__dict__)
+
+
+class SerialSource(FrameSource):
+    """Frames from a Muca board (or anything speaking its formats) on a serial port.
+
+    Parameters
+    ----------
+    config : SerialSourceConfig
+        Port, baud, grid, masks and buffer settings.
+
+    Notes
+    -----
+    ``read`` returns frames in order from the buffer (the frame stream); ``latest`` returns the
+    newest frame if it is recent enough, for online use. Frame timestamps are host
+    ``time.monotonic()`` seconds at arrival; ``Frame.index`` is the device's frame counter
+    unwrapped (binary) or the count of frames parsed (text).
+
+    Examples
+    --------
+    >>> from skinloc.hardware.framing import encode_binary
+    >>> with SerialSource(SerialSourceConfig("loop://", n_tx=1, n_rx=2)) as src:
+    ...     src.write(encode_binary([5, 6], 1, 2, counter=0))
+    ...     src.read(timeout_s=2.0).values.tolist()
+    [5.0, 6.0]
+    """
+
+    def __init__(self, config: SerialSourceConfig) -> None:
+        self.config = config
+        self.n_tx = int(config._tx_keep.sum())
+        self.n_rx = int(config._rx_keep.sum())
+        self._keep = np.flatnonzero(np.outer(config._tx_keep, config._rx_keep).ravel())
+        self._connected = False
+        self._serial = None
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._cond = threading.Condition()
+        self._buffer: collections.deque[Frame] = collections.deque()
+        self._latest: Frame | None = None
+        self._arrivals: collections.deque[float] = collections.deque(maxlen=100)
+        self._parser = make_parser(config.format, config.n_tx, config.n_rx)
+        self._prior = ParserStats()
+        self._n_overflow = 0
+        self._n_disconnects = 0
+        self._n_reconnects = 0
+        self._link_up = False
+        self._last_error = ""
+        self._index_base = 0
+        self._next_epoch = 0
+        self._last_counter: int | None = None
+        self._n_text = 0
+        self._write_lock = threading.Lock()
+
+    @classmethod
+    def from_options(cls, **config: Any) -> SerialSource:
+        """A source from ``SerialSourceConfig``'s fields as keywords (``make_source("serial")``)."""
+        return cls(SerialSourceConfig(**config))
+
+    # -- FrameSource -------------------------------------------------------------------------
+    @property
+    def name(self) -> str:
+        """The port."""
+        return self.config.port
+
+    @property
+    def is_connected(self) -> bool:
+        """Whether ``connect`` was called (the link itself may be down and reconnecting)."""
+        return self._connected
+
+    @staticmethod
+    def find_ports() -> list[str]:
+        """Serial devices present, likely Arduinos first (see ``list_ports`` for details)."""
+        return [p.device for p in list_ports()]
+
+    def _open(self):
+        import serial
+
+        return serial.serial_for_url(
+            self.config.port, baudrate=self.config.baud, timeout=0.05, write_timeout=1.0
+        )
+
+    def _connect(self) -> None:
+        import serial
+
+        try:
+            self._serial = self._open()
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise SourceNotConnectedError(
+                f"cannot open serial port {self.config.port}: {_why_not_open(exc)}"
+            ) from None
+        self._link_up = True
+        self._stop.clear()
+        self._connected = True
+        self._thread = threading.Thread(
+            target=self._run, name=f"skinloc-serial-{self.config.port}", daemon=True
+        )
+        self._thread.start()
+        log.info("reading %s at %d baud", self.config.port, self.config.baud)
+
+    def _disconnect(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+        self._thread = None
+        self._close_port()
+        self._connected = False
+        with self._cond:
+            self._cond.notify_all()
+
+    def _read(self, timeout_s: float) -> Frame:
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while not self._buffer:
+                left = deadline - time.monotonic()
+                if left <= 0 or not self._connected:
+                    raise FrameTimeoutError(self._timeout_message(timeout_s))
+                self._cond.wait(left)
+            return self._buffer.popleft()
+
+    def _timeout_message(self, timeout_s: float) -> str:
+        state = "" if self._link_up else f"; the link is down ({self._last_error}), reconnecting"
+        stats = self.stats()
+        hint = ""
+        if stats.n_received == 0 and stats.n_bytes == 0:
+            hint = "; no bytes at all: check the port, the baud rate and that the sketch runs"
+        elif stats.n_received == 0:
+            hint = (
+                f"; {stats.n_bytes} bytes but no valid frame: check the baud rate "
+                f"({self.config.baud}) and the grid ({self.config.n_tx} x {self.config.n_rx})"
+            )
+        return f"no frame from {self.config.port} within {timeout_s:g} s{state}{hint}"
+
+    # -- beyond FrameSource --------------------------------------------------------------------
+    def read(self, timeout_s: float | None = None) -> Frame:
+        """The next frame of the stream; ``FrameTimeoutError`` naming the port after ``timeout_s``.
+
+        ``timeout_s`` defaults to the config's.
+        """
+        return super().read(self.config.timeout_s if timeout_s is None else timeout_s)
+
+    def latest(self, max_age_ms: float | None = None) -> Frame:
+        """The newest frame, if younger than ``max_age_ms`` (default: the config's).
+
+        Does not consume the stream. Raises ``FrameTimeoutError`` when the newest frame is older
+        (the device stalled or was unplugged) and ``SourceNotConnectedError`` before ``connect``.
+        """
+        if not self._connected:
+            raise SourceNotConnectedError(f"{self.name} is not connected: call connect() first")
+        limit = (self.config.max_age_ms if max_age_ms is None else max_age_ms) / 1000.0
+        with self._cond:
+            frame = self._latest
+        if frame is None:
+            raise FrameTimeoutError(f"no frame from {self.config.port} yet")
+        age = time.monotonic() - frame.timestamp_s
+        if age > limit:
+            raise FrameTimeoutError(
+                f"newest frame from {self.config.port} is {age * 1e3:.0f} ms old "
+                f"(limit {limit * 1e3:.0f} ms)"
+            )
+        return frame
+
+    def frames(self, timeout_s: float | None = None) -> Iterator[Frame]:
+        """Yield frames in order until disconnected; a stall longer than ``timeout_s`` raises."""
+        while self._connected:
+            yield self.read(timeout_s)
+
+    def clear(self) -> int:
+        """Discard buffered frames (e.g. before a fresh capture); returns how many."""
+        with self._cond:
+            n = len(self._buffer)
+            self._buffer.clear()
+        return n
+
+    def write(self, data: bytes) -> None:
+        r"""Send ``data`` to the device (a firmware command such as ``b"v\n"``)."""
+        if not self._connected:
+            raise SourceNotConnectedError(f"{self.name} is not connected: call connect() first")
+        import serial
+
+        with self._write_lock:
+            ser = self._serial
+            if ser is None:
+                raise SourceNotConnectedError(f"{self.name}: the link is down, reconnecting")
+            try:
+                ser.write(data)
+                ser.flush()
+            except (serial.SerialException, OSError) as exc:
+                raise SourceNotConnectedError(f"cannot write to {self.name}: {exc}") from None
+
+    def stats(self) -> SourceStats:
+        """Counters since ``connect`` and the measured frame rate."""
+        with self._cond:
+            p = ParserStats(**self._prior.as_dict())
+            p += self._parser.stats
+            arrivals = list(self._arrivals)
+        rate = 0.0
+        if len(arrivals) >= 2 and arrivals[-1] > arrivals[0]:
+            rate = (len(arrivals) - 1) / (arrivals[-1] - arrivals[0])
+        fmt = getattr(self._parser, "format", WireFormat.AUTO)
+        return SourceStats(
+            port=self.config.port,
+            format=str(fmt),
+            n_received=p.n_frames,
+            n_dropped=p.n_dropped,
+            n_corrupted=p.n_corrupted,
+            n_lost=p.n_lost,
+            n_wrong_grid=p.n_wrong_grid,
+            n_overflow=self._n_overflow,
+            n_chatter=p.n_chatter,
+            n_bytes=p.n_bytes,
+            n_disconnects=self._n_disconnects,
+            n_reconnects=self._n_reconnects,
+            link_up=self._link_up,
+            rate_hz=rate,
+        )
+
+    # -- the reader thread ---------------------------------------------------------------------
+    def _close_port(self) -> None:
+        with self._write_lock:
+            ser, self._serial = self._serial, None
+        if ser is not None:
+            try:
+                ser.close()
+            except Exception:  # noqa: BLE001 - closing a dead port may fail in many ways
+                pass
+
+    def _run(self) -> None:
+        import serial
+
+        while not self._stop.is_set():
+            ser = self._serial
+            if ser is None:
+                if not self._reopen():
+                    return
+                continue
+            try:
+                data = ser.read(max(1, min(ser.in_waiting, 65536)))
+            except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
+                # pyserial raises TypeError/AttributeError when the port is closed under it.
+                if self._stop.is_set():
+                    return
+                self._link_lost(exc)
+                continue
+            if data:
+                self._deliver(self._parser.feed(data))
+
+    def _link_lost(self, exc: BaseException) -> None:
+        self._last_error = str(exc) or type(exc).__name__
+        log.warning("lost %s: %s", self.config.port, self._last_error)
+        self._link_up = False
+        self._n_disconnects += 1
+        self._close_port()
+        with self._cond:
+            self._parser.reset()
+            self._last_counter = None  # the device may have restarted its counter
+
+    def _reopen(self) -> bool:
+        """Try to reopen the port until it works; False when asked to stop."""
+        import serial
+
+        if not self.config.reconnect:
+            self._stop.wait()
+            return False
+        while not self._stop.wait(self.config.reconnect_interval_s):
+            try:
+                ser = self._open()
+            except (serial.SerialException, OSError, ValueError):
+                continue
+            with self._write_lock:
+                self._serial = ser
+            self._link_up = True
+            self._n_reconnects += 1
+            log.warning("reconnected to %s", self.config.port)
+            return True
+        return False
+
+    def _deliver(self, raws: list) -> None:
+        if not raws:
+            return
+        now = time.monotonic()
+        keep = self._keep
+        full = keep.size == self.config.n_tx * self.config.n_rx and keep.size == self.n_sensors
+        with self._cond:
+            for raw in raws:
+                if raw.counter is None:
+                    index = self._n_text
+                    self._n_text += 1
+                else:
+                    # Unwrap the 16-bit counter; after a reconnect start a fresh epoch.
+                    if self._last_counter is None:
+                        self._index_base = self._next_epoch
+                    elif raw.counter < self._last_counter:
+                        self._index_base += 1 << 16
+                    self._last_counter = raw.counter
+                    index = self._index_base + raw.counter
+                    self._next_epoch = (index >> 16) + 1 << 16
+                values = raw.values.astype(np.float32)
+                frame = Frame(values=values if full else values[keep], timestamp_s=now, index=index)
+                if len(self._buffer) >= self.config.buffer_frames:
+                    self._buffer.popleft()
+                    self._n_overflow += 1
+                self._buffer.append(frame)
+                self._latest = frame
+                self._arrivals.append(now)
+            self._cond.notify_all()
+
+
+def _why_not_open(exc: BaseException) -> str:
+    """What to tell a person whose port did not open."""
+    code = getattr(exc, "errno", None)
+    if code == errno.ENOENT:
+        return "no such device (is the board plugged in? `skinloc ports` lists the ports)"
+    if code == errno.EACCES:
+        return (
+            "permission denied (on Linux, add yourself to the 'dialout' group: "
+            "`sudo usermod -aG dialout $USER`, then log in again)"
+        )
+    if code == errno.EBUSY:
+        return "the port is busy (close other programs using it, e.g. a serial monitor)"
+    if code in (errno.ENOTTY, errno.EISDIR) or "Inappropriate ioctl" in str(exc):
+        return "not a serial port (`skinloc ports` lists the ports)"
+    return f"{exc} (is the board plugged in? `skinloc ports` lists the ports)"
+
+
+# --------------------------------------------------------------------------------------------
+# ports
+
+
+@dataclass(frozen=True)
+class PortInfo:
+    """A serial port found on this machine."""
+
+    device: str
+    description: str
+    hwid: str
+    likely_arduino: bool
+    virtual: bool = False
+
+
+def list_ports() -> list[PortInfo]:
+    r"""Serial ports present, likely Arduinos first, then running ``skinloc virtual-skin``\ s."""
+    from serial.tools import list_ports as lp
+
+    found = []
+    for p in lp.comports():
+        text = f"{p.description} {p.manufacturer or ''} {p.product or ''}".lower()
+        arduino = p.vid in ARDUINO_VIDS or "arduino" in text
+        desc = p.description or ""
+        if p.vid in ARDUINO_VIDS and ARDUINO_VIDS[p.vid].lower() not in desc.lower():
+            desc = f"{desc} [{ARDUINO_VIDS[p.vid]}]".strip()
+        found.append(PortInfo(p.device, desc, p.hwid or "", arduino))
+    found.sort(key=lambda p: (not p.likely_arduino, p.device))
+    for link in sorted(glob.glob(VIRTUAL_GLOB)):
+        if os.path.exists(link) and _owner_alive(os.path.join(os.path.dirname(link), "pid")):
+            found.append(PortInfo(link, "skinloc virtual skin", "pty", False, virtual=True))
+    return found
+
+
+def _owner_alive(pid_file: str) -> bool:
+    """Whether the process named in a virtual skin's pid file still runs."""
+    try:
+        with open(pid_file) as fh:
+            pid = int(fh.read().strip())
+        os.kill(pid, 0)
+    except PermissionError:
+        return True  # it runs, as another user
+    except (OSError, ValueError):
+        return False
+    return True

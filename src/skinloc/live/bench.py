@@ -1,0 +1,580 @@
+"""``skinloc bench --online``: the live path's latency and throughput, with a baseline.
+
+Figures (docs/benchmarks.md, "Live pipeline"):
+
+* per-frame latency, bytes in to contact out, one 64-sensor stream: ``SkinCore.feed`` on the
+  wire bytes of each frame (skinloc binary format) through parsing, baseline, detection,
+  localiser, surface constraint and filter, timed per frame; against a plain baseline timed in
+  the same run on the same frames: for a network, a NumPy forward pass plus a scipy KD-tree
+  snap; for a response map, the coarse-to-fine match in NumPy. Neither baseline parses,
+  subtracts or detects anything, so the ratio is conservative;
+* single-stream frames/s: the same ``feed`` back to back;
+* batched frames/s: the engine's ``predict_batch`` on 200,000 touched frames, against the same
+  baseline on the same batch;
+* 100 skins at 100 Hz: a feeder process writes every skin's frames to its own pseudo-terminal
+  on schedule; one ``Runner`` reads all of them; latency from the bytes' arrival to the
+  contact, and end to end from the frame's scheduled write time; once more with the ROS 2
+  sink on (plain DDS, loopback);
+* publishing cost per contact of the sinks, JSON lines against ROS 2 (DDS, with and without a
+  subscriber) and the ROS 2 bag, timed in the same run on the same contacts.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing as mp
+import os
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "many_skins",
+    "online_bench",
+    "single_stream",
+    "sink_cost",
+    "touch_stream",
+    "train_bench_models",
+]
+
+#: Cyclone DDS on the loopback interface only, unicast: benchmarks must not talk to the network
+LOOPBACK_DDS = (
+    "<CycloneDDS><Domain Id='any'><General><Interfaces><NetworkInterface name='lo'/>"
+    "</Interfaces><AllowMulticast>false</AllowMulticast></General><Discovery>"
+    "<ParticipantIndex>auto</ParticipantIndex><MaxAutoParticipantIndex>30</MaxAutoParticipantIndex>"
+    "<Peers><Peer address='127.0.0.1'/></Peers></Discovery></Domain></CycloneDDS>"
+)
+
+
+def _bench_domain() -> int:
+    """A DDS domain for a benchmark run, kept on loopback unless CYCLONEDDS_URI is set."""
+    os.environ.setdefault("CYCLONEDDS_URI", LOOPBACK_DDS)
+    return 100 + os.getpid() % 100
+
+
+Step = Callable[[str, int, int], None]
+
+
+def _noop(label: str, done: int, total: int) -> None:
+    pass
+
+
+def train_bench_models(folder: Path, archs: tuple[str, ...], step: Step = _noop) -> dict[str, Path]:
+    """Simulate a calibration (80 touches) and train each architecture; cached in ``folder``."""
+    from skinloc.calibration.session import SessionConfig, simulate_session
+    from skinloc.evaluation.scoring import train_localizer
+    from skinloc.geometry.mesh import cone_skin
+    from skinloc.sim.skin import SimulatedSkin
+
+    folder.mkdir(parents=True, exist_ok=True)
+    cal_path = folder / "cal.h5"
+    paths = {a: folder / f"{a}.h5" for a in archs}
+    if all(p.is_file() for p in paths.values()):
+        return paths
+    mesh = cone_skin()
+    if not cal_path.is_file():
+        step("online: simulating a calibration", 0, 1)
+        with SimulatedSkin(mesh, random_state=0) as skin:
+            simulate_session(
+                skin,
+                mesh,
+                cal_path,
+                SessionConfig(n_points=80, mode="even", samples_per_touch=20, random_state=0),
+            )
+    from skinloc.data.recording import read_recording
+
+    cal = read_recording(cal_path)
+    for i, a in enumerate(archs):
+        if not paths[a].is_file():
+            step("online: training", i, len(archs))
+            train_localizer([cal], arch=a, random_state=0).save(paths[a])
+    return paths
+
+
+def touch_stream(
+    n_frames: int, *, random_state: int = 0, n_baseline: int = 100
+) -> tuple[np.ndarray, list[tuple[int, int, np.ndarray]]]:
+    """Raw frames ``(n, 64)`` uint16 of the simulated skin with a scripted finger.
+
+    ``n_baseline`` untouched frames, then touches of 0.6-1.5 s with pauses of 0.3-0.6 s at
+    100 Hz (about 75 % of frames touched). Returns the frames and the script
+    ``(first frame, last frame, contact (3,) m)``.
+    """
+    import dataclasses
+
+    from skinloc.geometry.mesh import sample_surface
+    from skinloc.sim.skin import SimulatedSkin, SkinParams
+
+    rng = np.random.default_rng(random_state)
+    # Firm touches only: the stream times the live path and checks its events; the light
+    # touches of a calibration (weak_touch_prob) can fall under its 8-sigma start threshold.
+    firm = dataclasses.replace(SkinParams.default(), weak_touch_prob=0.0)
+    skin = SimulatedSkin(params=firm, random_state=random_state)
+    skin.connect()
+    targets = sample_surface(skin.mesh, 512, rng)[0]
+    frames = np.empty((n_frames, skin.n_sensors), dtype=np.uint16)
+    script = []
+    k = 0
+    for k in range(min(n_baseline, n_frames)):
+        frames[k] = skin.read().values
+    k = min(n_baseline, n_frames)
+    while k < n_frames:
+        contact = skin.touch_near(targets[rng.integers(len(targets))], rng)
+        hold = int(rng.uniform(60, 150))
+        start = k
+        for _ in range(hold):
+            if k >= n_frames:
+                break
+            frames[k] = skin.read().values
+            k += 1
+        script.append((start, k - 1, contact))
+        skin.release()
+        for _ in range(int(rng.uniform(30, 60))):
+            if k >= n_frames:
+                break
+            frames[k] = skin.read().values
+            k += 1
+    return frames, script
+
+
+def _baseline_fn(model: Any) -> Callable[[np.ndarray], np.ndarray]:
+    """The plain NumPy implementation the engine is compared with: rows ``(n, 64)`` to points.
+
+    For a response map, the coarse-to-fine match in NumPy (the library's own prediction
+    before the engine); for a network, a NumPy forward pass over the ensemble and a scipy
+    ``cKDTree`` snap. A benchmark's baseline, not a second engine: nothing else calls it.
+    """
+    from scipy.spatial import cKDTree
+
+    from skinloc.models.network_engine import activate_inplace
+
+    spec = model.spec()
+    if spec.kind == "map":
+        return _plain_map_match(spec)
+    pts = spec.surface_points
+    tree = cKDTree(pts)
+
+    def plain(X: np.ndarray) -> np.ndarray:
+        Z = np.maximum(X, 0.0) if spec.clip_negative else X
+        if spec.normalise != "none":
+            order = 1 if spec.normalise == "l1" else 2
+            Z = Z / np.maximum(np.linalg.norm(Z, ord=order, axis=1, keepdims=True), 1.0)
+        h = (Z - spec.feature_mean) / spec.feature_scale
+        for i, (W, b) in enumerate(zip(spec.weights, spec.biases, strict=True)):
+            h = np.matmul(h, W) + b
+            if i < len(spec.weights) - 1:
+                h = activate_inplace(h, spec.activation)
+        raw = (h * spec.target_scale + spec.target_mean).mean(axis=0)
+        return pts[tree.query(raw)[1]]
+
+    return plain
+
+
+def _plain_map_match(spec: Any) -> Callable[[np.ndarray], np.ndarray]:
+    """Coarse-to-fine matching in NumPy, 512 rows at a time: the best of the 8 best cells."""
+    T = np.asarray(spec.table, dtype=np.float32)
+    sq = (T**2).sum(axis=1)
+    coarse, members = spec.coarse, spec.cells
+
+    def plain(X: np.ndarray) -> np.ndarray:
+        Z = np.maximum(X, 0.0) if spec.clip_negative else X
+        F = (Z / np.maximum(np.linalg.norm(Z, axis=1, keepdims=True), 1.0)).astype(np.float32)
+        out = []
+        for i in range(0, len(F), 512):
+            Fs = F[i : i + 512]
+            dc = sq[coarse][None, :] - 2.0 * Fs @ T[coarse].T
+            best_cells = np.argpartition(dc, spec.n_cells - 1, axis=1)[:, : spec.n_cells]
+            idx = members[best_cells].reshape(len(Fs), -1)
+            d = sq[idx] - 2.0 * np.einsum("nk,nck->nc", Fs, T[idx])
+            out.append(spec.surface_points[idx[np.arange(len(Fs)), d.argmin(axis=1)]])
+        return np.concatenate(out)
+
+    return plain
+
+
+def single_stream(model_path: Path, n_frames: int = 20000, random_state: int = 0) -> dict:
+    """Latency and throughput of one 64-sensor stream, bytes in to contact out."""
+    from skinloc.hardware.framing import encode_binary
+    from skinloc.live.core import SkinCore
+    from skinloc.models.engine import load_engine
+    from skinloc.models.localizer import ContactLocalizer
+
+    model = ContactLocalizer.load(model_path)
+    fast = load_engine(model)
+    frames, _ = touch_stream(n_frames, random_state=random_state)
+    wire = [encode_binary(f, 8, 8, i) for i, f in enumerate(frames)]
+
+    def fresh_core() -> SkinCore:
+        core = SkinCore(fast, wire_format="binary")
+        for b in wire[:100]:  # baseline capture
+            core.feed(b)
+        return core
+
+    # latency: one frame at a time, with perf_counter around each feed
+    core = fresh_core()
+    lat_touch: list[float] = []
+    lat_all: list[float] = []
+    pc = time.perf_counter
+    for b in wire[100:]:
+        t0 = pc()
+        out = core.feed(b)
+        dt = pc() - t0
+        lat_all.append(dt)
+        if out:
+            lat_touch.append(dt)
+    # the plain baseline on the touched frames' deltas, interleaved in the same run
+    plain = _baseline_fn(model)
+    deltas = frames[100:].astype(np.float64) - frames[:100].mean(axis=0)
+    touched = deltas[np.max(deltas, axis=1) > 60][:5000]
+    lat_plain = []
+    for x in touched:
+        t0 = pc()
+        plain(x[None])
+        lat_plain.append(pc() - t0)
+    # throughput: back to back, no timing inside
+    core = fresh_core()
+    t0 = pc()
+    n_out = 0
+    for b in wire[100:]:
+        n_out += len(core.feed(b))
+    elapsed = pc() - t0
+    # batched prediction of touched frames
+    reps = max(1, 200_000 // max(len(touched), 1))
+    batch = np.tile(touched.astype(np.float32), (reps, 1))
+    fast.predict_batch(batch[:1000])
+    t0 = pc()
+    fast.predict_batch(batch)
+    batch_s = pc() - t0
+    t0 = pc()
+    plain(batch.astype(np.float64))
+    plain_batch_s = pc() - t0
+    us = 1e6
+    med = float(np.median(lat_touch)) * us
+    plain_med = float(np.median(lat_plain)) * us
+    return {
+        "model": str(model_path),
+        "arch": model.config_.get("arch"),
+        "kind": fast.kind,
+        "frames": len(wire) - 100,
+        "touched_frames": len(lat_touch),
+        "latency_touched_median_us": med,
+        "latency_touched_p99_us": float(np.percentile(lat_touch, 99)) * us,
+        "latency_all_median_us": float(np.median(lat_all)) * us,
+        "latency_all_p99_us": float(np.percentile(lat_all, 99)) * us,
+        "baseline": "numpy coarse-to-fine match"
+        if fast.kind == "map"
+        else "numpy forward + scipy cKDTree snap",
+        "baseline_median_us": plain_med,
+        "baseline_p99_us": float(np.percentile(lat_plain, 99)) * us,
+        "speedup_median": plain_med / med,
+        "stream_frames_per_s": (len(wire) - 100) / elapsed,
+        "stream_contacts": n_out,
+        "batch_frames": len(batch),
+        "batch_frames_per_s": len(batch) / batch_s,
+        "baseline_batch_frames_per_s": len(batch) / plain_batch_s,
+        "batch_ratio": plain_batch_s / batch_s,
+    }
+
+
+# --------------------------------------------------------------------------------------------
+# many skins
+
+
+def _feeder(conn: Any, n_skins: int, rate_hz: float, duration_s: float, frames: np.ndarray) -> None:
+    """Child process: one pty per skin, frames written on schedule (staggered phases)."""
+    import pty
+    import tty
+
+    from skinloc.hardware.framing import encode_binary
+
+    masters, names = [], []
+    for _ in range(n_skins):
+        m, s = pty.openpty()
+        tty.setraw(s)
+        names.append(os.ttyname(s))
+        os.close(s)
+        os.set_blocking(m, False)
+        masters.append(m)
+    conn.send(names)
+    t0 = conn.recv()  # the parent has opened every port
+    period = 1.0 / rate_hz
+    n_per = int(duration_s * rate_hz)
+    late = 0
+    written = np.zeros(n_skins, dtype=np.int64)
+    failed = 0
+    order = [(k, s) for k in range(n_per) for s in range(n_skins)]
+    L = len(frames)
+    for k, s in order:
+        due = t0 + k * period + s * period / n_skins
+        wait = due - time.monotonic()
+        if wait > 0:
+            time.sleep(wait)
+        elif wait < -0.002:
+            late += 1
+        data = encode_binary(frames[(k + 37 * s) % L], 8, 8, k)
+        try:
+            os.write(masters[s], data)
+            written[s] += 1
+        except OSError:
+            failed += 1
+    time.sleep(0.5)
+    conn.send({"written": written.tolist(), "late_over_2ms": late, "write_errors": failed})
+    conn.recv()
+    for m in masters:
+        os.close(m)
+
+
+def many_skins(
+    model_path: Path,
+    n_skins: int = 100,
+    rate_hz: float = 100.0,
+    duration_s: float = 30.0,
+    random_state: int = 0,
+    sinks: tuple[str, ...] = (),
+) -> dict:
+    """``n_skins`` pipelines at ``rate_hz`` each from one process, fed through ptys.
+
+    ``sinks``: sink specs every skin's contacts go to (``ros2``: plain DDS on loopback, no
+    subscriber). End-to-end times are taken after the sinks, so they include publishing.
+    """
+    from skinloc.live.core import PipelineConfig
+    from skinloc.live.runner import Runner, SkinSpec
+    from skinloc.models.engine import load_engine
+
+    frames, _ = touch_stream(3000, random_state=random_state)
+    ctx = mp.get_context("spawn")
+    parent, child = ctx.Pipe()
+    proc = ctx.Process(
+        target=_feeder, args=(child, n_skins, rate_hz, duration_s, frames), daemon=True
+    )
+    proc.start()
+    try:
+        names = parent.recv()
+        fast = load_engine(model_path)
+        specs = [
+            SkinSpec(
+                model=fast,
+                source=name,
+                name=f"skin{i:03d}",
+                wire_format="binary",
+                config=PipelineConfig(baseline_frames=50),
+            )
+            for i, name in enumerate(names)
+        ]
+        lat: list[float] = []
+        e2e: list[float] = []
+        phase = {f"skin{i:03d}": i / (rate_hz * n_skins) for i in range(n_skins)}
+        holder: dict[str, float] = {}
+
+        def on_contact(c: Any) -> None:
+            now = time.monotonic()
+            lat.append(c.latency_us)
+            e2e.append(now - (holder["t0"] + c.index / rate_hz + phase[c.skin]))
+
+        sink_objs: list[Any] = []
+        for spec in sinks:
+            if spec.startswith("ros2"):
+                from skinloc.live.sinks.ros2 import Ros2Sink
+
+                sink_objs.append(Ros2Sink(domain_id=_bench_domain(), backend="dds"))
+            else:
+                sink_objs.append(spec)
+        runner = Runner(specs, sinks=sink_objs, callback=on_contact)
+        runner.open()
+        t0 = time.monotonic() + 0.5
+        holder["t0"] = t0
+        parent.send(t0)
+        end = t0 + duration_s + 1.0
+        # CPU of the loop thread and of the whole process (Cyclone's own threads included):
+        # what the sinks cost, less sensitive than latency to other processes on the machine
+        cpu_thread0, cpu_proc0 = time.thread_time(), time.process_time()
+        while time.monotonic() < end:
+            runner._step(0.05)
+        cpu_thread = time.thread_time() - cpu_thread0
+        cpu_proc = time.process_time() - cpu_proc0
+        report = parent.recv()
+        for _ in range(20):
+            runner._step(0.01)
+        stats = runner.stats()
+        runner.close()
+        parent.send("done")
+    finally:
+        proc.join(10)
+        if proc.is_alive():
+            proc.terminate()
+    frames_in = [s["frames"] for s in stats]
+    wire = [s.get("wire", {}) for s in stats]
+    sent = report["written"]
+    return {
+        "skins": n_skins,
+        "rate_hz": rate_hz,
+        "duration_s": duration_s,
+        "frames_sent": int(sum(sent)),
+        "frames_processed": int(sum(frames_in)),
+        "frames_dropped": int(sum(sent) - sum(frames_in)),
+        "parser_dropped_or_lost": int(
+            sum(w.get("n_dropped", 0) + w.get("n_lost", 0) + w.get("n_corrupted", 0) for w in wire)
+        ),
+        "contacts": len(lat),
+        "latency_median_us": float(np.median(lat)) if lat else None,
+        "latency_p99_us": float(np.percentile(lat, 99)) if lat else None,
+        "latency_max_us": float(np.max(lat)) if lat else None,
+        "end_to_end_median_us": float(np.median(e2e)) * 1e6 if e2e else None,
+        "end_to_end_p99_us": float(np.percentile(e2e, 99)) * 1e6 if e2e else None,
+        "feeder_writes_late_over_2ms": report["late_over_2ms"],
+        "feeder_write_errors": report["write_errors"],
+        "model": str(model_path),
+        "sinks": list(sinks),
+        "loop_thread_cpu_s": cpu_thread,
+        "process_cpu_s": cpu_proc,
+        "loop_cpu_us_per_frame": cpu_thread / max(sum(frames_in), 1) * 1e6,
+    }
+
+
+def _contacts(n: int, n_skins: int, random_state: int) -> list[Any]:
+    from skinloc.live.core import Contact
+
+    rng = np.random.default_rng(random_state)
+    pos = rng.uniform(-0.05, 0.05, (n, 3))
+    return [
+        Contact(
+            f"skin{k % n_skins:03d}",
+            1.0 + 0.01 * k,
+            k,
+            "move",
+            tuple(p),
+            tuple(p),
+            0.8,
+            20.0,
+            float("nan"),
+            40.0,
+            1,
+        )  # fmt: skip
+        for k, p in enumerate(pos.tolist())
+    ]
+
+
+def sink_cost(n_contacts: int = 20000, n_skins: int = 10, rounds: int = 3) -> dict:
+    """Publishing cost per contact (``emit``), µs: JSON lines against the ROS 2 sinks.
+
+    Every sink gets the same ``n_contacts`` contacts (``move``, ``n_skins`` skins) in each of
+    ``rounds`` interleaved rounds, so all see the same machine load. ``jsonl`` appends to a
+    file, flushing every line; ``ros2`` is plain DDS on loopback, without and with a subscriber
+    (a DDS reader of every skin's ``contacts`` topic in this process, so delivery is included);
+    ``mcap-ros2`` writes a bag.
+    """
+    from cyclonedds.core import Policy, Qos
+    from cyclonedds.domain import DomainParticipant
+    from cyclonedds.sub import DataReader
+    from cyclonedds.topic import Topic
+
+    from skinloc.live.sinks.base import SkinInfo
+    from skinloc.live.sinks.jsonl import JsonLinesSink
+    from skinloc.live.sinks.ros2 import Ros2Sink
+    from skinloc.live.sinks.ros2_bag import Ros2BagSink
+    from skinloc.live.sinks.ros2_msgs import PoseArray
+
+    _bench_domain()  # loopback configuration before the first participant
+    contacts = _contacts(n_contacts, n_skins, 0)
+    infos = [SkinInfo(f"skin{i:03d}") for i in range(n_skins)]
+    alone = _bench_domain()
+    heard = alone + 1  # the subscriber's domain; nothing listens on ``alone``
+    times: dict[str, list[float]] = {}
+    received = 0
+    with tempfile.TemporaryDirectory(prefix="skinloc-sink-cost-") as tmp:
+        reader_dp = DomainParticipant(heard)
+        qos = Qos(Policy.Reliability.Reliable(0), Policy.History.KeepLast(10))
+        readers = [
+            DataReader(
+                reader_dp,
+                Topic(reader_dp, f"rt/skinloc/{i.name}/contacts", PoseArray, qos),
+                qos=qos,
+            )
+            for i in infos
+        ]
+        for r in range(rounds):
+            makers = {
+                "jsonl": lambda r=r: JsonLinesSink(Path(tmp) / f"c{r}.jsonl"),
+                "ros2 (DDS, no subscriber)": lambda: Ros2Sink(domain_id=alone, backend="dds"),
+                "ros2 (DDS, 1 subscriber)": lambda: Ros2Sink(domain_id=heard, backend="dds"),
+                "mcap-ros2 (bag)": lambda r=r: Ros2BagSink(Path(tmp) / f"b{r}.mcap", frames=False),
+            }
+            for label, make in makers.items():
+                sink = make()
+                sink.open(infos)
+                if "1 subscriber" in label:  # wait for discovery, bounded
+                    end = time.monotonic() + 10.0
+                    while time.monotonic() < end and not all(
+                        sink._io.writers[f"/skinloc/{i.name}/contacts"].get_matched_subscriptions()
+                        for i in infos
+                    ):
+                        time.sleep(0.01)
+                dt = np.empty(len(contacts))
+                for k, c in enumerate(contacts):
+                    t = time.perf_counter_ns()
+                    sink.emit(c)
+                    dt[k] = time.perf_counter_ns() - t
+                    if k % 500 == 0:
+                        received += sum(len(rd.take(N=100)) for rd in readers)
+                if "1 subscriber" in label:  # what is still in flight, bounded
+                    end = time.monotonic() + 2.0
+                    while time.monotonic() < end:
+                        got = sum(len(rd.take(N=100)) for rd in readers)
+                        received += got
+                        if not got:
+                            time.sleep(0.05)
+                sink.close()
+                times.setdefault(label, []).extend((dt / 1000.0).tolist())
+    out = {}
+    for label, t in times.items():
+        a = np.asarray(t)
+        out[label] = {
+            "contacts": len(a),
+            "median_us": float(np.median(a)),
+            "p99_us": float(np.percentile(a, 99)),
+            "mean_us": float(a.mean()),
+        }
+    # keep-last 10 per topic: a reader taking every 500 contacts sees at most 10 of each batch
+    out["ros2 (DDS, 1 subscriber)"]["samples_taken_by_subscriber"] = received
+    return out
+
+
+def online_bench(
+    models: list[Path] | None = None,
+    out: Path | None = None,
+    *,
+    n_frames: int = 20000,
+    n_skins: int = 100,
+    skins_duration_s: float = 30.0,
+    step: Step = _noop,
+) -> dict:
+    """Every figure of the live path; trains the models when none are given."""
+    import platform
+
+    if not models:
+        folder = (out or Path(tempfile.gettempdir()) / "skinloc-bench") / "online-models"
+        paths = train_bench_models(folder, ("default", "mlp", "paper"), step)
+        models = list(paths.values())
+    results: dict[str, Any] = {
+        "machine": f"{platform.machine()}, {os.cpu_count()} cores, {platform.python_version()}",
+        "single_stream": [],
+    }
+    for i, m in enumerate(models):
+        step("online: single stream", i, len(models))
+        results["single_stream"].append(single_stream(Path(m), n_frames))
+    step("online: sink cost", 0, 1)
+    results["sink_cost"] = sink_cost()
+    step("online: 100 skins", 0, 2)
+    results["many_skins"] = many_skins(Path(models[0]), n_skins, 100.0, skins_duration_s)
+    step("online: 100 skins, ROS 2 sink", 1, 2)
+    results["many_skins_ros2"] = many_skins(
+        Path(models[0]), n_skins, 100.0, skins_duration_s, sinks=("ros2",)
+    )
+    step("online: done", 1, 1)
+    return results

@@ -1,0 +1,45 @@
+"""JSON lines: one JSON object per contact, on stdout or in a file."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import IO, TYPE_CHECKING
+
+from skinloc.live.sinks.base import Sink
+
+if TYPE_CHECKING:
+    from skinloc.live.contact import Contact
+
+__all__ = ["JsonLinesSink"]
+
+
+class JsonLinesSink(Sink):
+    """Write ``Contact.to_json()`` lines to stdout (``path=None``) or to a file.
+
+    Each line is flushed, so a consumer reading a pipe sees every contact at once.
+    """
+
+    name = "jsonl"
+
+    def __init__(self, path: str | Path | None = None) -> None:
+        self.path = None if path in (None, "", "-") else Path(path)
+        self._fh: IO[str] | None = None
+
+    def open(self, skins: list) -> None:
+        """Open the file (stdout needs nothing)."""
+        if self.path is not None and self._fh is None:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._fh = self.path.open("a", encoding="utf-8")
+
+    def emit(self, contact: Contact) -> None:
+        """Write one line."""
+        fh = self._fh if self._fh is not None else sys.stdout
+        fh.write(contact.to_json() + "\n")
+        fh.flush()
+
+    def close(self) -> None:
+        """Close the file."""
+        if self._fh is not None:
+            self._fh.close()
+            self._fh = None

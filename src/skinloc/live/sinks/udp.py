@@ -1,0 +1,59 @@
+"""UDP: one JSON datagram per contact to a host and port (fire and forget)."""
+
+from __future__ import annotations
+
+import logging
+import socket
+from typing import TYPE_CHECKING
+
+from skinloc.live.sinks.base import Sink
+
+if TYPE_CHECKING:
+    from skinloc.live.contact import Contact
+
+log = logging.getLogger(__name__)
+
+__all__ = ["UdpSink"]
+
+
+class UdpSink(Sink):
+    """Send ``Contact.to_json()`` as one UTF-8 datagram to ``(host, port)``.
+
+    Sending never blocks the pipeline; a datagram the network refuses is counted in
+    ``n_errors`` and skipped.
+    """
+
+    name = "udp"
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 9870) -> None:
+        if not 0 < int(port) < 65536:
+            raise ValueError(f"UDP port must be 1-65535 (where datagrams go), got {port!r}")
+        self.address = (host, int(port))
+        self._sock: socket.socket | None = None
+        self.n_sent = 0
+        self.n_errors = 0
+
+    def open(self, skins: list) -> None:
+        """Create the socket."""
+        if self._sock is None:
+            family = socket.AF_INET6 if ":" in self.address[0] else socket.AF_INET
+            self._sock = socket.socket(family, socket.SOCK_DGRAM)
+            self._sock.setblocking(False)
+
+    def emit(self, contact: Contact) -> None:
+        """Send one datagram."""
+        if self._sock is None:
+            self.open([])
+        try:
+            self._sock.sendto(contact.to_json().encode(), self.address)
+            self.n_sent += 1
+        except OSError as exc:
+            self.n_errors += 1
+            if self.n_errors <= 3:
+                log.warning("UDP sink %s:%d: %s", *self.address, exc)
+
+    def close(self) -> None:
+        """Close the socket."""
+        if self._sock is not None:
+            self._sock.close()
+            self._sock = None

@@ -1,0 +1,117 @@
+"""Many skins from one process: the configuration file of ``skinloc run --config``.
+
+A TOML file lists the skins of a robot; each becomes a ``SkinSpec`` of one ``Runner``::
+
+    sinks = ["jsonl", "ws://127.0.0.1:8767"]   # receive the contacts of every skin
+
+    [defaults]                 # any SkinSpec field, for every skin
+    model = "arm.h5"           # paths are relative to this file
+    baud = 1000000
+    wire_format = "binary"
+
+    [defaults.pipeline]        # any PipelineConfig field
+    touch_on_z = 8.0
+
+    [[skin]]
+    name = "left-forearm"
+    source = "/dev/ttyACM0"
+
+    [[skin]]
+    name = "right-forearm"
+    source = "/dev/ttyACM1"
+    model = "right.h5"
+    sinks = ["udp://127.0.0.1:9870"]
+    pipeline = { drift_tracking = false }
+    parent_frame = "fr3_link7"   # ROS 2 /tf_static: fr3_link7 -> skin/right-forearm
+    translation = [0.0, 0.0, 0.107]   # m
+    rpy = [0.0, 0.0, -0.785]          # rad (or rotation = [x, y, z, w])
+
+Every key is checked: an unknown one is an error naming the skin, the key and the known keys.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from pathlib import Path
+from typing import Any
+
+from skinloc.live.core import PipelineConfig
+from skinloc.live.runner import Runner, SkinSpec
+
+__all__ = ["load_skins", "runner_from_config"]
+
+_PATH_KEYS = ("model", "baseline")
+
+
+def _resolve(value: Any, base: Path) -> Any:
+    if isinstance(value, str) and value and not Path(value).is_absolute():
+        candidate = base / value
+        return str(candidate)
+    return value
+
+
+def load_skins(path: str | Path) -> tuple[list[SkinSpec], list[str]]:
+    """Read a skins file; returns ``(skins, global sinks)``.
+
+    Raises
+    ------
+    ValueError
+        For a missing file, bad TOML, no skins, or an unknown or ill-typed key.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"skins file not found: {path}")
+    try:
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"cannot read skins file {path}: {exc}") from None
+    unknown = sorted(set(raw) - {"sinks", "defaults", "skin"})
+    if unknown:
+        raise ValueError(
+            f"{path}: unknown top-level key(s) {', '.join(unknown)}; use sinks, defaults, [[skin]]"
+        )
+    skins_raw = raw.get("skin", [])
+    if not isinstance(skins_raw, list) or not skins_raw:
+        raise ValueError(f"{path}: no [[skin]] entries")
+    base = path.parent
+    known = {f.name for f in dataclasses.fields(SkinSpec)} - {"config"} | {"pipeline"}
+    defaults = dict(raw.get("defaults", {}))
+    specs = []
+    for k, entry in enumerate(skins_raw):
+        merged = {**defaults, **entry}
+        merged["pipeline"] = {**defaults.get("pipeline", {}), **entry.get("pipeline", {})}
+        name = str(merged.get("name", f"skin{k}"))
+        merged["name"] = name
+        bad = sorted(set(merged) - known)
+        if bad:
+            raise ValueError(
+                f"{path}: skin {name!r}: unknown key(s) {', '.join(bad)}; known: "
+                f"{', '.join(sorted(known))}"
+            )
+        if "model" not in merged:
+            raise ValueError(f"{path}: skin {name!r} has no model (set it or [defaults] model)")
+        for key in _PATH_KEYS:
+            if key in merged:
+                merged[key] = _resolve(merged[key], base)
+        source = merged.get("source", "sim")
+        if isinstance(source, str) and Path(source).suffix.lower() in (".h5", ".hdf5", ".mat"):
+            merged["source"] = _resolve(source, base)
+        config = PipelineConfig.from_dict(merged.pop("pipeline"), f"skin {name!r} pipeline")
+        sinks = merged.pop("sinks", [])
+        if not isinstance(sinks, list):
+            raise ValueError(f"{path}: skin {name!r}: sinks must be a list of strings")
+        try:
+            specs.append(SkinSpec(config=config, sinks=list(sinks), **merged))
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{path}: skin {name!r}: {exc}") from None
+    sinks = raw.get("sinks", [])
+    if not isinstance(sinks, list):
+        raise ValueError(f"{path}: sinks must be a list of strings")
+    return specs, [str(s) for s in sinks]
+
+
+def runner_from_config(path: str | Path, extra_sinks: list[str] | None = None) -> Runner:
+    """A ``Runner`` for every skin of a skins file (plus ``extra_sinks`` for all skins)."""
+    specs, sinks = load_skins(path)
+    return Runner(specs, sinks=[*sinks, *(extra_sinks or [])])

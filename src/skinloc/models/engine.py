@@ -1,0 +1,251 @@
+"""The prediction engine: one implementation per model kind turns frames into contact points.
+
+A model is fitted once (``ContactLocalizer.fit``) and then described by a *spec*: plain arrays
+(``ModelSpec`` and one subclass per kind) that say everything prediction needs. An *engine*
+(``Engine`` and one subclass per kind) is built from a spec and is the only code that predicts:
+the library (``ContactLocalizer.predict``, ``evaluate``), the live pipeline, the benchmarks and
+the app all call it, and the exports (``models.export``) are generated from the same spec and
+tested against it.
+
+Kinds: ``network`` (``skinloc.models.network_engine``: an ensemble of fully connected networks) and
+``map`` (``skinloc.models.map_engine``: a response map matched coarse to fine). A new kind is a spec
+subclass with an ``engine`` method and an ``Engine`` subclass with ``localise_into`` (one frame,
+allocation-free) and ``_predict_rows`` (a batch); everything else here serves every kind.
+
+Units: input images are baseline-subtracted counts, points metres, spread millimetres.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+
+from skinloc._jit import jit
+from skinloc._lazy import resolve
+from skinloc._typing import Frames, Points
+from skinloc.geometry.snap import CONSTRAINTS, Surface
+
+__all__ = ["Engine", "ModelSpec", "Prediction", "load_engine"]
+
+_NORMS = {"none": 0, "l1": 1, "l2": 2}
+_MODEL_CLASS = "skinloc.models.localizer:ContactLocalizer"
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """Localiser output for a batch.
+
+    Attributes
+    ----------
+    points : (n, 3) float
+        Contact points on the skin, m.
+    raw : (n, 3) float
+        Ensemble mean before the surface constraint, m (for a map, the points themselves).
+    uncertainty_mm : (n,) float
+        Spread of the ensemble members or of the map's likely candidates, mm (nan for a
+        single network).
+    """
+
+    points: Points
+    raw: Points
+    uncertainty_mm: np.ndarray
+
+
+@dataclass(kw_only=True)
+class ModelSpec:
+    """What every kind's spec holds: the input, the preprocessing and the skin surface.
+
+    Attributes
+    ----------
+    n_features : int
+        Sensors per image.
+    clip_negative : bool
+        Zero negative deltas before normalising.
+    constraint : {"snap", "project", "none"}
+        Output constraint.
+    surface_points : (P, 3) float or None
+        Discretised surface for ``snap`` (a map's candidates), m.
+    vertices : (V, 3) float or None
+        Skin mesh vertices, m.
+    faces : (F, 3) int or None
+        Skin mesh triangles.
+    meta : dict
+        Free-form facts about the model (its ``arch``).
+    """
+
+    kind: ClassVar[str] = ""
+
+    n_features: int
+    clip_negative: bool
+    constraint: str = "snap"
+    surface_points: np.ndarray | None = None
+    vertices: np.ndarray | None = None
+    faces: np.ndarray | None = None
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.constraint not in CONSTRAINTS:
+            raise ValueError(
+                f"the spec's constraint must be one of snap, project, none, got {self.constraint!r}"
+            )
+
+    def engine(self, constraint: str | None = None) -> Engine:
+        """The engine of this spec (``constraint`` overrides the spec's own)."""
+        raise NotImplementedError
+
+    @classmethod
+    def from_localizer(cls, model: Any) -> ModelSpec:
+        """The spec of a fitted ``ContactLocalizer``."""
+        return model.spec()
+
+    @classmethod
+    def load(cls, path: str | Path) -> ModelSpec:
+        """The spec of a saved model file."""
+        # the file format belongs to the model class, which builds on this module: named only
+        return resolve(_MODEL_CLASS).load(path).spec()
+
+
+class Engine:
+    """Frames to contact points for one model; subclasses implement one kind each.
+
+    Parameters
+    ----------
+    spec : ModelSpec
+        The fitted model as arrays.
+    constraint : {"snap", "project", "none"}, optional
+        Override the spec's output constraint.
+
+    Examples
+    --------
+    >>> engine = load_engine("model.h5")  # doctest: +SKIP
+    >>> point, raw, spread_mm = engine.predict_one(delta)  # doctest: +SKIP
+    """
+
+    kind: ClassVar[str] = ""
+
+    def __init__(self, spec: ModelSpec, constraint: str | None = None) -> None:
+        self.spec = spec
+        self.n_features = int(spec.n_features)
+        mode = spec.constraint if constraint is None else constraint
+        points = spec.surface_points
+        if mode == "snap" and points is None and spec.vertices is not None:
+            # a mesh without snap points: sample them the way a fitted model does
+            from skinloc.geometry.mesh import mesh_from_arrays, surface_points
+
+            points = surface_points(mesh_from_arrays(spec.vertices, spec.faces))
+        self.surface = Surface(mode, points, spec.vertices, spec.faces)
+        self.constraint = self.surface.constraint
+        self._x = np.zeros(self.n_features, dtype=np.float32)
+        self._out = np.zeros(7, dtype=np.float64)
+
+    @property
+    def n_members(self) -> int:
+        """Networks in the ensemble (1 for a response map)."""
+        return 1
+
+    @classmethod
+    def from_model(cls, model: Any, constraint: str | None = None) -> Engine:
+        """The engine of a fitted ``ContactLocalizer``, a spec, or a path to a saved model."""
+        if isinstance(model, str | Path):
+            spec = ModelSpec.load(model)
+        elif isinstance(model, ModelSpec):
+            spec = model
+        else:
+            spec = model.spec()
+        return spec.engine(constraint)
+
+    # ------------------------------------------------------------------ per kind
+    def localise_into(self, x: np.ndarray, out: np.ndarray) -> None:
+        """One image ``x (n_features,)`` float32 counts into ``out (7,)`` float64.
+
+        ``out`` = [raw x, y, z (m), point x, y, z (m, on the surface), spread (mm)]. The
+        allocation-free call the pipeline makes per frame.
+        """
+        raise NotImplementedError
+
+    def _predict_rows(self, X: np.ndarray) -> tuple[Points, Points, np.ndarray]:
+        """``predict_batch`` on checked, contiguous float32 rows."""
+        raise NotImplementedError
+
+    # ------------------------------------------------------------------ every kind
+    def predict_batch(self, X: Frames) -> tuple[Points, Points, np.ndarray]:
+        """``(points (n, 3) m, raw (n, 3) m, spread_mm (n,))`` for ``X (n, n_features)``."""
+        X = np.asarray(X)
+        if X.ndim == 1:
+            X = X[None, :]
+        if X.ndim != 2 or X.shape[1] != self.n_features:
+            raise ValueError(
+                f"sensor images must have shape (n, {self.n_features}), got {np.shape(X)}"
+            )
+        return self._predict_rows(np.ascontiguousarray(X, dtype=np.float32))
+
+    def predict(self, X: Frames) -> Prediction:
+        """``predict_batch`` as a ``Prediction``."""
+        points, raw, spread = self.predict_batch(X)
+        return Prediction(points=points, raw=raw, uncertainty_mm=spread)
+
+    def predict_one(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """``(point (3,) m, raw (3,) m, spread_mm)`` for one image ``x (n_features,)``."""
+        xx = np.ascontiguousarray(x, dtype=np.float32).reshape(-1)
+        if xx.shape != (self.n_features,):
+            raise ValueError(
+                f"sensor image must have shape ({self.n_features},), got {np.shape(x)}"
+            )
+        out = np.empty(7)
+        self.localise_into(xx, out)
+        return out[3:6].copy(), out[:3].copy(), float(out[6])
+
+    def constrain(self, q: Points) -> Points:
+        """Constrain ``q (n, 3)`` m onto the surface; returns ``(n, 3)`` m."""
+        return self.surface.constrain(q)
+
+    def constrain_into(self, q0: float, q1: float, q2: float, out: np.ndarray) -> None:
+        """Put the point ``(q0, q1, q2)`` m on the surface by this model's constraint."""
+        self.surface.constrain_into(q0, q1, q2, out)
+
+    def warm_up(self) -> Engine:
+        """Compile the kernels now (numba caches them on disk) rather than on the first frame."""
+        self.localise_into(self._x, self._out)
+        self.predict_batch(np.zeros((256, self.n_features), dtype=np.float32))
+        self.constrain_into(0.0, 0.0, 0.0, np.zeros(3))
+        return self
+
+
+def load_engine(model: Any, constraint: str | None = None) -> Engine:
+    """A warmed-up engine from a model path, a ``ContactLocalizer``, a spec or an engine."""
+    if isinstance(model, Engine):
+        return model
+    return Engine.from_model(model, constraint).warm_up()
+
+
+@jit()
+def clip_and_norm(x: np.ndarray, clip: int, norm: int, z: np.ndarray) -> float:  # pragma: no cover
+    """Clipped image into ``z`` (float32) and the inverse of its floored norm.
+
+    ``norm``: 0 none (returns 1), 1 L1, 2 L2; the norm is floored at one count so that an
+    empty frame stays near zero instead of being blown up into noise.
+    """
+    nrm = 0.0
+    for i in range(x.shape[0]):
+        v = x[i]
+        if clip and v < 0.0:
+            v = 0.0
+        z[i] = v
+        if norm == 1:
+            nrm += abs(v)
+        elif norm == 2:
+            nrm += v * v
+    if norm == 2:
+        nrm = math.sqrt(nrm)
+    if norm == 0 or nrm <= 1.0:
+        return 1.0
+    return 1.0 / nrm
+
+
+def norm_code(name: str) -> int:
+    """The kernels' code of a normalisation: none 0, l1 1, l2 2."""
+    return _NORMS[name]

@@ -1,0 +1,480 @@
+"""The contact localiser: sensor image (n_sensors,) counts -> contact point (3,) m on the skin.
+
+``ContactLocalizer`` follows the scikit-learn conventions: ``__init__`` stores
+hyperparameters, ``fit`` learns (attributes with a trailing ``_``) and returns ``self``.
+
+Two kinds of model share the class:
+
+- ``kind="map"`` (the default): a response map of the skin (``skinloc.models.response_map``), fitted
+  by Gaussian-process regression on the surface in well under a second; prediction matches
+  the image's shape against the map at every candidate surface point.
+- ``kind="network"`` (``paper``, ``mlp``): fully connected networks trained in PyTorch (the
+  ``skinloc[nets]`` extra); prediction needs no PyTorch.
+
+Prediction is not here: a fitted model is described by a spec (``spec()``, plain arrays) and
+predicted by the engine of its kind (``skinloc.models.engine``), the one implementation that the
+pipeline, the benchmarks, the app and the exports share.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from skinloc._typing import Frames, Points
+from skinloc.errors import NotFittedError
+from skinloc.models.engine import Engine, ModelSpec, Prediction
+from skinloc.models.model_file import MODEL_FORMAT_VERSION
+from skinloc.models.network_training import fit_network
+
+log = logging.getLogger(__name__)
+
+__all__ = ["ARCHITECTURES", "ContactLocalizer", "MODEL_FORMAT_VERSION", "Prediction"]
+
+
+#: Named configurations. ``paper`` is the paper's network exactly (64-32-3, one hidden layer);
+#: ``default`` is the most accurate on the real recordings (see docs/accuracy.md); ``mlp`` is
+#: the best network found (an ensemble, also the way to an uncertainty from a network).
+ARCHITECTURES: dict[str, dict[str, Any]] = {
+    "default": dict(
+        kind="map",
+        normalise="l2",
+        clip_negative=True,
+        train_on="means",
+        length_scale_mm=20.0,
+    ),
+    "paper": dict(
+        kind="network",
+        hidden=(32,),
+        activation="tanh",
+        n_members=1,
+        normalise="none",
+        clip_negative=False,
+        train_on="means",
+        epochs=2000,
+        lr=1e-2,
+        weight_decay=0.0,
+        noise_std=0.0,
+    ),
+    "mlp": dict(
+        kind="network",
+        hidden=(128, 128),
+        activation="relu",
+        n_members=5,
+        normalise="l2",
+        clip_negative=True,
+        train_on="frames",
+        epochs=100,
+        lr=3e-3,
+        weight_decay=1e-4,
+        noise_std=0.0,
+    ),
+}
+
+_ACTIVATIONS = ("relu", "tanh", "gelu")
+#: Hyperparameters a user may override (each an ``__init__`` argument).
+_TUNABLE = (
+    "length_scale_mm",
+    "hidden",
+    "activation",
+    "n_members",
+    "normalise",
+    "clip_negative",
+    "train_on",
+    "epochs",
+    "lr",
+    "weight_decay",
+    "noise_std",
+)
+
+
+def group_means(X: np.ndarray, y: np.ndarray, groups: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Average rows of ``X (n, k)`` and ``y (n, 3)`` that share a group label.
+
+    Returns ``(X_mean (g, k), y_mean (g, 3))`` in order of the sorted group labels.
+    """
+    uniq, inv = np.unique(np.asarray(groups), return_inverse=True)
+    counts = np.bincount(inv).astype(np.float64)[:, None]
+    Xm = np.zeros((len(uniq), X.shape[1]))
+    ym = np.zeros((len(uniq), y.shape[1]))
+    np.add.at(Xm, inv, X)
+    np.add.at(ym, inv, y)
+    return Xm / counts, ym / counts
+
+
+class ContactLocalizer:
+    """Sensor images to contact points: a response map or a network ensemble.
+
+    Parameters
+    ----------
+    arch : {"default", "mlp", "paper"}, default="default"
+        Named configuration; keyword arguments given explicitly override its values, and
+        must be ones that configuration has.
+    length_scale_mm : float, optional
+        Starting length scale of the response map's GP, mm (fitted by marginal likelihood).
+    hidden : tuple of int, optional
+        Hidden layer widths.
+    activation : {"relu", "tanh", "gelu"}, optional
+        Hidden activation.
+    n_members : int, optional
+        Networks in the ensemble; their spread is the uncertainty.
+    normalise : {"none", "l1", "l2"}, optional
+        Divide each image by its norm (after clipping) so that touch pressure cancels.
+    clip_negative : bool, optional
+        Set negative deltas to zero before normalising.
+    train_on : {"frames", "means"}, optional
+        Train on every frame of a touch, or on its mean image (the paper).
+    epochs, lr, weight_decay : optional
+        Adam full-batch training schedule (cosine-decayed learning rate).
+    noise_std : float, optional
+        Gaussian noise added to standardised inputs during training (augmentation).
+    constraint : {"snap", "project", "none"}, default="snap"
+        How predictions are put on the surface (needs a mesh at ``fit``).
+    random_state : int, default=0
+        Seed; training is deterministic under it.
+    """
+
+    def __init__(
+        self,
+        *,
+        arch: str = "default",
+        length_scale_mm: float | None = None,
+        hidden: tuple[int, ...] | None = None,
+        activation: str | None = None,
+        n_members: int | None = None,
+        normalise: str | None = None,
+        clip_negative: bool | None = None,
+        train_on: str | None = None,
+        epochs: int | None = None,
+        lr: float | None = None,
+        weight_decay: float | None = None,
+        noise_std: float | None = None,
+        constraint: str = "snap",
+        random_state: int = 0,
+    ) -> None:
+        self.arch = arch
+        self.length_scale_mm = length_scale_mm
+        self.hidden = hidden
+        self.activation = activation
+        self.n_members = n_members
+        self.normalise = normalise
+        self.clip_negative = clip_negative
+        self.train_on = train_on
+        self.epochs = epochs
+        self.lr = lr
+        self.weight_decay = weight_decay
+        self.noise_std = noise_std
+        self.constraint = constraint
+        self.random_state = random_state
+
+    # ---------------------------------------------------------------- configuration
+    def get_config(self) -> dict[str, Any]:
+        """Resolved hyperparameters: the named architecture with explicit overrides applied."""
+        if self.arch not in ARCHITECTURES:
+            raise ValueError(
+                f"unknown arch {self.arch!r} of ContactLocalizer; choose one of: "
+                f"{', '.join(ARCHITECTURES)}"
+            )
+        cfg = dict(ARCHITECTURES[self.arch])
+        for key in _TUNABLE:
+            value = getattr(self, key)
+            if value is None:
+                continue
+            if key not in cfg:
+                raise ValueError(
+                    f"the {key!r} parameter does not apply to arch {self.arch!r} "
+                    f"(a {cfg['kind']} model)"
+                )
+            cfg[key] = value
+        if "hidden" in cfg:
+            cfg["hidden"] = tuple(int(h) for h in cfg["hidden"])
+        cfg.update(arch=self.arch, constraint=self.constraint, random_state=self.random_state)
+        self._validate(cfg)
+        return cfg
+
+    @staticmethod
+    def _validate(cfg: dict[str, Any]) -> None:
+        def bad(name: str, allowed: str) -> ValueError:
+            return ValueError(
+                f"the {name!r} parameter of ContactLocalizer must be {allowed}; got {cfg[name]!r}"
+            )
+
+        if cfg["normalise"] not in ("none", "l1", "l2"):
+            raise bad("normalise", "one of none, l1, l2")
+        if cfg["train_on"] not in ("frames", "means"):
+            raise bad("train_on", "one of frames, means")
+        if cfg["constraint"] not in ("snap", "project", "none"):
+            raise bad("constraint", "one of snap, project, none")
+        if cfg["kind"] == "map":
+            if not cfg["length_scale_mm"] > 0:
+                raise bad("length_scale_mm", "a float > 0")
+            if cfg["normalise"] != "l2" or cfg["train_on"] != "means":
+                raise ValueError("a response map matches L2-normalised touch means")
+            return
+        if not cfg["hidden"] or any(h < 1 for h in cfg["hidden"]):
+            raise bad("hidden", "a non-empty tuple of positive ints")
+        if cfg["activation"] not in _ACTIVATIONS:
+            raise bad("activation", f"one of {', '.join(_ACTIVATIONS)}")
+        if not (isinstance(cfg["n_members"], int) and cfg["n_members"] >= 1):
+            raise bad("n_members", "an int >= 1")
+        if not (isinstance(cfg["epochs"], int) and cfg["epochs"] >= 1):
+            raise bad("epochs", "an int >= 1")
+        if not cfg["lr"] > 0:
+            raise bad("lr", "a float > 0")
+        if not cfg["weight_decay"] >= 0:
+            raise bad("weight_decay", "a float >= 0")
+        if not cfg["noise_std"] >= 0:
+            raise bad("noise_std", "a float >= 0")
+
+    # ---------------------------------------------------------------- preprocessing
+    def _features(self, X: np.ndarray, cfg: dict[str, Any]) -> np.ndarray:
+        """Pressure-invariant image features, before standardisation. ``(n, n_sensors)``."""
+        Z = np.asarray(X, dtype=np.float64)
+        if cfg["clip_negative"]:
+            Z = np.maximum(Z, 0.0)
+        if cfg["normalise"] != "none":
+            order = 1 if cfg["normalise"] == "l1" else 2
+            norm = np.linalg.norm(Z, ord=order, axis=1, keepdims=True)
+            # A floor keeps near-empty images (no touch) from being blown up into noise.
+            Z = Z / np.maximum(norm, 1.0)
+        return Z
+
+    def _check_X(self, X: Frames) -> np.ndarray:
+        X = np.asarray(X, dtype=np.float64)
+        if X.ndim == 1:
+            X = X[None, :]
+        n_expected = getattr(self, "n_features_in_", None)
+        if X.ndim != 2 or (n_expected is not None and X.shape[1] != n_expected):
+            want = f"(n, {n_expected})" if n_expected is not None else "(n, n_sensors)"
+            raise ValueError(
+                f"sensor images must have shape {want} ({n_expected} sensors), got {X.shape}"
+            )
+        if not np.all(np.isfinite(X)):
+            raise ValueError("sensor images contain NaN or infinite values")
+        return X
+
+    # ---------------------------------------------------------------- training
+    def fit(
+        self,
+        X: Frames,
+        y: Points,
+        *,
+        groups: np.ndarray | None = None,
+        mesh: Any = None,
+        surface_points: Points | None = None,
+        progress: Callable[[int, int], None] | None = None,
+    ) -> ContactLocalizer:
+        """Train on baseline-subtracted images.
+
+        Parameters
+        ----------
+        X : (n, n_sensors) float
+            Baseline-subtracted sensor images, counts (single frames or touch means).
+        y : (n, 3) float
+            Touch positions, m.
+        groups : (n,) int, optional
+            Touch each row belongs to; with ``train_on="means"`` rows are averaged per touch.
+        mesh : trimesh.Trimesh, optional
+            Skin surface for the output constraint.
+        surface_points : (P, 3) float, optional
+            Discretised surface for ``constraint="snap"``.
+        progress : callable(done, total), optional
+            Called during training.
+
+        Returns
+        -------
+        self
+        """
+        cfg = self.get_config()
+        X = self._check_X(X)
+        y = np.asarray(y, dtype=np.float64)
+        if y.shape != (len(X), 3):
+            raise ValueError(f"touch positions must have shape ({len(X)}, 3), got {y.shape}")
+        if len(X) < 2:
+            raise ValueError("need at least 2 sensor images to train")
+        if cfg["train_on"] == "means" and groups is not None:
+            X, y = group_means(X, y, groups)
+        t0 = time.perf_counter()
+        for attr in ("coefs_", "intercepts_", "map_"):  # a second fit starts afresh
+            self.__dict__.pop(attr, None)
+        self.n_features_in_ = X.shape[1]
+        self.config_ = cfg
+        self._set_surface(mesh, surface_points)
+        if cfg["kind"] == "map":
+            self._fit_map(X, y)
+        else:
+            F = self._features(X, cfg)
+            self.feature_mean_ = F.mean(axis=0)
+            self.feature_scale_ = np.maximum(F.std(axis=0), 1e-6 * max(F.std(), 1e-12))
+            self.target_mean_ = y.mean(axis=0)
+            self.target_scale_ = float(np.maximum(y.std(axis=0).max(), 1e-6))
+            fit_network(self, X, y, cfg["epochs"], cfg["lr"], progress)
+        self.fit_time_s_ = time.perf_counter() - t0
+        log.info("trained %s in %.2f s", cfg["arch"], self.fit_time_s_)
+        return self
+
+    def _fit_map(self, X: np.ndarray, y: Points) -> None:
+        from skinloc.models.response_map import ResponseMap, shape_features
+
+        if self.surface_points_ is None:
+            raise ValueError(
+                "a response-map model chooses among surface points: give the skin mesh or "
+                "surface_points to fit()"
+            )
+        F = shape_features(X, self.config_["clip_negative"])
+        self.map_ = ResponseMap.fit(
+            y, F, self.surface_points_, length_scale_mm=self.config_["length_scale_mm"]
+        )
+
+    def recalibrate(
+        self,
+        X: Frames,
+        y: Points,
+        *,
+        groups: np.ndarray | None = None,
+        progress: Callable[[int, int], None] | None = None,
+    ) -> ContactLocalizer:
+        """A copy of this model adapted to a skin whose response has moved (a new session).
+
+        ``X (n, n_sensors)`` are baseline-subtracted images from the new session (with its own
+        fresh baseline) and ``y (n, 3)`` their touch positions, m; a handful of touches is
+        enough. A response map gains a correction layer fitted to the new touches; a network
+        is fine-tuned from its weights with a short, gentle schedule.
+        """
+        import copy
+
+        self._check_fitted()
+        X = self._check_X(X)
+        y = np.asarray(y, dtype=np.float64)
+        if y.shape != (len(X), 3) or len(X) < 1:
+            raise ValueError(f"touch positions must have shape ({len(X)}, 3), got {y.shape}")
+        new = copy.deepcopy(self)
+        new._engine = None
+        t0 = time.perf_counter()
+        if self.config_["kind"] == "map":
+            from skinloc.models.response_map import shape_features
+
+            if groups is not None:
+                X, y = group_means(X, y, groups)
+            F = shape_features(X, self.config_["clip_negative"])
+            new.map_ = self.map_.refined(y, F)
+        else:
+            if self.config_["train_on"] == "means" and groups is not None:
+                X, y = group_means(X, y, groups)
+            epochs = max(50, self.config_["epochs"] // 4)
+            fit_network(new, X, y, epochs, self.config_["lr"] / 10, progress)
+        new.fit_time_s_ = time.perf_counter() - t0
+        return new
+
+    # ---------------------------------------------------------------- surface
+    def _set_surface(self, mesh: Any, surface_points: Points | None) -> None:
+        self.mesh_vertices_ = None if mesh is None else np.asarray(mesh.vertices, dtype=np.float64)
+        self.mesh_faces_ = None if mesh is None else np.asarray(mesh.faces, dtype=np.int64)
+        self.surface_points_ = surface_points
+        needs_points = self.constraint == "snap" or self.config_["kind"] == "map"
+        if mesh is not None and surface_points is None and needs_points:
+            from skinloc.geometry.mesh import surface_points as make_points
+
+            self.surface_points_ = make_points(mesh)
+        self._engine = None
+
+    @property
+    def mesh(self):  # -> trimesh.Trimesh | None
+        """The skin surface the model constrains its output to, if any."""
+        self._check_fitted()
+        if self.mesh_vertices_ is None:
+            return None
+        from skinloc.geometry.mesh import mesh_from_arrays
+
+        return mesh_from_arrays(self.mesh_vertices_, self.mesh_faces_)
+
+    # ---------------------------------------------------------------- prediction
+    def _check_fitted(self) -> None:
+        if not (hasattr(self, "coefs_") or hasattr(self, "map_")):
+            raise NotFittedError(
+                "this ContactLocalizer is not fitted yet: call fit() or load a trained model"
+            )
+
+    def spec(self) -> ModelSpec:
+        """The fitted model as plain arrays: what its engine and the exports are built from."""
+        self._check_fitted()
+        cfg = self.config_
+        common = dict(
+            n_features=int(self.n_features_in_),
+            clip_negative=bool(cfg["clip_negative"]),
+            vertices=self.mesh_vertices_,
+            faces=self.mesh_faces_,
+            meta={"arch": cfg.get("arch", "?")},
+        )
+        if cfg["kind"] == "map":
+            from skinloc.models.map_engine import MapSpec
+
+            coarse, cells = self.map_.search_cells()
+            return MapSpec(
+                **common,
+                surface_points=self.map_.candidates,
+                table=self.map_.table,
+                coarse=coarse,
+                cells=cells,
+                noise=float(self.map_.noise),
+            )
+        from skinloc.models.network_engine import NetworkSpec
+
+        return NetworkSpec(
+            **common,
+            constraint=cfg["constraint"],
+            surface_points=self.surface_points_,
+            normalise=cfg["normalise"],
+            activation=cfg["activation"],
+            feature_mean=np.asarray(self.feature_mean_, dtype=np.float64),
+            feature_scale=np.asarray(self.feature_scale_, dtype=np.float64),
+            weights=[np.asarray(W, dtype=np.float64) for W in self.coefs_],
+            biases=[np.asarray(b, dtype=np.float64) for b in self.intercepts_],
+            target_mean=np.asarray(self.target_mean_, dtype=np.float64).reshape(3),
+            target_scale=float(self.target_scale_),
+        )
+
+    def engine(self) -> Engine:
+        """The engine that predicts for this model (built once per fit or load)."""
+        if getattr(self, "_engine", None) is None:
+            self._engine = self.spec().engine()
+        return self._engine
+
+    def predict_full(self, X: Frames) -> Prediction:
+        """Predict points, raw outputs and the uncertainty for ``X (n, n_sensors)``."""
+        self._check_fitted()
+        return self.engine().predict(self._check_X(X))
+
+    def predict(self, X: Frames) -> Points:
+        """Contact points ``(n, 3)`` m for baseline-subtracted images ``X (n, n_sensors)``.
+
+        A single image ``(n_sensors,)`` gives ``(1, 3)``.
+        """
+        return self.predict_full(X).points
+
+    # ---------------------------------------------------------------- persistence
+    def save(self, path: str | Path, extra_meta: dict[str, Any] | None = None) -> None:
+        """Write the model to one self-describing HDF5 file, atomically (``models.model_file``).
+
+        The file holds the configuration (JSON), the preprocessing arrays, every layer's
+        weights as ``(n_members, in, out)`` datasets or the response map's layers, the skin
+        mesh and the snap points.
+        """
+        from skinloc.models.model_file import write_model
+
+        self._check_fitted()
+        write_model(self, Path(path), extra_meta)
+
+    @classmethod
+    def load(cls, path: str | Path) -> ContactLocalizer:
+        """Read a model written by ``save``; raises ``ModelFileError`` when it cannot."""
+        from skinloc.models.model_file import read_model
+
+        model = read_model(cls, Path(path))
+        model._engine = None
+        return model

@@ -1,0 +1,204 @@
+"""Response maps: each sensor's normalised response as a smooth function on the skin surface.
+
+A touch at surface point ``p`` produces an image whose *shape* depends on ``p`` (which sensors
+respond, and how much relative to each other) and whose *scale* depends on pressure. A
+response map predicts the shape anywhere on the surface from the calibration touches by
+Gaussian-process regression in 3D (one GP per feature, with shared hyperparameters fitted by
+marginal likelihood). A new image is then localised by matching its shape against the map at
+every candidate surface point (maximum likelihood under the GP's residual noise): that is the
+engine's work (``skinloc.models.map_engine``), from the table and search cells built here.
+
+Interpolating 64 smooth scalar fields on a 2D surface needs far fewer touches than learning
+the inverse 64 -> 3 mapping, and it recalibrates naturally: a new session's touches fit a
+correction layer on top of the old map (see ``ResponseMap.refined``).
+
+Units: positions in metres in the API; the GP works in millimetres internally so that its
+length scale reads in mm.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from skinloc._typing import Points
+
+__all__ = ["MapLayer", "ResponseMap", "shape_features"]
+
+
+def shape_features(X: np.ndarray, clip_negative: bool = True) -> np.ndarray:
+    """Pressure-invariant image shape, ``(n, n_sensors)``.
+
+    Negative deltas (noise, common-mode dips) are clipped to zero, then each image is divided
+    by its L2 norm; the norm is floored at one count so an empty frame stays near zero
+    instead of being blown up into noise.
+    """
+    Z = np.asarray(X, dtype=np.float64)
+    if clip_negative:
+        Z = np.maximum(Z, 0.0)
+    return Z / np.maximum(np.linalg.norm(Z, axis=1, keepdims=True), 1.0)
+
+
+def _rbf(A_mm: np.ndarray, B_mm: np.ndarray, length_scale_mm: float) -> np.ndarray:
+    """Squared-exponential kernel matrix without amplitude, ``(len(A), len(B))``."""
+    d2 = (A_mm**2).sum(1)[:, None] + (B_mm**2).sum(1)[None, :] - 2.0 * A_mm @ B_mm.T
+    return np.exp(-0.5 * np.maximum(d2, 0.0) / length_scale_mm**2)
+
+
+@dataclass(frozen=True)
+class MapLayer:
+    """One GP posterior mean: ``f(q) = k(q, points) @ alpha``.
+
+    Attributes
+    ----------
+    points_mm : (n, 3) float
+        Training positions, mm.
+    alpha : (n, k) float
+        Dual coefficients (kernel amplitude folded in).
+    length_scale_mm : float
+        RBF length scale, mm.
+    noise : float
+        Fitted residual variance per feature (white-noise level of the GP).
+    """
+
+    points_mm: np.ndarray
+    alpha: np.ndarray
+    length_scale_mm: float
+    noise: float
+
+    def __call__(self, q_mm: np.ndarray) -> np.ndarray:
+        """Layer value at query points ``q_mm (m, 3)`` mm -> ``(m, k)``."""
+        return _rbf(q_mm, self.points_mm, self.length_scale_mm) @ self.alpha
+
+
+def _fit_layer(
+    points_mm: np.ndarray,
+    R: np.ndarray,
+    length_scale_mm: float | None,
+    bounds_mm: tuple[float, float],
+    noise: float | None,
+) -> MapLayer:
+    """Fit a zero-mean GP layer to residuals ``R (n, k)`` at ``points_mm (n, 3)``.
+
+    With ``length_scale_mm`` and ``noise`` both given the hyperparameters stay fixed (used for
+    recalibration from a handful of touches, too few to fit them); otherwise they are chosen
+    by maximising the marginal likelihood, starting from the given values.
+    """
+    from sklearn.exceptions import ConvergenceWarning
+    from sklearn.gaussian_process import GaussianProcessRegressor
+    from sklearn.gaussian_process.kernels import RBF, WhiteKernel
+    from sklearn.gaussian_process.kernels import ConstantKernel as C
+
+    fixed = length_scale_mm is not None and noise is not None
+    amp0 = float(max(np.mean(R**2), 1e-6))
+    kernel = C(amp0, "fixed" if fixed else (1e-6, 10.0)) * RBF(
+        length_scale_mm or 20.0, "fixed" if fixed else bounds_mm
+    ) + WhiteKernel(noise or 1e-3, "fixed" if fixed else (1e-6, 1.0))
+    gp = GaussianProcessRegressor(kernel, normalize_y=False, random_state=0)
+    with warnings.catch_warnings():
+        # A bound reached by the optimiser is a fact about the data, not an error.
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        gp.fit(points_mm, R)
+    k = gp.kernel_
+    amp, ls, white = (
+        float(k.k1.k1.constant_value),
+        float(k.k1.k2.length_scale),
+        float(k.k2.noise_level),
+    )
+    alpha = amp * np.asarray(gp.alpha_).reshape(len(points_mm), -1)
+    return MapLayer(points_mm.copy(), alpha, ls, white)
+
+
+@dataclass
+class ResponseMap:
+    """Feature mean plus a stack of GP layers, evaluated on a set of candidate surface points.
+
+    Attributes
+    ----------
+    mean : (k,) float
+        Mean feature vector of the first calibration.
+    layers : list of MapLayer
+        The base map, then one correction layer per recalibration.
+    candidates : (P, 3) float
+        Surface points the matcher chooses among, m.
+    """
+
+    mean: np.ndarray
+    layers: list[MapLayer]
+    candidates: Points
+    _table: np.ndarray | None = field(default=None, repr=False)
+    _sq: np.ndarray | None = field(default=None, repr=False)
+    _coarse: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
+
+    @classmethod
+    def fit(
+        cls,
+        positions: Points,
+        F: np.ndarray,
+        candidates: Points,
+        length_scale_mm: float = 20.0,
+        bounds_mm: tuple[float, float] = (2.0, 300.0),
+    ) -> ResponseMap:
+        """Fit the base map to touch positions ``(n, 3)`` m and their features ``F (n, k)``."""
+        mean = F.mean(axis=0)
+        layer = _fit_layer(1e3 * positions, F - mean, length_scale_mm, bounds_mm, None)
+        return cls(mean, [layer], np.asarray(candidates, dtype=np.float64))
+
+    def refined(self, positions: Points, F: np.ndarray) -> ResponseMap:
+        """A copy corrected by new touches (e.g. a new session), keeping what still holds.
+
+        The correction is a GP on the residual between the new features and this map, with
+        the base layer's length scale and noise, so a few touches pull the map locally
+        towards the new response and leave it unchanged far from them.
+        """
+        q = 1e3 * np.asarray(positions, dtype=np.float64)
+        R = F - self.evaluate_mm(q)
+        base = self.layers[0]
+        layer = _fit_layer(q, R, base.length_scale_mm, (2.0, 300.0), base.noise)
+        return ResponseMap(self.mean.copy(), [*self.layers, layer], self.candidates.copy())
+
+    @property
+    def noise(self) -> float:
+        """Residual feature variance of the base map (per feature)."""
+        return self.layers[0].noise
+
+    def evaluate_mm(self, q_mm: np.ndarray) -> np.ndarray:
+        """Map value (predicted features) at ``q_mm (m, 3)`` mm -> ``(m, k)``."""
+        out = np.broadcast_to(self.mean, (len(q_mm), len(self.mean))).copy()
+        for layer in self.layers:
+            out += layer(q_mm)
+        return out
+
+    @property
+    def table(self) -> np.ndarray:
+        """The map at every candidate point, ``(P, k)`` float32 (computed once)."""
+        if self._table is None:
+            chunks = [
+                self.evaluate_mm(1e3 * self.candidates[i : i + 4096])
+                for i in range(0, len(self.candidates), 4096)
+            ]
+            self._table = np.concatenate(chunks).astype(np.float32)
+            self._sq = (self._table**2).sum(axis=1)
+        return self._table
+
+    def search_cells(self) -> tuple[np.ndarray, np.ndarray]:
+        """A coarse level for the search: every 16th candidate, and the candidates nearest each.
+
+        Returns ``(coarse (C,) int, cells (C, m) int)``, each cell padded by repeating its
+        coarse point.
+        """
+        if getattr(self, "_coarse", None) is None:
+            from scipy.spatial import cKDTree
+
+            coarse = np.arange(0, len(self.candidates), 16)
+            owner = cKDTree(self.candidates[coarse]).query(self.candidates)[1]
+            order = np.argsort(owner, kind="stable")
+            counts = np.bincount(owner, minlength=len(coarse))
+            cells = np.repeat(coarse[:, None], counts.max(), axis=1)
+            starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+            for c, (s0, n) in enumerate(zip(starts, counts, strict=True)):
+                cells[c, :n] = order[s0 : s0 + n]
+            self._coarse = (coarse, cells)
+        return self._coarse

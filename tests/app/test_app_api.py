@@ -1,0 +1,469 @@
+"""The browser app's HTTP API and WebSocket, driven through FastAPI's TestClient.
+
+A simulated skin streams in real time (fast, 400 Hz) and the scripted finger touches each
+target, as in the browser; the tests wait for what the app reports, with generous limits.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("fastapi")
+pytest.importorskip("httpx")
+
+with warnings.catch_warnings():  # starlette's note that it prefers httpx2 to httpx
+    warnings.simplefilter("ignore")
+    from fastapi.testclient import TestClient  # noqa: E402
+
+from skinloc.app.device import SourceSpec  # noqa: E402
+from skinloc.app.server import create_app  # noqa: E402
+from skinloc.app.workspace import AppConfig  # noqa: E402
+from skinloc.data.recording import read_recording  # noqa: E402
+from skinloc.geometry.mesh import cone_skin  # noqa: E402
+
+#: The default localiser (it trains in seconds); tests may pass overrides here.
+FAST_TRAIN: dict = {}
+A = {"X-Skinloc-Client": "tab-a"}
+B = {"X-Skinloc-Client": "tab-b"}
+
+
+def page_client(app) -> TestClient:
+    """A client that acts as the app's own page: it sends the launch token with every action."""
+    client = TestClient(app)
+    client.headers.update({"X-Skinloc-Token": app.state.token})
+    return client
+
+
+def make_client(data: Path, source: bool = True) -> TestClient:
+    config = AppConfig(data_dir=data, train_options=FAST_TRAIN, finger_delay_s=0.05)
+    spec = SourceSpec(source="sim", rate_hz=400.0, seed=3) if source else None
+    return page_client(create_app(config, spec))
+
+
+def stream(client: TestClient, tab: str):
+    """The page's WebSocket: its own origin and the launch token."""
+    token = client.headers["X-Skinloc-Token"]
+    return client.websocket_connect(
+        f"/ws?client={tab}&token={token}", headers={"origin": "http://testserver"}
+    )
+
+
+def wait_for(client: TestClient, check, what: str, timeout_s: float = 180.0) -> dict:
+    """Poll the state until ``check(state)``; fails naming ``what`` after ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        state = client.get("/api/state").json()
+        if check(state):
+            return state
+        if time.monotonic() > deadline:
+            pytest.fail(f"timed out waiting for {what}; last state: {state}")
+        time.sleep(0.05)
+
+
+def new_session(client: TestClient, n_points: int = 8, **kw) -> str:
+    body = {"name": "test skin", "n_points": n_points, "samples": 10, "baseline_frames": 20, **kw}
+    r = client.post("/api/sessions", json=body, headers=A)
+    assert r.status_code == 200, r.text
+    return r.json()["id"]
+
+
+def calibrate(client: TestClient, until: int | None = None) -> dict:
+    assert client.post("/api/finger", json={"on": True}, headers=A).status_code == 200
+    r = client.post("/api/calibrate/start", headers=A)
+    assert r.status_code == 200, r.text
+    if until is None:
+        return wait_for(client, lambda s: s["message"] == "calibration complete", "calibration")
+    state = wait_for(
+        client,
+        lambda s: s["guided"] is not None and s["guided"]["index"] >= until,
+        f"{until} touches",
+    )
+    client.post("/api/capture/stop", headers=A)
+    return state
+
+
+def test_full_session_calibrate_train_validate_live(tmp_path):
+    with make_client(tmp_path) as client:
+        sid = new_session(client, n_points=8)
+        calibrate(client)
+        rec = read_recording(tmp_path / sid / "calibration.h5")
+        assert rec.n_point_logs == 8
+        assert len(rec.meta["app"]["flags"]) == 8
+        np.testing.assert_allclose(rec.targets, rec.planned_targets)
+        detail = client.get("/api/session").json()
+        assert len(detail["calibration"]["done"]) == 8
+        mesh = client.get("/api/session/mesh").json()
+        assert mesh["id"] == sid and len(mesh["faces"]) == len(cone_skin().faces)
+
+        assert client.post("/api/train", headers=A).status_code == 200
+        state = wait_for(
+            client,
+            lambda s: s["training"] and not s["training"].get("running"),
+            "training",
+        )
+        result = state["training"]["result"]
+        assert result["n_test"] >= 1 and result["n_train"] + result["n_test"] == 8
+        assert np.isfinite(result["mean_mm"])
+        assert (tmp_path / sid / "model.h5").is_file()
+
+        r = client.post("/api/validate/start", json={"n_points": 3}, headers=A)
+        assert r.status_code == 200, r.text
+        state = wait_for(client, lambda s: s["session"]["validation"] is not None, "validation")
+        assert state["session"]["validation"]["n"] == 3
+        val = read_recording(tmp_path / sid / "validation.h5")
+        assert val.n_point_logs == 3 and len(val.meta["app"]["errors_mm"]) == 3
+        assert state["session"]["validation"]["retaken"] == 0
+
+        # Retaking a validation touch is recorded: the result keeps the attempt taken back.
+        first_error = val.meta["app"]["errors_mm"][0]
+        r = client.post(
+            "/api/capture/retake", json={"index": 0, "recording": "validation"}, headers=A
+        )
+        assert r.status_code == 200, r.text
+        state = wait_for(
+            client,
+            lambda s: (
+                s["session"]["validation"]["retaken"] == 1 and s["session"]["validation"]["n"] == 3
+            ),
+            "the retaken validation touch",
+        )
+        result = state["session"]["validation"]
+        assert result["n_attempts"] == 4 and result["complete"]
+        assert result["all_attempts"]["n"] == 4
+        assert result["taken_back"][0]["reason"] == "retake"
+        assert result["taken_back"][0]["error_mm"] == pytest.approx(first_error, abs=1e-2)
+        val = read_recording(tmp_path / sid / "validation.h5")
+        assert val.n_point_logs == 3 and len(val.meta["app"]["taken_back"]) == 1
+        listed = client.get("/api/sessions").json()["sessions"][0]["validation"]
+        assert listed["retaken"] == 1 and listed["n_attempts"] == 4
+
+        assert client.post("/api/finger", json={"on": False}, headers=A).status_code == 200
+        assert client.post("/api/live/start", headers=A).status_code == 200
+        wait_for(client, lambda s: s["mode"] == "live", "live mode")
+        target = rec.targets[0]
+        with stream(client, "tab-a") as ws:
+            r = client.post("/api/sim/touch", json={"point": target.tolist()}, headers=A)
+            assert r.status_code == 200
+            for _ in range(2000):
+                msg = ws.receive_json()
+                if msg["type"] == "live" and msg["touched"]:
+                    break
+            else:
+                pytest.fail("no live point while touching")
+            point = np.asarray(msg["point"])
+            assert point.shape == (3,) and np.all(np.isfinite(point))
+            client.post("/api/sim/touch", json={"point": None}, headers=A)
+
+
+def test_undo_skip_retake_keep_everything(tmp_path):
+    with make_client(tmp_path) as client:
+        sid = new_session(client, n_points=6)
+        calibrate(client, until=3)
+        path = tmp_path / sid / "calibration.h5"
+        before = read_recording(path)
+        assert before.n_point_logs >= 3
+        n = before.n_point_logs
+
+        client.post("/api/finger", json={"on": False}, headers=A)
+        client.post("/api/calibrate/start", headers=A)
+        assert client.post("/api/capture/undo", headers=A).status_code == 200
+        rec = read_recording(path)
+        assert rec.n_point_logs == n - 1
+        # The undone target is prompted again, and the touch is kept in the history.
+        np.testing.assert_allclose(rec.planned_targets[n - 1], before.targets[n - 1])
+        detail = client.get("/api/session").json()
+        assert detail["history"] == 1
+
+        assert client.post("/api/capture/skip", headers=A).status_code == 200
+        rec = read_recording(path)
+        assert len(rec.planned_targets) == 5 and len(rec.meta["app"]["skipped"]) == 1
+
+        r = client.post("/api/capture/retake", json={"index": 0}, headers=A)
+        assert r.status_code == 200, r.text
+        rec = read_recording(path)
+        assert rec.n_point_logs == n - 2
+        np.testing.assert_allclose(rec.planned_targets[n - 2], before.targets[0])
+        np.testing.assert_allclose(rec.planned_targets[: rec.n_point_logs], rec.targets)
+        assert client.get("/api/session").json()["history"] == 2
+        assert client.post("/api/capture/retake", json={"index": 99}, headers=A).status_code == 400
+
+
+def test_resume_after_restart(tmp_path):
+    with make_client(tmp_path) as client:
+        sid = new_session(client, n_points=6)
+        state = calibrate(client, until=2)
+        n_done = read_recording(tmp_path / sid / "calibration.h5").n_point_logs
+        assert state["guided"]["total"] == 6
+    # A new server on the same folder (the first one is gone, as after a crash).
+    with make_client(tmp_path) as client:
+        sessions = client.get("/api/sessions").json()["sessions"]
+        assert [s["id"] for s in sessions] == [sid]
+        assert sessions[0]["n_done"] == n_done
+        assert client.post(f"/api/sessions/{sid}/open", headers=A).status_code == 200
+        assert client.post("/api/calibrate/start", headers=A).status_code == 200
+        state = wait_for(client, lambda s: s["mode"] == "calibrate", "resumed calibration")
+        assert state["guided"]["index"] == n_done
+        client.post("/api/capture/stop", headers=A)
+
+
+def test_two_tabs_one_is_told_busy(tmp_path):
+    with make_client(tmp_path) as client:
+        with (
+            stream(client, "tab-a") as ws_a,
+            stream(client, "tab-b") as ws_b,
+        ):
+            assert ws_a.receive_json()["type"] == "state"
+            assert ws_b.receive_json()["type"] == "state"
+            new_session(client)  # tab a takes control
+            r = client.post("/api/calibrate/start", headers=B)
+            assert r.status_code == 409 and "busy" in r.json()["detail"]
+            # Tab b takes over explicitly; tab a is told.
+            assert client.post("/api/lease", headers=B).status_code == 200
+            for _ in range(500):
+                msg = ws_a.receive_json()
+                if msg["type"] == "state" and msg["lease"] == "tab-b":
+                    break
+            else:
+                pytest.fail("tab a was not told it lost control")
+            assert client.post("/api/capture/stop", headers=A).status_code == 409
+        # Tab b closed: control is free again for tab a.
+        assert client.post("/api/capture/stop", headers=A).status_code == 200
+
+
+def test_a_session_opens_in_one_process_only(tmp_path):
+    with make_client(tmp_path, source=False) as first:
+        sid = new_session(first)
+        with make_client(tmp_path, source=False) as second:
+            r = second.post(f"/api/sessions/{sid}/open", headers=A)
+            assert r.status_code == 409 and "another skinloc app" in r.json()["detail"]
+
+
+def test_target_sheets(tmp_path):
+    with make_client(tmp_path, source=False) as client:
+        sid = new_session(client, n_points=12)
+        svg = client.get(f"/api/sessions/{sid}/targets.svg")
+        assert svg.status_code == 200 and svg.headers["content-type"].startswith("image/svg")
+        assert svg.text.count("<circle") == 12 and 'width="297mm"' in svg.text
+        pdf = client.get(f"/api/sessions/{sid}/targets.pdf")
+        assert pdf.status_code == 200 and pdf.content.startswith(b"%PDF")
+        assert client.get(f"/api/sessions/{sid}/targets.png").status_code == 400
+        assert client.get("/api/sessions/nope/targets.svg").status_code == 400
+
+
+def test_target_list_and_mesh_upload(tmp_path):
+    from skinloc.geometry.mesh import sample_targets
+
+    with make_client(tmp_path, source=False) as client:
+        pts = sample_targets(cone_skin(), 4, "random", random_state=1) * 1e3
+        csv = "x,y,z\n" + "\n".join(",".join(f"{v:.4f}" for v in p) for p in pts)
+        sid = new_session(client, mode="list", targets_csv=csv)
+        detail = client.get("/api/session").json()
+        assert detail["id"] == sid and len(detail["calibration"]["planned"]) == 4
+        bad = client.post(
+            "/api/sessions", json={"mode": "list", "targets_csv": "0,0,500"}, headers=A
+        )
+        assert bad.status_code == 400 and "off the skin" in bad.json()["detail"]
+        bad = client.post("/api/sessions", json={"mode": "spiral"}, headers=A)
+        assert bad.status_code == 400 and "spiral" in bad.json()["detail"]
+
+        stl = cone_skin().export(file_type="stl")
+        r = client.post("/api/meshes?filename=cone.stl", content=stl, headers=A)
+        assert r.status_code == 200, r.text
+        assert r.json()["n_faces"] == len(cone_skin().faces)
+        r = client.post("/api/meshes?filename=junk.obj", content=b"not a mesh", headers=A)
+        assert r.status_code == 400
+        assert not (tmp_path / "meshes" / "junk.obj").exists()
+        r = client.post("/api/sessions", json={"n_points": 5, "mesh_file": "cone.stl"}, headers=A)
+        assert r.status_code == 200, r.text
+
+
+def test_bad_requests_get_one_line_errors(tmp_path):
+    with make_client(tmp_path, source=False) as client:
+        r = client.post("/api/connect", json={"source": "/dev/no-such-port"}, headers=A)
+        assert r.status_code == 400 and "/dev/no-such-port" in r.json()["detail"]
+        assert "\n" not in r.json()["detail"]
+        r = client.post("/api/calibrate/start", headers=A)
+        assert r.status_code == 400 and "session" in r.json()["detail"]
+        r = client.post("/api/capture/dance", headers=A)
+        assert r.status_code == 400
+        r = client.post("/api/sessions/..%2Fetc/open", headers=A)
+        assert r.status_code in (400, 404)
+        assert client.get("/", headers={"host": "evil.example"}).status_code == 400
+
+
+def test_connect_page_reports_sensors(tmp_path):
+    with make_client(tmp_path) as client:
+        client.post("/api/sessions", json={"n_points": 5}, headers=A)
+        with stream(client, "tab-a") as ws:
+            seen = set()
+            for _ in range(3000):
+                msg = ws.receive_json()
+                seen.add(msg["type"])
+                if msg["type"] == "sensors":
+                    break
+            assert {"state", "frame", "sensors"} <= seen
+        assert len(msg["noise"]) == 64 and len(msg["status"]) == 64
+        # The simulated skin has a noisy sensor at TX 1, RX 7 (docs/simulator.md).
+        assert msg["status"][1 * 8 + 7] == "noisy"
+        state = client.get("/api/state").json()
+        assert state["device"]["rate_hz"] > 0 and state["device"]["dropped"] == 0
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "openpty"), reason="needs a POSIX pty")
+def test_calibrate_over_a_serial_port_with_the_virtual_skin(tmp_path):
+    """The virtual skin device on a pty; its scripted finger is driven over the port."""
+    from skinloc.sim.skin import SimulatedSkin
+    from skinloc.sim.virtual_device import VirtualSkin
+
+    with VirtualSkin(SimulatedSkin(random_state=0), fmt="binary", rate_hz=200) as dev:
+        config = AppConfig(data_dir=tmp_path, finger_delay_s=0.05)
+        with page_client(create_app(config, SourceSpec(source=dev.path))) as client:
+            state = client.get("/api/state").json()
+            assert state["device"]["name"] == dev.path and not state["device"]["sim"]
+            sid = new_session(client, n_points=4)
+            calibrate(client)
+            rec = read_recording(tmp_path / sid / "calibration.h5")
+            assert rec.n_point_logs == 4 and rec.meta["source"] == dev.path
+            state = client.get("/api/state").json()
+            assert state["device"]["received"] > 0 and state["device"]["corrupted"] == 0
+            r = client.post("/api/sim/touch", json={"point": [0, 0, 0]}, headers=A)
+            assert r.status_code == 400 and "simulated skin" in r.json()["detail"]
+
+
+def test_reconnecting_the_skin_mid_session_carries_on(tmp_path):
+    with make_client(tmp_path) as client:
+        sid = new_session(client, n_points=5)
+        calibrate(client, until=2)
+        body = {"source": "sim", "rate_hz": 400.0, "seed": 3}
+        assert client.post("/api/connect", json=body, headers=A).status_code == 200
+        calibrate(client)
+        assert read_recording(tmp_path / sid / "calibration.h5").n_point_logs == 5
+
+
+def _stream_until(ws, check, what: str, timeout_s: float = 20.0) -> dict:
+    """Read messages from ``ws`` until ``check(msg)``; fails naming ``what`` after ``timeout_s``.
+
+    The WebSocket never goes quiet for long (the server sends a heartbeat when there is nothing
+    else), so the deadline is checked between messages.
+    """
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        msg = ws.receive_json()
+        if check(msg):
+            return msg
+    pytest.fail(f"no {what} within {timeout_s} s")
+
+
+def test_heartbeat_when_nothing_else_is_sent(tmp_path):
+    with make_client(tmp_path, source=False) as client:
+        client.headers.update({"X-Skinloc-Token": getattr(client.app.state, "token", "") or ""})
+        with stream(client, "tab-a") as ws:
+            assert ws.receive_json()["type"] == "state"
+            beat = _stream_until(ws, lambda m: m["type"] == "heartbeat", "heartbeat")
+            assert beat["device"] is False and beat["link_up"] is False
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "openpty"), reason="needs a POSIX pty")
+def test_every_tab_is_told_when_the_link_drops_and_comes_back(tmp_path):
+    """The virtual skin stops: both tabs get a link-lost state; it starts again: link back."""
+    from skinloc.sim.skin import SimulatedSkin
+    from skinloc.sim.virtual_device import VirtualSkin
+
+    dev = VirtualSkin(SimulatedSkin(random_state=0), rate_hz=200, link_dir=tmp_path / "port")
+    dev.start()
+    try:
+        config = AppConfig(data_dir=tmp_path / "data", finger_delay_s=0.05)
+        app = create_app(config, SourceSpec(source=dev.path))
+        with TestClient(app) as client:
+            client.headers.update({"X-Skinloc-Token": getattr(app.state, "token", "") or ""})
+            with (
+                stream(client, "tab-a") as ws_a,
+                stream(client, "tab-b") as ws_b,
+            ):
+                for ws in (ws_a, ws_b):
+                    _stream_until(ws, lambda m: m["type"] == "frame", "frame")
+                dev.stop()
+                for ws in (ws_a, ws_b):
+                    lost = _stream_until(
+                        ws,
+                        lambda m: m["type"] == "state" and not m["device"]["link_up"],
+                        "link-lost state",
+                    )
+                    assert "link lost" in lost["message"]
+                    beat = _stream_until(ws, lambda m: m["type"] == "heartbeat", "heartbeat")
+                    assert beat["device"] and not beat["link_up"]
+                device = client.get("/api/state").json()["device"]
+                # No stale "200 Hz" from before the stop.
+                assert device["link_up"] is False and device["rate_hz"] == 0
+                dev.start()  # the same port path: the serial source reopens it
+                for ws in (ws_a, ws_b):
+                    back = _stream_until(
+                        ws,
+                        lambda m: m["type"] == "state" and m["device"]["link_up"],
+                        "link-back state",
+                    )
+                    assert "link back" in back["message"]
+                state = client.get("/api/state").json()["device"]
+                assert state["link_losses"] == 1 and state["reconnects"] >= 1
+    finally:
+        dev.stop()
+
+
+def test_active_sampling_then_the_coverage_map_of_the_trained_model(tmp_path):
+    """The 'active' mode: a few planned (even) targets, then each chosen from the touches;
+    after training, the coverage map of the model."""
+    from skinloc.calibration.active import N_START
+    from skinloc.calibration.session import CalibrationSession
+    from skinloc.sim.skin import SimulatedSkin
+
+    with make_client(tmp_path) as client:
+        r = client.post(
+            "/api/sessions", json={"name": "x", "n_points": 6, "mode": "smart"}, headers=A
+        )
+        assert 400 <= r.status_code < 500 and "active" in r.json()["detail"]
+        sid = new_session(client, n_points=7, mode="active")
+        plan = np.asarray(client.get("/api/session").json()["calibration"]["planned"])
+        assert plan.shape == (7, 3)
+        calibrate(client, until=N_START + 1)
+        # Closed and reopened, the session asks what the recorded touches call for.
+        assert client.post("/api/session/close", headers=A).status_code == 200
+        assert client.post(f"/api/sessions/{sid}/open", headers=A).status_code == 200
+        path = tmp_path / sid / "calibration.h5"
+        n = read_recording(path).n_point_logs
+        assert N_START < n < 7
+        with SimulatedSkin(cone_skin(), random_state=3) as skin:
+            expected = CalibrationSession.resume(skin, path).target_for(n)
+        assert client.post("/api/finger", json={"on": False}, headers=A).status_code == 200
+        assert client.post("/api/calibrate/start", headers=A).status_code == 200
+        state = wait_for(client, lambda s: s["guided"] is not None, "the resumed calibration")
+        assert state["guided"]["index"] == n
+        np.testing.assert_allclose(state["guided"]["target"], expected, atol=1e-9)
+        calibrate(client)
+        rec = read_recording(path)
+        assert rec.n_point_logs == 7 and rec.meta["sampling_mode"] == "active"
+        np.testing.assert_allclose(rec.targets[:N_START], plan[:N_START])
+        assert np.linalg.norm(rec.targets[N_START:] - plan[N_START:], axis=1).min() > 1e-6
+        assert len(np.unique(np.round(rec.targets, 6), axis=0)) == 7
+        # The page's view of the plan shows what was asked.
+        np.testing.assert_allclose(rec.planned_targets, rec.targets)
+        # The coverage map comes from the trained model: refused before, drawn after.
+        r = client.get("/api/session/coverage")
+        assert r.status_code == 400 and "train a model first" in r.json()["detail"]
+        assert client.post("/api/train", headers=A).status_code == 200
+        wait_for(client, lambda s: s["training"] and not s["training"].get("running"), "training")
+        r = client.get("/api/session/coverage")
+        assert r.status_code == 200, r.text
+        cov = r.json()
+        pts, err = np.asarray(cov["points"]), np.asarray(cov["expected_mm"])
+        assert pts.ndim == 2 and pts.shape[1] == 3 and err.shape == (len(pts),)
+        assert np.isfinite(err).all() and (err > 0).all() and cov["unit"] == "mm"
+        assert cov["expected_error_mm"]["mean"] == pytest.approx(err.mean(), abs=0.05)
+        # On the skin: every point within a millimetre of the cone's surface.
+        from skinloc.geometry.mesh import nearest_on_surface
+
+        assert nearest_on_surface(cone_skin(), pts)[1].max() < 1e-3

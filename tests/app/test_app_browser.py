@@ -1,0 +1,436 @@
+"""End to end in a real browser: headless Chromium driven by Playwright through a whole session.
+
+Connect the simulated skin, create a session, calibrate 10 targets with the scripted finger,
+train, validate, see a live point while the mouse touches the skin, and be told in a second tab
+that the skin is busy. Screenshots go to
+``build/test-artifacts/app/`` (or ``$SKINLOC_ARTIFACTS``). The test skips, saying why, where
+Playwright or a Chromium (Debian's ``chromium``, which ``make test`` installs) is missing.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed")
+uvicorn = pytest.importorskip("uvicorn")
+
+from skinloc.app.server import create_app  # noqa: E402
+from skinloc.app.workspace import AppConfig  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[2]
+ARTIFACTS = Path(os.environ.get("SKINLOC_ARTIFACTS", ROOT / "build" / "test-artifacts" / "app"))
+#: Calibration targets; docs/app.md's screenshots use SKINLOC_APP_POINTS=40.
+N_POINTS = int(os.environ.get("SKINLOC_APP_POINTS", "10"))
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--no-first-run",
+    # WebGL without a GPU.
+    "--use-angle=swiftshader",
+    "--enable-unsafe-swiftshader",
+]
+
+
+#: Why scripts/ensure-chromium.sh (make test) could not install Chromium, when it could not.
+CHROMIUM_STATUS = ROOT / "build" / "chromium-status.txt"
+
+
+def find_chromium() -> str:
+    for name in ("chromium", "chromium-browser", "google-chrome"):
+        path = shutil.which(name)
+        if path:
+            return path
+    why = "run 'sh scripts/ensure-chromium.sh' (make test does) or apt-get install chromium"
+    if CHROMIUM_STATUS.is_file():
+        why = CHROMIUM_STATUS.read_text().strip() or why
+    pytest.skip(f"no Chromium (chromium, chromium-browser, google-chrome) on PATH: {why}")
+
+
+@pytest.fixture
+def server(tmp_path):
+    """The app on a free loopback port, served by uvicorn on a thread."""
+    # Bind here and hand uvicorn the socket: no window for another process to take the port.
+    sock = socket.create_server(("127.0.0.1", 0))
+    port = sock.getsockname()[1]
+    config = AppConfig(data_dir=tmp_path / "sessions", finger_delay_s=0.15)
+    app = create_app(config)
+    srv = uvicorn.Server(uvicorn.Config(app, log_level="warning", ws="websockets-sansio"))
+    thread = threading.Thread(target=srv.run, kwargs={"sockets": [sock]}, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 120
+    while not srv.started:
+        if time.monotonic() > deadline or not thread.is_alive():
+            pytest.fail("the app server did not start")
+        time.sleep(0.05)
+    yield f"http://127.0.0.1:{port}/", app
+    srv.should_exit = True
+    thread.join(timeout=30)
+    sock.close()
+
+
+@pytest.fixture
+def chromium() -> str:
+    """The Chromium binary (looked up before the server starts, to skip early)."""
+    return find_chromium()
+
+
+def test_full_session_in_the_browser(chromium, server, tmp_path):
+    url, app = server
+    # Generous limits: a loaded 2-core machine renders WebGL in software.
+    sync_api.expect.set_options(timeout=60_000)
+    expect = sync_api.expect
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    errors: list[str] = []
+    with sync_api.sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
+        page = browser.new_page(viewport={"width": 1440, "height": 900})
+        watch(page, errors)
+
+        def shot(name: str, on=None) -> None:
+            (on or page).screenshot(path=str(ARTIFACTS / f"{name}.png"))
+
+        def wait_state(js: str, timeout_ms: int = 60_000, on=None) -> None:
+            (on or page).wait_for_function(
+                f"() => {{ const s = window.skinloc.state; return !!s && ({js}); }}",
+                timeout=timeout_ms,
+            )
+
+        page.goto(url)
+        page.wait_for_selector("#page-sessions.active")
+        # The 3D view belongs to the pages with a place for it, not under the Sessions page.
+        assert not page.locator("#viewer").is_visible()
+
+        # Connect the simulated skin and watch its sensor image; hover a noise cell.
+        page.click("#nav button[data-page=connect]")
+        page.click("#connect-btn")
+        wait_state("s.device && s.device.rate_hz > 0")
+        page.wait_for_function("() => window.skinloc.sensors !== null")
+        assert "connected" in page.locator("#source-select option:checked").inner_text()
+        assert not page.locator("#viewer").is_visible()
+        hover_cell(page, "#heat-noise", 1, 7)
+        tip = page.locator(".heat-tip")
+        assert "TX 1, RX 7" in tip.inner_text() and "counts" in tip.inner_text()
+        shot("02-connect")
+
+        # A new session.
+        page.click("#nav button[data-page=sessions]")
+        page.fill("#new-session [name=name]", "browser test")
+        page.fill("#new-session [name=n_points]", str(N_POINTS))
+        page.fill("#new-session [name=samples]", "20")
+        page.fill("#new-session [name=baseline_frames]", "30")
+        page.fill("#new-session [name=n_validation]", "5")
+        page.click("#new-session button[type=submit]")
+        page.wait_for_selector("#page-calibrate.active")
+
+        # Calibrate: the first target waits for a touch; then the scripted finger does them all.
+        panel = page.locator('.guided[data-kind="calibrate"]')
+        panel.locator(".start").click()
+        wait_state("s.mode === 'calibrate' && s.guided.phase === 'wait_touch'")
+        expect(panel.locator(".big-state")).to_contain_text("Touch the red target")
+        page.wait_for_timeout(1200)  # the view turns towards the target (for the picture only)
+        shot("03-calibrate")
+        panel.locator(".finger").check()
+        wait_state("s.message === 'calibration complete'", timeout_ms=180_000)
+        page.wait_for_function(
+            "() => window.skinloc.session && "
+            f"window.skinloc.session.calibration.done.length === {N_POINTS}"
+        )
+        assert f"{N_POINTS} of {N_POINTS}" in panel.locator(".count").inner_text()
+        assert panel.locator(".touches thead").inner_text().startswith("#")
+        # The heat map stays on screen above the touch list.
+        heat = panel.locator(".guided-heat").bounding_box()
+        assert heat["y"] + heat["height"] <= 900
+        shot("03b-calibrated")
+
+        # Train.
+        page.click("#nav button[data-page=train]")
+        page.click("#train-btn")
+        page.wait_for_selector("#train-result .result", timeout=180_000)
+        expect(page.locator("#train-result")).to_contain_text("mm")
+        shot("04-train")
+
+        # Validate on 5 fresh touches; one is taken back with the Z key right after the
+        # scripted-finger box was clicked (the box must not keep the keys), and the result says so.
+        page.click("#nav button[data-page=validate]")
+        vpanel = page.locator('.guided[data-kind="validate"]')
+        vpanel.locator(".finger").uncheck()  # still on from the calibration
+        wait_state("!s.finger")
+        vpanel.locator(".n-val").fill("6")
+        vpanel.locator(".start").click()
+        wait_state("s.mode === 'validate' && s.guided.phase === 'wait_touch'")
+        page.keyboard.press("Space")  # capture now: one touch for sure
+        wait_state("s.guided && s.guided.index >= 1")
+        vpanel.locator(".finger").click()  # on
+        wait_state("s.finger")
+        vpanel.locator(".finger").click()  # off: the box was the last thing clicked
+        wait_state("!s.finger")
+        assert page.evaluate("document.activeElement.tagName") != "INPUT"
+        page.keyboard.press("z")  # undo the last touch
+        wait_state("s.session && s.session.validation && s.session.validation.retaken === 1")
+        vpanel.locator(".finger").click()  # on again, to the end
+        wait_state(
+            "s.session && s.session.validation && s.session.validation.n === 6 "
+            "&& s.session.validation.complete",
+            60_000,
+        )
+        vpanel.locator(".val-result .result").wait_for()
+        assert "1 touch retaken" in vpanel.locator(".val-result").inner_text()
+        assert page.locator("#viewer-legend").is_visible()
+        vpanel.locator(".finger").click()  # off
+        shot("05-validate")
+        # The trained model's coverage map on the skin, with its colour scale and unit.
+        vpanel.locator(".coverage").click()
+        vpanel.locator(".coverage-legend").get_by_text("expected error (mm)").wait_for()
+        page.wait_for_function(
+            "() => window.skinloc.viewer.groups.coverage.visible"
+            " && window.skinloc.viewer.groups.coverage.children.length > 100"
+        )
+        vpanel.locator(".coverage").click()  # off
+        page.wait_for_function("() => !window.skinloc.viewer.groups.coverage.visible")
+
+        # Live: press on the skin with the mouse, see the predicted point and its trail.
+        page.click("#nav button[data-page=live]")
+        page.click("#live-start")
+        wait_state("s.mode === 'live'")
+        page.check("#mouse-touch")
+        box = page.locator("#viewer canvas").bounding_box()
+        page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+        page.mouse.down()
+        page.wait_for_function(
+            "() => document.querySelector('#live-state').textContent === 'touched'"
+        )
+        for k in range(6):  # move a little, so the trail has a shape
+            page.mouse.move(box["x"] + box["width"] / 2 + 4 * k, box["y"] + box["height"] / 2)
+            page.wait_for_timeout(100)
+        # Live points arrive over the WebSocket: wait for them (a loaded machine is slow).
+        page.wait_for_function("() => document.querySelector('#live-point').textContent !== '-'")
+        page.wait_for_function(
+            "() => !['', '0px'].includes(document.querySelector('#live-conf').style.width)"
+        )
+        page.wait_for_function("() => window.skinloc.viewer.trailLine.geometry.drawRange.count > 1")
+        shot("06-live")
+        page.mouse.up()
+        page.wait_for_function(
+            "() => document.querySelector('#live-state').textContent === 'not touched'"
+        )
+        page.click("#live-stop")
+
+        # A second tab may watch but is told the skin is busy when it tries to change anything.
+        other = browser.new_page(viewport={"width": 1440, "height": 900})
+        watch(other, errors)
+        other.goto(url)
+        other.click("#nav button[data-page=connect]")
+        other.click("#rezero")
+        other.wait_for_selector("#busy:not(.hidden)")
+        assert "in use in another tab" in other.inner_text("#busy")
+        shot("07-second-tab-busy", other)
+        errors[:] = [e for e in errors if "in use in another tab" not in e]  # refused, as it should
+        other.close()
+
+        # The first page lists the session with its results, retaken touch included.
+        page.click("#nav button[data-page=sessions]")
+        page.wait_for_selector("#session-list td:has-text('browser test')")
+        assert "1 touch retaken" in page.inner_text("#session-list")
+        shot("01-sessions")
+
+        # The same pages 800 px wide: nothing wider than the window, the 3D view refitted.
+        page.set_viewport_size({"width": 800, "height": 900})
+        for name in ("sessions", "connect", "calibrate", "train", "validate", "live"):
+            page.click(f"#nav button[data-page={name}]")
+            try:  # the layout settles after the click; a loaded machine takes its time
+                page.wait_for_function(
+                    "() => document.documentElement.scrollWidth <= 800", timeout=15_000
+                )
+            except sync_api.TimeoutError:
+                pass
+            width = page.evaluate("document.documentElement.scrollWidth")
+            assert width <= 800, f"the {name} page is {width} px wide at 800 px"
+            if name in ("calibrate", "validate", "live"):
+                box = page.locator("#viewer canvas").bounding_box()
+                assert box["width"] <= 800
+            shot(f"narrow-{name}")
+        page.set_viewport_size({"width": 1440, "height": 900})
+
+        # The skin's link drops: every tab says so within a bounded wait, stops prompting
+        # touches, and shows the reconnect.
+        link_lost(browser, page, url, wait_state, shot, tmp_path, errors)
+
+        # After a restart nothing is open: the Calibrate page offers the session again.
+        app.state.workspace.close_session()
+        page.click("#nav button[data-page=calibrate]")
+        page.wait_for_selector('.guided[data-kind="calibrate"] .reopen:not(.hidden)')
+        page.wait_for_function(
+            "() => document.querySelector('.guided[data-kind=calibrate] .count').textContent === ''"
+        )
+        assert "browser test" in panel.locator(".reopen-select option:checked").inner_text()
+        page.wait_for_timeout(400)  # the progress bar's transition
+        shot("09-reopen")
+        panel.locator(".reopen-btn").click()
+        wait_state("s.session && s.session.name === 'browser test'")
+        page.wait_for_function(
+            f"() => document.querySelector('.guided[data-kind=calibrate] .count')"
+            f".textContent.includes('{N_POINTS} of {N_POINTS}')"
+        )
+        browser.close()
+    assert not errors, f"the page logged errors: {errors}"
+    ws = app.state.workspace
+    assert ws.active is not None and ws.active.model is not None
+
+
+def watch(page, errors: list[str]) -> None:
+    """Collect the page's errors and three.js's warnings (it warns through console.warn).
+
+    A refused action (409, busy) is what the second tab should meet, not an error.
+    """
+
+    def console(m) -> None:
+        if "status of 409" in m.text:
+            return
+        if m.type == "error" or (m.type == "warning" and "THREE" in m.text):
+            errors.append(f"{m.type}: {m.text}")
+
+    page.on("pageerror", lambda exc: errors.append(str(exc)))
+    page.on("console", console)
+    page.set_default_timeout(60_000)
+
+
+def hover_cell(page, canvas: str, tx: int, rx: int) -> None:
+    """Move the mouse over cell (tx, rx) of a heat map."""
+    geo = page.evaluate(
+        f"(() => {{ const h = document.querySelector('{canvas}')._heat; "
+        "return {pad: h.pad, cell: h.cell}; })()"
+    )
+    box = page.locator(canvas).bounding_box()
+    x = box["x"] + geo["pad"] + (rx + 0.5) * geo["cell"]
+    y = box["y"] + geo["pad"] + (tx + 0.5) * geo["cell"]
+    page.mouse.move(x, y)
+
+
+def link_lost(browser, page, url, wait_state, shot, tmp_path, errors) -> None:
+    """A virtual skin on a pty, stopped and started again, watched by two tabs."""
+    if not hasattr(os, "openpty"):
+        return
+    from skinloc.sim.skin import SimulatedSkin
+    from skinloc.sim.virtual_device import VirtualSkin
+
+    dev = VirtualSkin(SimulatedSkin(random_state=0), rate_hz=100, link_dir=tmp_path / "port")
+    dev.start()
+    try:
+        page.click("#nav button[data-page=connect]")
+        page.fill("#connect-form [name=port]", dev.path)
+        page.click("#connect-btn")
+        wait_state(f"s.device && s.device.name === {dev.path!r} && s.device.rate_hz > 0")
+        # Validation waits for a touch on the real-looking skin.
+        page.click("#nav button[data-page=validate]")
+        vpanel = page.locator('.guided[data-kind="validate"]')
+        vpanel.locator(".n-val").fill("3")
+        vpanel.locator(".start").click()
+        wait_state("s.mode === 'validate' && s.guided.phase === 'wait_touch'")
+        page.wait_for_function(
+            "() => document.querySelector('.guided[data-kind=validate] .big-state')"
+            ".textContent.includes('Touch')"
+        )
+        other = browser.new_page(viewport={"width": 1440, "height": 900})
+        watch(other, errors)
+        other.goto(url)
+        other.click("#nav button[data-page=connect]")
+        wait_state("s.device && s.device.link_up", on=other)
+        other.wait_for_function(
+            "() => document.querySelector('#source-select option:checked')"
+            ".textContent.includes('connected')"
+        )
+
+        dev.stop()
+        for tab in (page, other):
+            tab.wait_for_selector("#linklost:not(.hidden)", timeout=30_000)
+            assert "link lost" in tab.inner_text("#pill-device")
+        big = vpanel.locator(".big-state").inner_text()
+        assert "Link lost" in big and "Touch" not in big
+        assert vpanel.locator(".now").is_disabled()
+        page.keyboard.press("Space")  # no capture while the link is down
+        shot("08-link-lost")
+        # The Connect page keeps its shape with the long error of a lost port.
+        wait_state("s.device && s.device.error", on=other)
+        assert dev.path in other.locator("#source-select option:checked").inner_text()
+        other.wait_for_timeout(600)
+        assert other.evaluate("document.documentElement.scrollWidth") <= 1440
+        grow = other.locator("#page-connect .card.grow").bounding_box()
+        assert grow["width"] > 600
+        shot("08b-connect-link-lost", other)
+
+        dev.start()  # the same port path: the app reconnects by itself
+        for tab in (page, other):
+            tab.wait_for_selector("#linklost", state="hidden", timeout=60_000)
+            tab.wait_for_function(
+                "() => document.querySelector('#pill-device').textContent.includes('Hz')"
+            )
+        page.wait_for_function(
+            "() => document.querySelector('#message').textContent.includes('link back')"
+        )
+        page.wait_for_function(
+            "() => document.querySelector('.guided[data-kind=validate] .big-state')"
+            ".textContent.includes('Touch')"
+        )
+        shot("08c-link-back")
+        other.close()
+        page.click('.guided[data-kind="validate"] .stop')
+        # Back to the simulated skin.
+        page.click("#nav button[data-page=connect]")
+        page.fill("#connect-form [name=port]", "")
+        page.select_option("#source-select", "sim")
+        page.click("#connect-btn")
+        wait_state("s.device && s.device.sim && s.device.rate_hz > 0")
+        # The serial source logs its lost port; the page logs nothing about it.
+        errors[:] = [e for e in errors if "ERR_CONNECTION" not in e]
+    finally:
+        dev.stop()
+
+
+def test_a_tab_notices_a_silent_link_by_itself(chromium, server):
+    """The tab's own watchdog: frames stop reaching it while the server still says the link
+    is up (a stalled connection, not a port the server saw close): link lost, then back."""
+    url, app = server
+    from skinloc.app.device import SourceSpec
+
+    app.state.workspace.connect(SourceSpec(source="sim"))
+    errors: list[str] = []
+    drop = threading.Event()
+    with sync_api.sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
+        page = browser.new_page(viewport={"width": 1440, "height": 900})
+        watch(page, errors)
+
+        def relay(ws) -> None:
+            server_side = ws.connect_to_server()
+
+            def forward(message) -> None:
+                text = message if isinstance(message, str) else ""
+                if drop.is_set() and ('"type":"frame"' in text or '"type":"sensors"' in text):
+                    return  # lost on the way: the server keeps streaming
+                ws.send(message)
+
+            server_side.on_message(forward)
+
+        page.route_web_socket("**/ws*", relay)
+        page.goto(url)
+        page.wait_for_function(
+            "() => document.querySelector('#pill-device').textContent.includes('Hz')"
+        )
+        assert page.locator("#linklost").is_hidden()
+        drop.set()
+        page.wait_for_selector("#linklost:not(.hidden)", timeout=30_000)
+        assert "link lost" in page.inner_text("#pill-device")
+        assert app.state.workspace.device.link_up  # the server saw nothing wrong
+        drop.clear()
+        page.wait_for_selector("#linklost", state="hidden", timeout=30_000)
+        browser.close()
+    assert not errors, f"the page logged errors: {errors}"

@@ -1,0 +1,132 @@
+"""Guided capture frame by frame, touch quality flags, and printable target sheets."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from skinloc.app.capture import (
+    CapturePhase,
+    TouchCapture,
+    baseline_drift_sigma,
+    off_target,
+    touch_flags,
+)
+from skinloc.app.sheet import layout_sheet, render_pdf, render_svg
+from skinloc.calibration.session import SessionConfig, TouchDetector, simulate_session
+from skinloc.geometry.mesh import cone_skin, sample_targets
+from skinloc.sim.skin import SimulatedSkin
+
+N = 16
+BASE = np.full(N, 1000.0)
+NOISE = np.full(N, 2.0)
+
+
+def frame(touch: bool, level: float = 100.0) -> np.ndarray:
+    f = BASE.copy()
+    if touch:
+        f[:4] += level
+    return f
+
+
+def make_capture(samples: int = 5) -> TouchCapture:
+    det = TouchDetector(BASE, NOISE, threshold_sigma=5.0, min_active=2)
+    return TouchCapture(det, samples=samples, settle_frames=3, release_frames=2)
+
+
+def feed(cap: TouchCapture, frames) -> list:
+    return [t for t in (cap.feed(f, i * 0.01) for i, f in enumerate(frames)) if t is not None]
+
+
+def test_a_steady_touch_is_captured_once_then_waits_for_release():
+    cap = make_capture()
+    out = feed(cap, [frame(False)] * 3 + [frame(True)] * 20)
+    assert len(out) == 1
+    assert out[0].frames.shape == (5, N) and out[0].n_untouched == 0 and not out[0].forced
+    assert cap.phase is CapturePhase.WAIT_RELEASE
+    feed(cap, [frame(False)] * 2)
+    assert cap.phase is CapturePhase.WAIT_TOUCH
+    assert len(feed(cap, [frame(True)] * 8)) == 1
+
+
+def test_a_brief_touch_does_not_start_a_capture():
+    cap = make_capture()
+    assert feed(cap, [frame(True)] * 2 + [frame(False)] + [frame(True)] * 2) == []
+    assert cap.phase is CapturePhase.WAIT_TOUCH
+
+
+def test_the_key_captures_without_a_detected_touch_and_flags_it():
+    cap = make_capture()
+    cap.force()
+    (touch,) = feed(cap, [frame(True, level=8.0)] * 5)
+    assert touch.forced
+    flags, _ = touch_flags(touch, BASE, cap.detector, reference_peak=None)
+    assert "weak" in flags
+
+
+def test_lifting_during_capture_is_flagged_short_and_a_faint_touch_weak():
+    cap = make_capture(samples=10)
+    (touch,) = feed(cap, [frame(True)] * 3 + [frame(True)] * 5 + [frame(False)] * 5)
+    flags, peak = touch_flags(touch, BASE, cap.detector, reference_peak=None)
+    assert "short" in flags and peak == pytest.approx(50.0)
+    cap = make_capture()
+    (touch,) = feed(cap, [frame(True, level=30.0)] * 8)
+    flags, _ = touch_flags(touch, BASE, cap.detector, reference_peak=200.0)
+    assert flags == ["weak"]
+
+
+@pytest.fixture(scope="module")
+def sim_session(tmp_path_factory):
+    mesh = cone_skin()
+    skin = SimulatedSkin(mesh, random_state=2)
+    path = tmp_path_factory.mktemp("cap") / "s.h5"
+    return simulate_session(skin, mesh, path, SessionConfig(n_points=30, samples_per_touch=10))
+
+
+def test_good_touches_are_not_off_target(sim_session):
+    flags, miss = off_target(sim_session.targets, sim_session.touch_means)
+    assert not flags.any()
+    assert np.all(np.isfinite(miss))
+
+
+def test_a_touch_made_elsewhere_is_off_target_and_only_it(sim_session):
+    means = sim_session.touch_means.copy()
+    targets = sim_session.targets
+    far = int(np.argmax(np.linalg.norm(targets - targets[4], axis=1)))
+    means[4] = 1.1 * means[far]  # the finger went to the wrong place
+    flags, _ = off_target(targets, means)
+    assert flags[4] and flags.sum() == 1
+
+
+def test_too_few_touches_are_never_flagged(sim_session):
+    flags, miss = off_target(sim_session.targets[:4], sim_session.touch_means[:4])
+    assert not flags.any() and np.isnan(miss).all()
+
+
+def test_baseline_drift_in_noise_units():
+    rng = np.random.default_rng(0)
+    quiet = BASE + NOISE * rng.standard_normal((50, N))
+    assert baseline_drift_sigma(quiet, BASE, NOISE) < 0.5
+    assert baseline_drift_sigma(quiet + 10.0, BASE, NOISE) == pytest.approx(5.0, abs=0.5)
+
+
+def test_sheet_holds_every_target_at_actual_size():
+    mesh = cone_skin()
+    targets = sample_targets(mesh, 30, "even", random_state=0)
+    done = np.arange(30) < 10
+    sheet = layout_sheet(mesh, targets, done=done)
+    assert sheet.page == "A4 landscape" and sheet.scale == 1.0
+    # Every target lies on the page, inside the margins.
+    assert np.all(sheet.targets > 0) and np.all(sheet.targets < [sheet.width_mm, sheet.height_mm])
+    svg = render_svg(sheet)
+    assert svg.count("<circle") == 30 and svg.count('fill="#bbbbbb"') == 10
+    assert ">30</text>" in svg and "50 mm on the skin" in svg
+    pdf = render_pdf(sheet)
+    assert pdf.startswith(b"%PDF") and len(pdf) > 1000
+
+
+def test_a_large_skin_is_scaled_down_and_says_so():
+    mesh = cone_skin()
+    mesh.apply_scale(3.0)
+    sheet = layout_sheet(mesh, sample_targets(mesh, 5, "random", random_state=0))
+    assert sheet.scale < 1.0 and "SCALED" in sheet.notes[0]

@@ -1,0 +1,121 @@
+"""`skinloc run` and `skinloc export` through the CLI runner, error paths included."""
+
+from __future__ import annotations
+
+import json
+import re
+import socket
+
+import pytest
+from typer.testing import CliRunner
+
+from skinloc.cli.main import app
+from tests._live import model_path, stream_recording
+
+runner = CliRunner()
+
+
+def run(*args):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+def test_help():
+    for cmd in ("run", "export"):
+        res = run(cmd, "--help")
+        assert res.exit_code == 0 and "Example" in res.output
+    assert "--online" in run("bench", "--help").output
+
+
+def test_run_replays_a_recording_to_json_lines(tmp_path):
+    out = tmp_path / "c.jsonl"
+    res = run(
+        "run", "--model", model_path("map"), "--source", stream_recording(), "--fast",
+        "--sink", "jsonl", "--sink", f"jsonl:{out}", "--stats",
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    lines = [json.loads(ln) for ln in res.stdout.splitlines() if ln.startswith("{")]
+    assert lines and lines == [json.loads(ln) for ln in out.read_text().splitlines()]
+    states = [c["state"] for c in lines]
+    assert states.count("start") == states.count("end") > 3
+    for key in ("timestamp_s", "position_m", "confidence", "state", "latency_us"):
+        assert key in lines[0]
+
+
+def test_run_says_which_port_a_port_zero_server_got(tmp_path):
+    res = run(
+        "run", "--model", model_path("map"), "--source", stream_recording(), "--fast",
+        "--sink", f"jsonl:{tmp_path / 'c.jsonl'}", "--sink", "ws://127.0.0.1:0",
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    found = re.findall(r"serving contacts on ws://127\.0\.0\.1:(\d+)", res.output)
+    assert len(found) == 1 and int(found[0]) > 0, res.output
+
+
+def test_run_with_a_port_in_use_is_one_line(tmp_path):
+    with socket.create_server(("127.0.0.1", 0)) as busy:
+        port = busy.getsockname()[1]
+        res = run(
+            "run", "--model", model_path("map"), "--source", stream_recording(), "--fast",
+            "--sink", f"ws://127.0.0.1:{port}",
+        )  # fmt: skip
+    assert res.exit_code == 1 and "Traceback" not in res.output
+    assert res.output.strip() == (
+        f"error: WebSocket sink cannot listen on 127.0.0.1:{port}: Address already in use"
+    )
+
+
+def test_run_with_a_skins_file(tmp_path):
+    cfg = tmp_path / "skins.toml"
+    cfg.write_text(
+        f'[defaults]\nmodel = "{model_path("map")}"\nrealtime = false\n'
+        f'[[skin]]\nname = "a"\nsource = "{stream_recording()}"\n'
+        f'[[skin]]\nname = "b"\nsource = "{stream_recording()}"\n'
+    )
+    res = run("run", "--config", cfg, "--sink", f"jsonl:{tmp_path / 'o.jsonl'}")
+    assert res.exit_code == 0, res.output
+    skins = {json.loads(ln)["skin"] for ln in (tmp_path / "o.jsonl").read_text().splitlines()}
+    assert skins == {"a", "b"}
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (("run",), "give --model"),
+        (("run", "--model", "nope.h5"), "model not found"),
+        (("run", "--model", "MAP", "--sink", "pigeon"), "unknown sink"),
+        (("run", "--model", "MAP", "--source", "/dev/ttyNOPE0"), "cannot open serial port"),
+        (("run", "--model", "MAP", "--source", "socket://127.0.0.1:9"), "--allow-url"),
+        (("run", "--model", "MAP", "--config", "x.toml"), "not both"),
+        (("run", "--config", "missing.toml"), "skins file not found"),
+        (("export", "MAP"), "nothing to do"),
+        (("export", "MAP", "--c-header", "x.h"), "too big for a microcontroller"),
+        (("export", "nope.h5", "--onnx", "x.onnx"), "model not found"),
+    ],
+)
+def test_errors_are_one_line(args, message, tmp_path):
+    args = [model_path("map") if a == "MAP" else a for a in args]
+    args = [tmp_path / a if str(a).endswith((".h", ".onnx", ".toml")) else a for a in args]
+    res = run(*args)
+    assert res.exit_code == 1
+    assert message in res.output
+    assert "Traceback" not in res.output
+
+
+def test_export_writes_both(tmp_path):
+    res = run(
+        "export", model_path("paper"), "--onnx", tmp_path / "m.onnx", "--c-header",
+        tmp_path / "m.h", "--prefix", "arm",
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert (tmp_path / "m.onnx").stat().st_size > 0
+    assert "arm_predict" in (tmp_path / "m.h").read_text()
+
+
+def test_online_bench_functions_run_small():
+    from skinloc.live.bench import many_skins, single_stream
+
+    r = single_stream(model_path("map"), n_frames=600)
+    assert r["frames"] == 500 and r["touched_frames"] > 0 and r["speedup_median"] > 0
+    m = many_skins(model_path("map"), n_skins=3, rate_hz=50.0, duration_s=2.0)
+    assert m["frames_sent"] == 300 and m["frames_dropped"] == 0
+    assert m["parser_dropped_or_lost"] == 0

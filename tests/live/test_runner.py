@@ -1,0 +1,179 @@
+"""The runner: Pipeline as an iterator and with a callback, ports, replay, many skins, config."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from skinloc.errors import SkinlocError
+from skinloc.live.core import PipelineConfig
+from skinloc.live.runner import Pipeline, Runner, SkinSpec
+from skinloc.live.sinks import ListSink
+from skinloc.live.skins_file import load_skins, runner_from_config
+from tests._live import model_path, stream_recording
+
+
+def _threads() -> set[str]:
+    return {t.name for t in threading.enumerate()}
+
+
+def wait_until(check, what: str, timeout_s: float = 60.0) -> None:
+    """Poll ``check()`` until true; fail naming ``what`` after ``timeout_s`` (a busy machine)."""
+    deadline = time.monotonic() + timeout_s
+    while not check():
+        if time.monotonic() > deadline:
+            pytest.fail(f"timed out after {timeout_s:g} s waiting for {what}")
+        time.sleep(0.02)
+
+
+def assert_no_thread_left(before: set[str]) -> None:
+    """Every thread started since ``before`` ends (a joined thread may take a moment to go)."""
+    wait_until(lambda: _threads() <= before, f"threads to end: {_threads() - before}", 30.0)
+
+
+def test_pipeline_iterates_and_leaves_no_thread():
+    before = _threads()
+    with Pipeline(model_path("map"), "sim", realtime=False) as pipeline:
+        contacts = []
+        for c in pipeline:
+            contacts.append(c)
+            if len(contacts) >= 60:
+                break
+    assert {c.state for c in contacts} >= {"start", "move"}
+    assert all(c.skin == "skin" for c in contacts)
+    assert_no_thread_left(before)
+
+
+def test_pipeline_callback_mode_and_close():
+    before = _threads()
+    got = []
+    pipeline = Pipeline(model_path("map"), "sim", realtime=False, sinks=[ListSink()])
+    pipeline.start(got.append)
+    wait_until(lambda: len(got) >= 30, "30 contacts")
+    pipeline.close()
+    assert len(got) >= 30
+    assert (
+        pipeline.global_sinks[0].contacts[: len(got)]
+        == got[: len(pipeline.global_sinks[0].contacts)]
+    )
+    assert_no_thread_left(before)
+    pipeline.close()  # idempotent
+
+
+def test_replay_runs_to_the_end_and_ends_open_touches():
+    sink = ListSink()
+    with Pipeline(model_path("map"), str(stream_recording()), realtime=False, sinks=[sink]) as p:
+        n = sum(1 for _ in p)
+    states = [c.state for c in sink.contacts]
+    assert n == len(states) > 0
+    assert states.count("start") == states.count("end")
+    assert p.stats()[0]["frames"] == 1500
+
+
+def test_runner_on_a_virtual_skin_port_reconnects():
+    from skinloc.sim.virtual_device import FaultConfig, VirtualSkin
+
+    faults = FaultConfig(0, 0, 0, 0, disconnect_every_s=0.8, downtime_s=0.2)
+    with VirtualSkin(fmt="binary", rate_hz=200, faults=faults) as dev:
+        spec = SkinSpec(model=model_path("map"), source=dev.path, wire_format="binary")
+        sink = ListSink()
+        runner = Runner([spec], sinks=[sink])
+        runner.start()
+        try:
+            # Wait on what the runner reports, not on the clock: a busy machine is slower.
+            wait_until(lambda: runner.cores[0].calibrated, "the baseline")
+            dev.skin.press(dev.skin.sensor_positions[27], pressure=1.0)
+            wait_until(lambda: "start" in [c.state for c in sink.contacts], "a touch")
+
+            def reconnected() -> bool:
+                s = runner.stats()[0]
+                return s["frames"] > 200 and s["reconnects"] >= 1 and s["disconnects"] >= 1
+
+            wait_until(reconnected, "a disconnect, a reconnect and 200 frames")
+        finally:
+            runner.close()
+
+
+def test_many_skins_from_one_config(tmp_path):
+    model = model_path("map")
+    cfg = tmp_path / "skins.toml"
+    cfg.write_text(
+        f"""
+sinks = []
+[defaults]
+model = "{model}"
+realtime = false
+[defaults.pipeline]
+touch_on_z = 9.0
+[[skin]]
+name = "left"
+source = "sim:0"
+[[skin]]
+name = "right"
+source = "sim:0"
+pipeline = {{ drift_tracking = false }}
+"""
+    )
+    specs, sinks = load_skins(cfg)
+    assert [s.name for s in specs] == ["left", "right"]
+    assert specs[0].config.touch_on_z == 9.0 and not specs[1].config.drift_tracking
+    runner = runner_from_config(cfg)
+    assert runner.cores[0].fast is runner.cores[1].fast  # one compiled model, shared
+    seen = set()
+    with runner:
+        for c in runner:
+            seen.add(c.skin)
+            if seen == {"left", "right"}:
+                break
+    assert seen == {"left", "right"}
+
+
+@pytest.mark.parametrize(
+    ("text", "match"),
+    [
+        ('[[skin]]\nname = "a"\n', "no model"),
+        ('[[skin]]\nmodel = "m.h5"\ncolour = "red"\n', "unknown key"),
+        ('[[skn]]\nmodel = "m.h5"\n', "unknown top-level"),
+        ('[[skin]]\nmodel = "m.h5"\npipeline = { touch_on = 3 }\n', "unknown key"),
+        ("not toml [", "cannot read"),
+        ("", "no \\[\\[skin\\]\\]"),
+    ],
+)
+def test_config_errors(tmp_path, text, match):
+    cfg = tmp_path / "skins.toml"
+    cfg.write_text(text)
+    with pytest.raises(ValueError, match=match):
+        load_skins(cfg)
+
+
+def test_runner_errors(tmp_path):
+    with pytest.raises(ValueError, match="unique"):
+        Runner([SkinSpec(model_path("map")), SkinSpec(model_path("map"))])
+    with pytest.raises(SkinlocError, match="cannot open serial port"):
+        Runner([SkinSpec(model_path("map"), source=str(tmp_path / "ttyNONE"))]).open()
+    with pytest.raises(SkinlocError, match="recording not found"):
+        Runner([SkinSpec(model_path("map"), source=str(tmp_path / "x.h5"))]).open()
+    spec = SkinSpec(model_path("map"), config=PipelineConfig(), n_tx=4, n_rx=4)
+    with pytest.raises(ValueError, match="16 sensors"):
+        Runner([spec])
+
+
+def test_serial_url_without_file_descriptor_uses_a_thread():
+    from skinloc.hardware.framing import encode_binary
+
+    spec = SkinSpec(model_path("map"), source="loop://", wire_format="binary")
+    runner = Runner([spec]).open()
+    try:
+        src = runner._threads[0].source
+        rng = np.random.default_rng(0)
+        for k in range(80):
+            src.write(encode_binary(rng.integers(9000, 9010, 64), 8, 8, k))
+        deadline = time.monotonic() + 60
+        while runner.cores[0].n_frames < 80 and time.monotonic() < deadline:
+            runner._step(0.05)
+    finally:
+        runner.close()
+    assert runner.cores[0].n_frames == 80 and runner.cores[0].calibrated

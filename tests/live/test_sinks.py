@@ -1,0 +1,196 @@
+"""Sinks: JSON lines, UDP, WebSocket, Foxglove (live and MCAP), LSL (ROS 2: test_ros2.py)."""
+
+from __future__ import annotations
+
+import json
+import math
+import socket
+import time
+
+import numpy as np
+import pytest
+
+from skinloc.geometry.mesh import cone_skin
+from skinloc.live.core import Contact
+from skinloc.live.sinks import CallbackSink, SkinInfo, make_sink
+from skinloc.live.sinks.websocket import WebSocketSink
+
+
+def _contact(state: str = "move", k: int = 0) -> Contact:
+    return Contact(
+        "arm",
+        1.0 + k,
+        k,
+        state,
+        (0.01, 0.02, 0.03),
+        (0.01, 0.02, 0.031),
+        0.8,
+        20.0,
+        math.nan,
+        15.0,
+        1,
+    )
+
+
+def _skins() -> list[SkinInfo]:
+    mesh = cone_skin()
+    return [SkinInfo("arm", np.asarray(mesh.vertices), np.asarray(mesh.faces))]
+
+
+def test_jsonl_file(tmp_path):
+    sink = make_sink(f"jsonl:{tmp_path / 'out.jsonl'}")
+    sink.open(_skins())
+    for k in range(3):
+        sink.emit(_contact(k=k))
+    sink.close()
+    lines = (tmp_path / "out.jsonl").read_text().splitlines()
+    assert [json.loads(ln)["index"] for ln in lines] == [0, 1, 2]
+
+
+def test_jsonl_stdout(capsys):
+    sink = make_sink("jsonl")
+    sink.open([])
+    sink.emit(_contact("start"))
+    sink.close()
+    assert json.loads(capsys.readouterr().out)["state"] == "start"
+
+
+def test_udp_datagrams():
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind(("127.0.0.1", 0))
+    rx.settimeout(30.0)  # generous: a busy machine; a lost datagram still fails
+    port = rx.getsockname()[1]
+    sink = make_sink(f"udp://127.0.0.1:{port}")
+    assert sink.address == ("127.0.0.1", port)
+    with sink:
+        sink.emit(_contact("start"))
+        data = rx.recv(65536)
+    rx.close()
+    assert json.loads(data)["position_m"] == [0.01, 0.02, 0.03]
+
+
+def _wait_until(check, what: str, timeout_s: float = 30.0) -> None:
+    """Poll ``check()`` until true; fail naming ``what`` after ``timeout_s`` (a busy machine)."""
+    deadline = time.monotonic() + timeout_s
+    while not check():
+        if time.monotonic() > deadline:
+            pytest.fail(f"timed out after {timeout_s:g} s waiting for {what}")
+        time.sleep(0.01)
+
+
+def test_websocket_hello_then_contacts():
+    from websockets.sync.client import connect
+
+    sink = make_sink("ws://127.0.0.1:0")
+    assert isinstance(sink, WebSocketSink)
+    assert sink.port == 0  # port 0 is kept, not replaced by the default
+    sink.open(_skins())
+    try:
+        assert sink.port > 0 and sink.url == f"ws://127.0.0.1:{sink.port}"
+        with connect(sink.url, open_timeout=30) as ws:
+            hello = json.loads(ws.recv(timeout=30))
+            assert hello["type"] == "hello" and hello["skins"][0]["name"] == "arm"
+            assert hello["url"] == sink.url
+            assert len(hello["skins"][0]["faces"]) == len(cone_skin().faces)
+            # The server learns of the client on its own thread.
+            _wait_until(lambda: sink.n_clients == 1, "the server to see the client")
+            sink.emit(_contact("start"))
+            msg = json.loads(ws.recv(timeout=30))
+        assert msg["type"] == "contact" and msg["state"] == "start"
+    finally:
+        sink.close()
+    assert sink._thread is None
+
+
+def test_port_zero_means_any_free_port_for_every_server_sink(tmp_path):
+    """``:0`` used to become the default port (a falsy-zero test), so two sinks collided."""
+    specs = ["ws://127.0.0.1:0", "ws://127.0.0.1:0", "foxglove://127.0.0.1:0", "foxglove://:0"]
+    sinks = [make_sink(s) for s in specs]
+    assert [s.port for s in sinks] == [0, 0, 0, 0]
+    try:
+        for sink in sinks:
+            sink.open(_skins())
+        ports = [s.port for s in sinks]
+        assert all(p > 0 for p in ports) and len(set(ports)) == len(ports)
+        assert [s.url for s in sinks] == [f"ws://127.0.0.1:{p}" for p in ports]
+    finally:
+        for sink in sinks:
+            sink.close()
+    with pytest.raises(ValueError, match="1-65535"):
+        make_sink("udp://127.0.0.1:0")  # datagrams need a real destination port
+
+
+def test_default_ports_differ_from_the_app():
+    """``skinloc app`` serves on 8765; the sinks' defaults must not take it."""
+    import typer.main
+
+    from skinloc.cli.main import app
+
+    command = typer.main.get_command(app).commands["app"]
+    app_port = next(p.default for p in command.params if p.name == "port")
+    ws, fox, udp = make_sink("ws://127.0.0.1"), make_sink("foxglove://"), make_sink("udp://")
+    assert ws.port == 8767 and fox.port == 8766 and udp.address[1] == 9870
+    assert app_port not in (ws.port, fox.port)
+
+
+def test_websocket_port_in_use_is_one_clear_error():
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen(1)
+        port = busy.getsockname()[1]
+        sink = make_sink(f"ws://127.0.0.1:{port}")
+        with pytest.raises(OSError, match=f"cannot listen on 127.0.0.1:{port}"):
+            sink.open(_skins())
+    assert sink._thread is None and sink._sock is None
+    with pytest.raises(ValueError, match="0-65535"):
+        make_sink("ws://127.0.0.1:70000")  # any-port-ok: an invalid port, never bound
+    with pytest.raises(ValueError, match="0 \\(any free port\\) or 1-65535"):
+        WebSocketSink(port=-1)
+
+
+def test_foxglove_live_and_mcap(tmp_path):
+    path = tmp_path / "run.mcap"
+    sink = make_sink(f"foxglove://127.0.0.1:0?mcap={path}")
+    sink.open(_skins())
+    assert sink.port > 0
+    for k in range(5):
+        sink.emit(_contact("move", k))
+    sink.emit(_contact("end", 5))
+    sink.close()
+    data = path.read_bytes()
+    assert data[:8] == b"\x89MCAP0\r\n" and data[-8:] == b"\x89MCAP0\r\n"
+    for topic in (b"/skinloc/scene", b"/skinloc/contacts", b"/skinloc/arm/contact"):
+        assert topic in data
+
+
+def test_mcap_only(tmp_path):
+    sink = make_sink(f"mcap:{tmp_path / 'x.mcap'}")
+    sink.open(_skins())
+    sink.emit(_contact())
+    sink.close()
+    assert (tmp_path / "x.mcap").stat().st_size > 1000
+
+
+def test_lsl_outlet():
+    pylsl = pytest.importorskip("pylsl")
+    sink = make_sink("lsl:skinloc-test")
+    sink.open(_skins())
+    sink.emit(_contact())
+    outlet = sink._outlets["arm"]
+    info = outlet.get_info()
+    assert info.name() == "skinloc-test-arm" and info.channel_count() == 9
+    assert info.type() == "Contact" and pylsl is not None
+    sink.close()
+
+
+def test_make_sink_errors_and_callback():
+    with pytest.raises(ValueError, match="unknown sink"):
+        make_sink("carrier-pigeon://x")
+    with pytest.raises(ValueError, match="needs a file"):
+        make_sink("mcap:")
+    with pytest.raises(ValueError, match="port"):
+        make_sink("udp://127.0.0.1:99999")  # any-port-ok: an invalid port, never bound
+    got = []
+    sink = make_sink(CallbackSink(got.append))
+    sink.emit(_contact())
+    assert len(got) == 1

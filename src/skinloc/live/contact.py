@@ -43,6 +43,13 @@ class Contact:
         Processing latency, bytes (or frame) in to contact out, microseconds.
     touch_id : int
         Number of the touch since start (0 before the first).
+    track_id : int
+        Tracking id of the finger this contact belongs to (the Linux multi-touch protocol B
+        convention: a new id per finger landing, kept until it lifts; -1: none).
+    slot : int
+        Slot of the track (0..K-1, reused after a lift; -1: none).
+    strength : float
+        Fitted contact strength, counts (nan when the model does not estimate it).
     """
 
     skin: str
@@ -56,13 +63,16 @@ class Contact:
     uncertainty_mm: float
     latency_us: float
     touch_id: int
+    track_id: int = -1
+    slot: int = -1
+    strength: float = math.nan
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-ready dict (nan becomes None)."""
         d = asdict(self)
         for k in ("position_m", "raw_m"):
             d[k] = [None if math.isnan(v) else v for v in d[k]]
-        for k in ("confidence", "signal_z", "uncertainty_mm"):
+        for k in ("confidence", "signal_z", "uncertainty_mm", "strength"):
             if math.isnan(d[k]):
                 d[k] = None
         return d

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import abc
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 from urllib.parse import parse_qs, urlsplit
@@ -81,6 +81,15 @@ class Sink(abc.ABC):
     @abc.abstractmethod
     def emit(self, contact: Contact) -> None:
         """Deliver one contact."""
+
+    def emit_contacts(self, skin: str, timestamp_s: float, contacts: Sequence[Contact]) -> None:
+        """Deliver every contact of one frame of ``skin`` (one per track, ``end`` included).
+
+        Sinks that send a frame's contacts together (Foxglove, ROS 2) override this; the
+        default delivers them one by one through ``emit``.
+        """
+        for contact in contacts:
+            self.emit(contact)
 
     def emit_gesture(  # noqa: B027 - optional hook
         self, skin: str, timestamp_s: float, event: dict[str, Any]

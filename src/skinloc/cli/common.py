@@ -8,7 +8,9 @@ groups to register their commands, so no group imports ``skinloc.cli.main``.
 from __future__ import annotations
 
 import functools
+import json
 import logging
+import sys
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from enum import StrEnum
@@ -298,3 +300,8 @@ def _main(
         level=logging.INFO if verbose else logging.WARNING,
         format="%(levelname)s %(name)s: %(message)s",
     )
+
+
+def print_json(obj: Any) -> None:
+    """Write ``obj`` to stdout as indented JSON (numpy scalars as floats)."""
+    sys.stdout.write(json.dumps(obj, indent=2, default=float) + "\n")

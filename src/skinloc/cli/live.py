@@ -282,7 +282,7 @@ def register(app: typer.Typer) -> None:
 
 def bench_online(out: Path, as_json: bool) -> None:
     """``skinloc bench --online``: the live path's figures, written to ``out/online.json``."""
-    from skinloc.cli.common import console, progress_steps
+    from skinloc.cli.common import console, print_json, progress_steps
     from skinloc.live.bench import online_bench
 
     out.mkdir(parents=True, exist_ok=True)
@@ -290,7 +290,7 @@ def bench_online(out: Path, as_json: bool) -> None:
         res = online_bench(out=out, step=step)
     (out / "online.json").write_text(json.dumps(res, indent=2, default=float))
     if as_json:
-        sys.stdout.write(json.dumps(res, indent=2, default=float) + "\n")
+        print_json(res)
         return
     for r in res["single_stream"]:
         console.print(

@@ -7,8 +7,6 @@ themselves on ``app`` at the end of this one.
 
 from __future__ import annotations
 
-import json
-import sys
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -16,6 +14,8 @@ import typer
 from rich.table import Table
 
 from skinloc.cli import app as app_cli
+from skinloc.cli import bench as cli_bench
+from skinloc.cli import collect as cli_collect
 from skinloc.cli import hardware as cli_hardware
 from skinloc.cli import live as cli_live
 from skinloc.cli import skin as cli_skin
@@ -30,6 +30,7 @@ from skinloc.cli.common import (
     console,
     err_console,
     friendly_errors,
+    print_json,
     progress_steps,
 )
 
@@ -66,10 +67,6 @@ def _read_all(paths: list[Path]) -> list:
     from skinloc.data.recording import read_recording
 
     return [read_recording(p) for p in paths]
-
-
-def _print_json(obj: Any) -> None:
-    sys.stdout.write(json.dumps(obj, indent=2, default=float) + "\n")
 
 
 # ------------------------------------------------------------------------------------ demo
@@ -326,7 +323,7 @@ def evaluate(
         "data": [str(d) for d in data],
     }
     if as_json:
-        _print_json(result)
+        print_json(result)
         return
     table = Table(title=f"{model.name} on {len(data)} recording(s), per {result['per']}")
     for k in ("n", "mean_mm", "std_mm", "median_mm", "p95_mm", "max_mm", "uncertainty_spearman"):
@@ -365,7 +362,7 @@ def snr(
             }
         )
     if as_json:
-        _print_json(results[0] if len(results) == 1 else results)
+        print_json(results[0] if len(results) == 1 else results)
         return
     for r in results:
         console.print(
@@ -419,7 +416,7 @@ def info(
         **_truth_layout(rec),
     }
     if as_json:
-        _print_json(summary)
+        print_json(summary)
         return
     table = Table(title=str(data), show_header=False)
     for k, v in summary.items():
@@ -468,144 +465,6 @@ def convert(
 
 
 # ------------------------------------------------------------------------------------ bench
-@app.command()
-@friendly_errors
-def bench(
-    sim: Annotated[
-        bool, typer.Option("--sim/--no-sim", help="The paper's experiment on simulated skins.")
-    ] = True,
-    real: Annotated[
-        Path | None,
-        typer.Option(help="Folder of the real recordings: run the cross-recording splits."),
-    ] = None,
-    timing: Annotated[
-        bool, typer.Option("--timing", help="Training time and prediction latency.")
-    ] = False,
-    seeds: Annotated[int, typer.Option(min=1, help="Simulated skins (seeds) per size.")] = 3,
-    sizes: Annotated[str, typer.Option(help="Comma-separated point-log counts.")] = "20,50,80,100",
-    out: Annotated[Path, typer.Option(help="Folder for figures and JSON results.")] = Path(
-        "skinloc-bench"
-    ),
-    as_json: Annotated[bool, typer.Option("--json", help="Print JSON results.")] = False,
-    online: Annotated[
-        bool, typer.Option("--online", help="Only the live path: latency, throughput, 100 skins.")
-    ] = False,
-) -> None:
-    """The paper's experiment: train on 20, 50, 80, 100 point logs, validate on 20 touches.
-
-    Example: skinloc bench --seeds 3 --real ../shared/data/hiro-cone-skin --timing
-    """
-    check_output(out, option="--out", folder=True)
-    if online:  # skinloc.cli.live: the live pipeline's figures (docs/benchmarks.md)
-        return __import__("skinloc.cli.live", fromlist=["bench_online"]).bench_online(out, as_json)
-    import numpy as np
-
-    from skinloc.evaluation import paper_bench as B
-    from skinloc.evaluation.report import plot_paper_fig3
-
-    try:
-        size_list = [int(s) for s in sizes.split(",") if s.strip()]
-    except ValueError:
-        raise ValueError(f"--sizes must be comma-separated integers, got {sizes!r}") from None
-    if not size_list or min(size_list) < 2:
-        raise ValueError(f"--sizes must list point-log counts of at least 2, got {sizes!r}")
-    if real is not None and not real.is_dir():
-        raise ValueError(f"--real {real} is not a folder of recordings")
-    out.mkdir(exist_ok=True)
-    results: dict[str, Any] = {}
-    with progress_steps() as step:
-        if sim:
-            rows = B.paper_experiment(sizes=size_list, seeds=range(seeds), step=step)
-            results["sim"] = rows
-        if real is not None:
-            results["real"] = [r.__dict__ for r in B.real_splits(real, step=step)]
-        if timing:
-            results["timing"] = B.timing(step=step)
-    (out / "results.json").write_text(json.dumps(results, indent=2, default=float))
-
-    if "sim" in results:
-        rows = results["sim"]
-        table = Table(title=f"Simulated paper skin: validation on 20 random touches, {seeds} skins")
-        table.add_column("point logs")
-        table.add_column("mean SNR (dB)")
-        archs = sorted({r["arch"] for r in rows})
-        for a in archs:
-            table.add_column(f"{a}: error (mm)")
-        for n in size_list:
-            sel = [r for r in rows if r["n_points"] == n]
-            snrs = [r["snr_db"] for r in sel if r["arch"] == archs[0]]
-            cells = []
-            for a in archs:
-                m = [r["mean_mm"] for r in sel if r["arch"] == a]
-                s = [r["std_mm"] for r in sel if r["arch"] == a]
-                cells.append(f"{np.mean(m):.1f} +- {np.mean(s):.1f}")
-            table.add_row(str(n), f"{np.mean(snrs):.1f}", *cells)
-        if not as_json:
-            console.print(table)
-        for a in archs:
-            sel = [[r for r in rows if r["n_points"] == n and r["arch"] == a] for n in size_list]
-            plot_paper_fig3(
-                size_list,
-                [np.mean([r["snr_db"] for r in s]) for s in sel],
-                [np.std([r["snr_db"] for r in s]) for s in sel],
-                [np.mean([r["mean_mm"] for r in s]) for s in sel],
-                [np.mean([r["std_mm"] for r in s]) for s in sel],
-                out / f"fig3_{a}.png",
-                title=f"Simulated paper skin, '{a}' model",
-            )
-    if "real" in results and not as_json:
-        table = Table(title="Real recordings (2023-12-10)")
-        for c in (
-            "protocol",
-            "arch",
-            "train",
-            "test",
-            "per",
-            "n",
-            "mean_mm",
-            "std_mm",
-            "median_mm",
-        ):
-            table.add_column(c)
-        for r in results["real"]:
-            table.add_row(
-                *[
-                    f"{r[c]:.1f}" if isinstance(r[c], float) else str(r[c])
-                    for c in (
-                        "protocol",
-                        "arch",
-                        "train",
-                        "test",
-                        "per",
-                        "n",
-                        "mean_mm",
-                        "std_mm",
-                        "median_mm",
-                    )
-                ]
-            )
-        console.print(table)
-    if "timing" in results and not as_json:
-        t = results["timing"]
-        console.print(
-            f"Training on {t['n_points']} point logs x {t['samples_per_touch']} frames: "
-            f"{t['fit_s']:.2f} s"
-        )
-        console.print(
-            f"Single-frame latency: median {t['latency_median_us']:.0f} us, p99 "
-            f"{t['latency_p99_us']:.0f} us (baseline {t['baseline_latency_median_us']:.0f} "
-            f"/ {t['baseline_latency_p99_us']:.0f} us, x{t['latency_speedup']:.1f})"
-        )
-        console.print(
-            f"Batch throughput: {t['batch_frames_per_s']:.0f} frames/s (baseline "
-            f"{t['baseline_batch_frames_per_s']:.0f}, x{t['batch_speedup']:.1f})"
-        )
-    if as_json:
-        _print_json(results)
-    else:
-        console.print(f"Results and figures in {out}/")
-
-
 def main() -> None:
     """Console-script entry point."""
     app()
@@ -614,7 +473,9 @@ def main() -> None:
 def _register_groups() -> None:
     # Each group lives in its own module to keep this one about the data path; registered
     # after this module's commands so that ``skinloc --help`` lists them in this order.
+    cli_bench.register(app)  # skinloc bench
     cli_hardware.register(app)  # ports, record, calibrate, virtual-skin, ...
+    cli_collect.register(app)  # collect
     app_cli.register(app)  # skinloc app
     cli_live.register(app)  # skinloc run, export
     cli_skin.register(app)  # skinloc sensors, coverage

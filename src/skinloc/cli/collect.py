@@ -1,0 +1,221 @@
+"""``skinloc collect``: a calibration session on a skin in the terminal, resumable after a crash."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Annotated, Any
+
+import numpy as np
+import typer
+
+from skinloc.cli.hardware import (
+    AllowUrlOpt,
+    BaudOpt,
+    FormatChoice,
+    FormatOpt,
+    ModeChoice,
+    PortOpt,
+    RxMaskOpt,
+    RxOpt,
+    SourceChoice,
+    SourceOpt,
+    TxMaskOpt,
+    TxOpt,
+    UnitsChoice,
+    _first_frame,
+    _load_surface,
+    _open_source,
+    _stats_line,
+)
+
+log = logging.getLogger(__name__)
+
+
+class TerminalProber:
+    """Prompt a person in the terminal; optionally drive a scripted finger over the port.
+
+    With ``finger`` (a ``SerialSource`` on ``skinloc virtual-skin``), each prompt is also sent
+    as ``touch x y z`` (m) and each capture as ``lift``, so a session runs unattended.
+    """
+
+    def __init__(self, console, n_targets: int, finger=None) -> None:
+        self.console = console
+        self.n_targets = n_targets
+        self.finger = finger
+
+    def prompt(self, index: int, target: np.ndarray) -> None:
+        """Name target ``index`` by its coordinates in mm."""
+        x, y, z = (np.asarray(target) * 1e3).tolist()
+        self.console.print(
+            f"[bold]Touch target {index + 1}/{self.n_targets}[/] at "
+            f"x={x:.1f} y={y:.1f} z={z:.1f} mm and hold still"
+        )
+        if self.finger is not None:
+            tx, ty, tz = np.asarray(target, dtype=float).tolist()
+            self.finger.write(f"touch {tx:.6f} {ty:.6f} {tz:.6f}\n".encode())
+
+    def captured(self, index: int) -> None:
+        """Tell the person to lift."""
+        self.console.print(f"  captured point log {index + 1}: lift your finger")
+        if self.finger is not None:
+            self.finger.write(b"lift\n")
+
+
+def register(app: typer.Typer) -> None:
+    """Add ``skinloc collect`` to the main ``skinloc`` app."""
+    from skinloc.cli.common import (
+        check_output,
+        console,
+        err_console,
+        friendly_errors,
+        progress_steps,
+    )
+
+    # -------------------------------------------------------------------------------- collect
+    @app.command()
+    @friendly_errors
+    def collect(
+        out: Annotated[Path, typer.Option(help="Recording to write; an unfinished one resumes.")],
+        port: PortOpt = None,
+        source: SourceOpt = SourceChoice.serial,
+        mesh: Annotated[
+            Path | None, typer.Option(help="Skin mesh; default: the paper's cone.")
+        ] = None,
+        units: Annotated[UnitsChoice, typer.Option(help="Units of --mesh.")] = UnitsChoice.auto,
+        points: Annotated[int, typer.Option(min=1, help="Point logs to record.")] = 80,
+        mode: Annotated[
+            ModeChoice,
+            typer.Option(
+                help="Target sampling; 'active' chooses each next target from the touches "
+                "recorded so far (after a few evenly spread ones)."
+            ),
+        ] = ModeChoice.even,
+        samples: Annotated[int, typer.Option(min=1, help="Frames per touch.")] = 50,
+        baseline_frames: Annotated[int, typer.Option(min=2, help="No-touch frames first.")] = 50,
+        touch_timeout: Annotated[
+            float, typer.Option(min=0.1, help="Longest wait for a touch or a release, s.")
+        ] = 60.0,
+        max_touches: Annotated[
+            int | None, typer.Option(min=1, help="Stop after this many new point logs.")
+        ] = None,
+        new: Annotated[
+            bool, typer.Option("--new", help="Start over even if --out exists.")
+        ] = False,
+        scripted_finger: Annotated[
+            bool,
+            typer.Option(
+                "--scripted-finger",
+                help="Send 'touch x y z'/'lift' to the port (for 'skinloc virtual-skin').",
+            ),
+        ] = False,
+        baud: BaudOpt = 115200,
+        fmt: FormatOpt = FormatChoice.auto,
+        tx: TxOpt = 8,
+        rx: RxOpt = 8,
+        tx_mask: TxMaskOpt = None,
+        rx_mask: RxMaskOpt = None,
+        allow_url: AllowUrlOpt = False,
+        seed: Annotated[
+            int, typer.Option(min=0, help="Seed of the targets (and of --source sim).")
+        ] = 0,
+        force: Annotated[
+            bool, typer.Option("--force", help="With --new: replace an existing --out.")
+        ] = False,
+    ) -> None:
+        """Record a calibration session on the skin, resumable after a crash.
+
+        The terminal names each target by its index and coordinates; the recording is saved
+        after every touch, and rerunning the same command resumes it.
+
+        Example: skinloc collect --port /dev/ttyACM0 --points 80 --mode even --out cal.h5
+        """
+        from skinloc.calibration.session import CalibrationSession, ScriptedFinger, SessionConfig
+
+        if out.suffix.lower() not in (".h5", ".hdf5"):
+            raise ValueError(f"--out must be an .h5 file, got {out}")
+        resume = out.exists() and not new
+        if new and out.exists() and not force:
+            raise ValueError(
+                f"{out} exists: --new would replace it; pass --force too, or choose another --out"
+            )
+        # Resuming appends to --out on purpose; anything else must not clobber a file.
+        check_output(out, option="--out", inputs=[mesh], force=resume or force)
+        surface = None if resume else _load_surface(mesh, units)
+        if resume and mesh is not None:
+            raise ValueError(
+                f"{out} exists and is resumed with its own mesh: drop --mesh or "
+                "pass --new to start over"
+            )
+        if source is SourceChoice.sim:
+            from skinloc.data.recording import read_recording
+
+            sim_mesh = read_recording(out).mesh if resume else surface
+            src = _open_source(None, source, tx=tx, rx=rx, seed=seed, mesh=sim_mesh)
+        else:
+            src = _open_source(
+                port,
+                source,
+                baud=baud,
+                fmt=fmt,
+                tx=tx,
+                rx=rx,
+                tx_mask=tx_mask,
+                rx_mask=rx_mask,
+                allow_url=allow_url,
+            )
+        with src:
+            _first_frame(src, 1.0)
+            if resume:
+                session = CalibrationSession.resume(src, out)
+                if session.finished:
+                    raise ValueError(
+                        f"{out} is already complete ({session.n_done} point logs); "
+                        "pass --new to record it again"
+                    )
+                console.print(
+                    f"Resuming {out} at point log {session.n_done + 1}/{len(session.targets)}"
+                )
+            else:
+                cfg = SessionConfig(
+                    n_points=points,
+                    mode=mode.value,
+                    samples_per_touch=samples,
+                    n_baseline_frames=baseline_frames,
+                    touch_timeout_s=touch_timeout,
+                    random_state=seed,
+                    description=f"collected on {src.name}",
+                )
+                session = CalibrationSession(src, surface, out, cfg)
+            n_targets = len(session.targets)
+            if source is SourceChoice.sim:
+                prober: Any = ScriptedFinger(
+                    src, random_state=seed + 1 + session.n_done, move_time_s=1.0
+                )
+            else:
+                prober = TerminalProber(console, n_targets, finger=src if scripted_finger else None)
+            if session.recording is None:
+                console.print(
+                    f"Keep the skin untouched: capturing {baseline_frames} baseline frames"
+                )
+                session.capture_baseline()
+            stop_at = (
+                n_targets if max_touches is None else min(n_targets, session.n_done + max_touches)
+            )
+            try:
+                with progress_steps() as step:
+                    while session.n_done < stop_at:
+                        session.record_point(session.n_done, prober)
+                        step("point logs", session.n_done, n_targets)
+            except KeyboardInterrupt:
+                from skinloc.errors import Interrupted
+
+                raise Interrupted(
+                    f"{session.n_done}/{n_targets} point logs are saved in {out}; rerun the "
+                    "same command to resume"
+                ) from None
+            summary = _stats_line(src)
+        done = session.n_done
+        state = "complete" if done >= n_targets else "saved; rerun the same command to resume"
+        console.print(f"Wrote {out}: {done}/{n_targets} point logs ({state})")
+        err_console.print(summary, highlight=False)

@@ -28,7 +28,7 @@ from skinloc.app import server  # noqa: E402
 from skinloc.app.server import create_app, own_origins  # noqa: E402
 from skinloc.app.workspace import AppConfig  # noqa: E402
 from skinloc.geometry.mesh import cone_skin  # noqa: E402
-from skinloc.hardware.serial import check_source  # noqa: E402
+from skinloc.hardware.ports import check_source  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 A = {"X-Skinloc-Client": "tab-a"}

@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 from skinloc.errors import FrameTimeoutError
-from skinloc.hardware.serial import SerialSource, SerialSourceConfig, list_ports
+from skinloc.hardware.ports import list_ports
+from skinloc.hardware.serial import SerialSource, SerialSourceConfig
 from skinloc.sim.skin import SimulatedSkin
 from skinloc.sim.virtual_device import Fate, FaultConfig, VirtualSkin
 

@@ -38,7 +38,7 @@ class SourceSpec:
     ----------
     source : str
         ``sim`` for the simulated skin, else a serial port (a pyserial URL is refused: see
-        ``skinloc.hardware.serial.check_source``).
+        ``skinloc.hardware.ports.check_source``).
     tx, rx : int
         Grid the device sends.
     baud : int
@@ -66,7 +66,7 @@ class SourceSpec:
 
     def check(self) -> None:
         """Raise ``ValueError`` unless the source is ``sim`` or a serial device (no URL)."""
-        from skinloc.hardware.serial import check_source
+        from skinloc.hardware.ports import check_source
 
         check_source(self.source)
 

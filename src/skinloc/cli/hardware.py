@@ -113,7 +113,8 @@ def _open_source(
         raise ValueError(
             "give --port (a serial port: see 'skinloc ports') or --source sim for the simulator"
         )
-    from skinloc.hardware.serial import SerialSource, SerialSourceConfig, check_source
+    from skinloc.hardware.ports import check_source
+    from skinloc.hardware.serial import SerialSource, SerialSourceConfig
 
     check_source(port, allow_urls=allow_url, allow_sim=False, opt_in="pass --allow-url")
     cfg = SerialSourceConfig(
@@ -179,7 +180,7 @@ def register(app: typer.Typer) -> None:
         """
         import json
 
-        from skinloc.hardware.serial import list_ports
+        from skinloc.hardware.ports import list_ports
 
         found = list_ports()
         if as_json:

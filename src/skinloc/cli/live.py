@@ -49,7 +49,7 @@ def _sigterm_as_interrupt() -> Any:
 
 def _check_sources(specs: list[Any], allow_url: bool) -> None:
     """Refuse a port that is a pyserial URL (without ``--allow-url``) or not a serial device."""
-    from skinloc.hardware.serial import check_source
+    from skinloc.hardware.ports import check_source
     from skinloc.live.runner import _is_recording
 
     for spec in specs:

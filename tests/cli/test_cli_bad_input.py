@@ -20,7 +20,8 @@ import pytest
 from typer.testing import CliRunner
 
 from skinloc.calibration.session import SessionConfig, simulate_session
-from skinloc.data.recording import RecordingAppender, read_recording, write_recording
+from skinloc.data.appender import RecordingAppender
+from skinloc.data.recording import read_recording, write_recording
 from skinloc.errors import Interrupted
 from skinloc.sim.skin import SimulatedSkin
 from tests.conftest import make_recording

@@ -21,8 +21,9 @@ from typing import Any
 
 import numpy as np
 
-from skinloc.data.recording import _atomic_write, read_recording
+from skinloc.data.recording import read_recording
 from skinloc.errors import RecordingError, SkinlocError
+from skinloc.files import atomic_write
 
 log = logging.getLogger(__name__)
 
@@ -93,7 +94,7 @@ class SessionFolder:
     def write_info(self, info: dict[str, Any]) -> None:
         """Rewrite ``session.json`` atomically."""
         info = {**info, "modified": _now()}
-        _atomic_write(self.info_path, lambda tmp: tmp.write_text(json.dumps(info, indent=2)))
+        atomic_write(self.info_path, lambda tmp: tmp.write_text(json.dumps(info, indent=2)))
 
     def read_plan(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(vertices (V, 3) m, faces (F, 3), targets (n, 3) m)`` of the session."""
@@ -159,7 +160,7 @@ class SessionFolder:
                     for k, v in meta.items():
                         g.attrs[k] = json.dumps(v)
 
-        _atomic_write(self.history, write)
+        atomic_write(self.history, write)
 
     def history_count(self) -> int:
         """Entries in ``history.h5``."""
@@ -249,7 +250,7 @@ class SessionStore:
             with tmp.open("wb") as fh:
                 np.savez(fh, vertices=vertices, faces=faces, targets=targets)
 
-        _atomic_write(folder.plan_path, write_plan)
+        atomic_write(folder.plan_path, write_plan)
         folder.write_info({"name": name, "created": _now(), **info})
         return folder
 

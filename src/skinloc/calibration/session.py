@@ -18,14 +18,10 @@ from typing import Any, Protocol
 import numpy as np
 
 from skinloc._typing import Points
-from skinloc.data.recording import (
-    Recording,
-    RecordingAppender,
-    read_recording,
-    side_path,
-    write_recording,
-)
+from skinloc.data.appender import RecordingAppender
+from skinloc.data.recording import Recording, read_recording, write_recording
 from skinloc.errors import FrameTimeoutError, Interrupted, RecordingError
+from skinloc.files import side_path
 from skinloc.geometry.mesh import SamplingMode, sample_targets, surface_points
 from skinloc.sources.base import FrameSource
 

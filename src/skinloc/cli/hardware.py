@@ -465,7 +465,7 @@ def register(app: typer.Typer) -> None:
             for sig, handler in old.items():
                 signal.signal(sig, handler)
         if truth is not None:
-            from skinloc.data.recording import _atomic_write
+            from skinloc.files import atomic_write
 
             data = dev.truth()
 
@@ -473,7 +473,7 @@ def register(app: typer.Typer) -> None:
                 with open(tmp, "wb") as fh:  # a file object: numpy adds no second .npz
                     np.savez_compressed(fh, **data)
 
-            _atomic_write(truth, write)
+            atomic_write(truth, write)
         c = dev.counts
         err_console.print(
             f"frames sent intact {c['sent']}, destroyed by faults {c['destroyed']}, "

@@ -251,7 +251,7 @@ def register(app: typer.Typer) -> None:
 
         Example: skinloc export model.h5 --onnx model.onnx --c-header skinloc_model.h
         """
-        from skinloc.data.recording import _atomic_write
+        from skinloc.files import atomic_write
         from skinloc.models.engine import ModelSpec
         from skinloc.models.export import export_c_header, export_onnx
 
@@ -267,10 +267,10 @@ def register(app: typer.Typer) -> None:
             check_output(c_header, option="--c-header", inputs=[model], force=force)
         spec = ModelSpec.load(model)
         if onnx is not None:
-            _atomic_write(onnx, lambda tmp: export_onnx(spec, tmp, include_surface=surface))
+            atomic_write(onnx, lambda tmp: export_onnx(spec, tmp, include_surface=surface))
             err_console.print(f"wrote {onnx}", highlight=False)
         if c_header is not None:
-            _atomic_write(
+            atomic_write(
                 c_header,
                 lambda tmp: export_c_header(spec, tmp, include_surface=surface, prefix=prefix),
             )

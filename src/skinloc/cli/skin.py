@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import json
-import os
 import sys
-import tempfile
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
+
+from skinloc.files import atomic_write
 
 __all__ = ["register", "load_skin_input"]
 
@@ -42,17 +42,6 @@ def load_skin_input(paths: list[Path]) -> tuple[str, Any]:
             raise ValueError("give one model file, or one or more recordings, not both")
         return "model", ContactLocalizer.load(models[0])
     return "recordings", [read_recording(p) for p in paths]
-
-
-def _write_text_atomic(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def _check_out(out: Path, inputs: list[Path], names: tuple[str, ...]) -> None:
@@ -142,7 +131,8 @@ def register(app: typer.Typer) -> None:
             from skinloc.sensors.figures import plot_sensor_map
 
             out.mkdir(parents=True, exist_ok=True)
-            _write_text_atomic(out / "sensors.json", json.dumps(result, indent=1) + "\n")
+            text = json.dumps(result, indent=1) + "\n"
+            atomic_write(out / "sensors.json", lambda tmp: tmp.write_text(text))
             if mesh is not None:
                 plot_sensor_map(mesh, smap, out / "sensors.png", truth)
         if as_json:
@@ -181,7 +171,8 @@ def register(app: typer.Typer) -> None:
             from skinloc.sensors.figures import plot_coverage
 
             out.mkdir(parents=True, exist_ok=True)
-            _write_text_atomic(out / "coverage.json", json.dumps(result, indent=1) + "\n")
+            text = json.dumps(result, indent=1) + "\n"
+            atomic_write(out / "coverage.json", lambda tmp: tmp.write_text(text))
             if mesh is not None:
                 plot_coverage(
                     mesh, cov.points_m, cov.expected_mm, out / "coverage.png", cov.blind_m

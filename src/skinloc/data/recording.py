@@ -9,8 +9,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
-import tempfile
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -20,15 +18,14 @@ import numpy as np
 
 from skinloc._typing import Points
 from skinloc.errors import RecordingError
+from skinloc.files import atomic_write
 
 log = logging.getLogger(__name__)
 
 __all__ = [
     "FORMAT_VERSION",
     "Recording",
-    "RecordingAppender",
     "read_recording",
-    "side_path",
     "write_mat",
     "write_recording",
 ]
@@ -332,56 +329,6 @@ def _read_mat(path: Path) -> Recording:
 # writing
 
 
-def _umask() -> int:
-    """The process umask (read without changing it where /proc allows)."""
-    try:
-        with open("/proc/self/status") as fh:
-            for line in fh:
-                if line.startswith("Umask:"):
-                    return int(line.split()[1], 8)
-    except OSError:
-        pass
-    mask = os.umask(0o022)  # elsewhere: set and restore (a race only with other umask users)
-    os.umask(mask)
-    return mask
-
-
-def _cannot_write(path: Path, exc: OSError) -> OSError:
-    """``exc`` reworded to name the file the user asked for, not a temporary one."""
-    why = (exc.strerror or str(exc)).lower()
-    return OSError(f"cannot write {path}: {why}")
-
-
-def _atomic_write(path: Path, write) -> None:
-    """Write through a temporary file in the same folder, then rename over ``path``.
-
-    The folder must exist (a typo in a path should not create folders). The result gets the
-    permissions of a normally created file (0666 minus the umask), not ``mkstemp``'s 0600.
-    Errors name ``path``; an interruption (Ctrl-C, SIGTERM turned into ``KeyboardInterrupt``)
-    removes the temporary file and leaves any old ``path`` as it was.
-    """
-    path = Path(path)
-    if not path.parent.is_dir():
-        raise FileNotFoundError(f"cannot write {path}: folder {path.parent} does not exist")
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    except OSError as exc:
-        raise _cannot_write(path, exc) from None
-    os.close(fd)
-    try:
-        os.chmod(tmp, 0o666 & ~_umask())
-        write(Path(tmp))
-        with open(tmp, "rb") as fh:
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except OSError as exc:
-        Path(tmp).unlink(missing_ok=True)
-        raise _cannot_write(path, exc) from None
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def _write_h5(f, rec: Recording, meta: dict[str, Any], appendable: bool = False) -> None:
     """Write ``rec`` into the open HDF5 file ``f`` (the layout of docs/formats.md).
 
@@ -428,114 +375,7 @@ def write_recording(rec: Recording, path: str | Path) -> None:
         with h5py.File(tmp, "w") as f:
             _write_h5(f, rec, meta)
 
-    _atomic_write(Path(path), write)
-
-
-def side_path(path: str | Path, tag: str) -> Path:
-    """A free file name next to ``path`` saying what it holds: ``cal.partial.h5``.
-
-    If that exists, ``cal.partial-2.h5`` and so on.
-    """
-    path = Path(path)
-    suffix = path.suffix if path.suffix.lower() in (".h5", ".hdf5") else ".h5"
-    for k in range(1, 10_000):
-        candidate = path.with_name(f"{path.stem}.{tag}{'' if k == 1 else f'-{k}'}{suffix}")
-        if not candidate.exists():
-            return candidate
-    raise OSError(f"no free file name for the {tag} side file of {path}")
-
-
-class RecordingAppender:
-    """A recording written point log by point log into one open HDF5 file.
-
-    Rewriting a whole recording after every point log (``write_recording``) costs time
-    quadratic in the session's length; this appends each point log to resizable datasets and
-    flushes, so the file on disk always holds the complete point logs so far and stays
-    readable by ``read_recording`` (same layout, docs/formats.md).
-
-    The file is created exclusively: it never replaces an existing one. Callers write it under
-    a side name and rename it over the target when the session is complete.
-
-    Parameters
-    ----------
-    rec : Recording
-        The header (grid, mesh, baseline, planned targets, meta) and any point logs so far.
-    path : str or Path
-        File to create.
-    """
-
-    def __init__(self, rec: Recording, path: str | Path) -> None:
-        import h5py
-
-        from skinloc import __version__
-
-        rec.validate()
-        self.path = Path(path)
-        self.meta = {"created": _now(), **rec.meta, "skinloc_version": __version__}
-        self.n_point_logs = rec.n_point_logs
-        self._shape = (rec.frames.shape[1] or int(rec.meta.get("samples_per_touch", 0)),)
-        self._shape += (rec.n_sensors,)
-        if rec.n_point_logs == 0:  # size the empty datasets for the frames to come
-            rec = Recording(**{**rec.__dict__, "frames": np.zeros((0, *self._shape), np.float32)})
-        try:
-            self._file = h5py.File(self.path, "x")
-        except OSError as exc:
-            raise _cannot_write(self.path, exc) from None
-        try:
-            _write_h5(self._file, rec, self.meta, appendable=True)
-            self._file.flush()
-        except BaseException:
-            self._file.close()
-            self.path.unlink(missing_ok=True)
-            raise
-
-    def append(self, target: Points, frames: np.ndarray, times: np.ndarray | None = None) -> None:
-        """Add one point log and flush it to disk.
-
-        ``target (3,)`` m, ``frames (s, n_sensors)`` raw counts, ``times (s,)`` s (optional).
-        """
-        frames = np.asarray(frames, dtype=np.float32)
-        if frames.shape != self._shape:
-            raise RecordingError(
-                f"point log frames must have shape {self._shape}, got {frames.shape}"
-            )
-        if not np.all(np.isfinite(frames)):
-            raise RecordingError("point log frames have NaN or infinite values")
-        g = self._file["point_logs"]
-        i = self.n_point_logs
-        names = ("targets", "frames", "frame_times")
-        try:
-            for name in names:
-                g[name].resize(i + 1, axis=0)
-            g["targets"][i] = np.asarray(target, dtype=np.float64).reshape(3)
-            g["frames"][i] = frames
-            g["frame_times"][i] = np.full(self._shape[0], np.nan) if times is None else times
-        except BaseException:  # Ctrl-C mid-write: no half-written point log stays in the file
-            for name in names:
-                g[name].resize(i, axis=0)
-            raise
-        self.n_point_logs = i + 1
-        self.update_meta(modified=_now())
-
-    def update_meta(self, **values: Any) -> None:
-        """Merge ``values`` into the stored meta and flush."""
-        self.meta.update(values)
-        self._file.attrs["meta"] = json.dumps(self.meta)
-        self._file.flush()
-
-    def close(self) -> None:
-        """Flush, sync to disk and close (idempotent)."""
-        if self._file.id.valid:
-            self._file.flush()
-            self._file.close()
-            with open(self.path, "rb") as fh:
-                os.fsync(fh.fileno())
-
-    def __enter__(self) -> RecordingAppender:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    atomic_write(Path(path), write)
 
 
 def write_mat(rec: Recording, path: str | Path) -> None:
@@ -572,6 +412,6 @@ def write_mat(rec: Recording, path: str | Path) -> None:
         },
         "obj": obj,
     }
-    _atomic_write(
+    atomic_write(
         Path(path), lambda tmp: scipy.io.savemat(tmp, {"touchData": touch}, do_compression=True)
     )

@@ -29,7 +29,7 @@ def write_model(model: Any, path: Path, extra_meta: dict[str, Any] | None = None
     import h5py
 
     from skinloc import __version__
-    from skinloc.data.recording import _atomic_write
+    from skinloc.files import atomic_write
 
     meta = {
         "skinloc_version": __version__,
@@ -60,7 +60,7 @@ def write_model(model: Any, path: Path, extra_meta: dict[str, Any] | None = None
             if model.surface_points_ is not None:
                 f["surface/points"] = model.surface_points_
 
-    _atomic_write(path, write)
+    atomic_write(path, write)
 
 
 def _write_map(model: Any, f: Any) -> None:

@@ -9,14 +9,13 @@ recording without one, the baseline followed by every point log.
 from __future__ import annotations
 
 import logging
-import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from skinloc.errors import FrameTimeoutError, RecordingError
+from skinloc.files import atomic_write
 from skinloc.sources.base import Frame, FrameSource
 
 log = logging.getLogger(__name__)
@@ -84,9 +83,7 @@ def write_stream_recording(
     )
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
+    def write(tmp: Path) -> None:
         write_recording(rec, tmp)
         with h5py.File(tmp, "a") as f:
             g = f.create_group("stream")
@@ -94,10 +91,8 @@ def write_stream_recording(
             g["times_s"] = times_s
             g["index"] = index
             g.attrs["units"] = "frames in raw counts, times in s since the first frame"
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+
+    atomic_write(path, write)
 
 
 def read_stream(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:

@@ -1,0 +1,79 @@
+"""Writing files so that nothing a user has is ever lost: atomic replacement, free side names.
+
+Every file skinloc writes goes through ``atomic_write`` (a temporary file in the same folder,
+synced, then renamed over the target), so a crash or a Ctrl-C leaves the old file or the new one,
+never half of one.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+
+__all__ = ["atomic_write", "cannot_write", "side_path"]
+
+
+def _umask() -> int:
+    """The process umask (read without changing it where /proc allows)."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except OSError:
+        pass
+    mask = os.umask(0o022)  # elsewhere: set and restore (a race only with other umask users)
+    os.umask(mask)
+    return mask
+
+
+def cannot_write(path: Path, exc: OSError) -> OSError:
+    """``exc`` reworded to name the file the user asked for, not a temporary one."""
+    why = (exc.strerror or str(exc)).lower()
+    return OSError(f"cannot write {path}: {why}")
+
+
+def atomic_write(path: str | Path, write: Callable[[Path], object]) -> None:
+    """Write through a temporary file in the same folder, then rename over ``path``.
+
+    The folder must exist (a typo in a path should not create folders). The result gets the
+    permissions of a normally created file (0666 minus the umask), not ``mkstemp``'s 0600.
+    Errors name ``path``; an interruption (Ctrl-C, SIGTERM turned into ``KeyboardInterrupt``)
+    removes the temporary file and leaves any old ``path`` as it was.
+    """
+    path = Path(path)
+    if not path.parent.is_dir():
+        raise FileNotFoundError(f"cannot write {path}: folder {path.parent} does not exist")
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    except OSError as exc:
+        raise cannot_write(path, exc) from None
+    os.close(fd)
+    try:
+        os.chmod(tmp, 0o666 & ~_umask())
+        write(Path(tmp))
+        with open(tmp, "rb") as fh:
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except OSError as exc:
+        Path(tmp).unlink(missing_ok=True)
+        raise cannot_write(path, exc) from None
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def side_path(path: str | Path, tag: str) -> Path:
+    """A free file name next to ``path`` saying what it holds: ``cal.partial.h5``.
+
+    If that exists, ``cal.partial-2.h5`` and so on.
+    """
+    path = Path(path)
+    suffix = path.suffix if path.suffix.lower() in (".h5", ".hdf5") else ".h5"
+    for k in range(1, 10_000):
+        candidate = path.with_name(f"{path.stem}.{tag}{'' if k == 1 else f'-{k}'}{suffix}")
+        if not candidate.exists():
+            return candidate
+    raise OSError(f"no free file name for the {tag} side file of {path}")

@@ -199,7 +199,7 @@ def test_train_select_cli(sim_path, tmp_path):
 
 
 def test_repeated_targets_measure_the_probing_floor(tmp_path):
-    from skinloc.calibration.repeatability import repeated_pairs, session_repeatability
+    from skinloc.evaluation.repeatability import repeated_pairs, session_repeatability
 
     mesh = cone_skin()
     skin = SimulatedSkin(mesh, random_state=0)

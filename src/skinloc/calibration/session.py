@@ -73,7 +73,7 @@ class SessionConfig:
         Free text stored with the recording.
     n_repeats : int
         Targets asked for a second time at the end of the session (spread over the first
-        ``n_points``), to measure the probing repeatability (``skinloc.calibration.repeatability``).
+        ``n_points``), to measure the probing repeatability (``skinloc.evaluation.repeatability``).
     """
 
     n_points: int = 80

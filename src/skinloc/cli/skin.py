@@ -78,7 +78,7 @@ def sensors_result(kind: str, obj: Any, n_boot: int, seed: int) -> tuple[dict, A
         truth = S.truth_sensor_positions(obj[0].meta)
     result = smap.as_dict()
     if kind != "model" and len(obj) == 1:
-        from skinloc.calibration.repeatability import session_repeatability
+        from skinloc.evaluation.repeatability import session_repeatability
 
         rep = session_repeatability(obj[0])
         if rep is not None:

@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from skinloc.evaluation.repeatability import probing_repeatability_mm, repeated_pairs
 from skinloc.data.recording import read_recording
+from skinloc.evaluation.repeatability import probing_repeatability_mm, repeated_pairs
 from skinloc.evaluation.scoring import train_localizer
 
 DAY = [

@@ -90,7 +90,7 @@ def demo(
     The headline is the error over several simulated skins (mean and spread) beside the real
     skin's figure. Example: skinloc demo --out skinloc-demo
     """
-    from skinloc.evaluation.demo import REAL_SKIN_ERROR_MM, DemoConfig, run_demo
+    from skinloc.experiments.demo import REAL_SKIN_ERROR_MM, DemoConfig, run_demo
 
     check_output(out, option="--out", folder=True)
     earlier = [out / n for n in ("calibration.h5", "validation.h5", "model.h5")]

@@ -9,7 +9,7 @@ import pytest
 from typer.testing import CliRunner
 
 from skinloc import __version__
-from skinloc.evaluation.demo import REAL_SKIN_ERROR_MM, DemoConfig, run_demo
+from skinloc.experiments.demo import REAL_SKIN_ERROR_MM, DemoConfig, run_demo
 
 runner = CliRunner()
 

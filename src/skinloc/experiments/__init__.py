@@ -1,0 +1,1 @@
+"""Experiments that run the whole offline path: the demo and the paper's experiment."""

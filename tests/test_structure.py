@@ -11,6 +11,8 @@ are only printed (``pytest -s``).
 from __future__ import annotations
 
 import ast
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -171,3 +173,17 @@ def _write(root: Path, files: dict[str, str]) -> Path:
 def test_the_checker_finds_circles(tmp_path, files, expected):
     graph, mods = import_graph(_write(tmp_path, files))
     assert circles(graph, mods) == expected
+
+
+def test_the_public_names_resolve_and_import_skinloc_stays_light():
+    """``skinloc.X`` reaches every public name; importing ``skinloc`` alone loads no subpackage."""
+    code = (
+        "import sys, skinloc; "
+        "assert not [m for m in sys.modules if m.startswith('skinloc.')], 'eager import'; "
+        "[getattr(skinloc, n) for n in skinloc.__all__]; "
+        "assert 'torch' not in sys.modules"
+    )
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    with pytest.raises(AttributeError, match="no attribute 'nothing'"):
+        skinloc.nothing  # noqa: B018

@@ -9,10 +9,18 @@ from typing import Annotated, Any
 import numpy as np
 import typer
 
+from skinloc.cli.common import (
+    Units,
+    WireChoice,
+    check_output,
+    console,
+    err_console,
+    friendly_errors,
+    progress_steps,
+)
 from skinloc.cli.hardware import (
     AllowUrlOpt,
     BaudOpt,
-    FormatChoice,
     FormatOpt,
     ModeChoice,
     PortOpt,
@@ -22,7 +30,6 @@ from skinloc.cli.hardware import (
     SourceOpt,
     TxMaskOpt,
     TxOpt,
-    UnitsChoice,
     _first_frame,
     _load_surface,
     _open_source,
@@ -64,13 +71,6 @@ class TerminalProber:
 
 def register(app: typer.Typer) -> None:
     """Add ``skinloc collect`` to the main ``skinloc`` app."""
-    from skinloc.cli.common import (
-        check_output,
-        console,
-        err_console,
-        friendly_errors,
-        progress_steps,
-    )
 
     # -------------------------------------------------------------------------------- collect
     @app.command()
@@ -82,7 +82,7 @@ def register(app: typer.Typer) -> None:
         mesh: Annotated[
             Path | None, typer.Option(help="Skin mesh; default: the paper's cone.")
         ] = None,
-        units: Annotated[UnitsChoice, typer.Option(help="Units of --mesh.")] = UnitsChoice.auto,
+        units: Annotated[Units, typer.Option(help="Units of --mesh.")] = Units.auto,
         points: Annotated[int, typer.Option(min=1, help="Point logs to record.")] = 80,
         mode: Annotated[
             ModeChoice,
@@ -110,7 +110,7 @@ def register(app: typer.Typer) -> None:
             ),
         ] = False,
         baud: BaudOpt = 115200,
-        fmt: FormatOpt = FormatChoice.auto,
+        fmt: FormatOpt = WireChoice.auto,
         tx: TxOpt = 8,
         rx: RxOpt = 8,
         tx_mask: TxMaskOpt = None,

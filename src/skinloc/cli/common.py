@@ -69,6 +69,14 @@ class Units(StrEnum):
     mm = "mm"
 
 
+class WireChoice(StrEnum):
+    """Wire format of a serial port."""
+
+    auto = "auto"
+    text = "text"
+    binary = "binary"
+
+
 # ------------------------------------------------------------------------ signals and errors
 #: Signals received during the current command (SIGINT, SIGTERM), newest last.
 _signals: list[int] = []

@@ -13,6 +13,16 @@ from typing import Annotated, Any
 import numpy as np
 import typer
 
+from skinloc.cli.common import (
+    Units,
+    WireChoice,
+    check_output,
+    console,
+    err_console,
+    friendly_errors,
+    progress_steps,
+)
+
 log = logging.getLogger(__name__)
 
 
@@ -21,14 +31,6 @@ class SourceChoice(StrEnum):
 
     serial = "serial"
     sim = "sim"
-
-
-class FormatChoice(StrEnum):
-    """Wire format of the port."""
-
-    auto = "auto"
-    text = "text"
-    binary = "binary"
 
 
 class DeviceFormat(StrEnum):
@@ -45,14 +47,6 @@ class ModeChoice(StrEnum):
     random = "random"
     edge = "edge"
     active = "active"
-
-
-class UnitsChoice(StrEnum):
-    """Mesh file units."""
-
-    auto = "auto"
-    m = "m"
-    mm = "mm"
 
 
 # Options shared by every command that reads a skin.
@@ -76,7 +70,7 @@ SourceOpt = Annotated[
 BaudOpt = Annotated[
     int, typer.Option(min=50, help="Baud rate (text firmware 115200, skinloc binary 1000000).")
 ]
-FormatOpt = Annotated[FormatChoice, typer.Option("--format", help="Wire format of the port.")]
+FormatOpt = Annotated[WireChoice, typer.Option("--format", help="Wire format of the port.")]
 TxOpt = Annotated[int, typer.Option(min=1, max=21, help="TX lines the device sends.")]
 RxOpt = Annotated[int, typer.Option(min=1, max=12, help="RX lines the device sends.")]
 TxMaskOpt = Annotated[
@@ -92,7 +86,7 @@ def _open_source(
     source: SourceChoice,
     *,
     baud: int = 115200,
-    fmt: FormatChoice = FormatChoice.auto,
+    fmt: WireChoice = WireChoice.auto,
     tx: int = 8,
     rx: int = 8,
     tx_mask: str | None = None,
@@ -139,7 +133,7 @@ def _first_frame(src, timeout_s: float):
     return src.read(max(timeout_s, FIRST_FRAME_S))
 
 
-def _load_surface(mesh: Path | None, units: UnitsChoice):
+def _load_surface(mesh: Path | None, units: Units):
     from skinloc.geometry.mesh import cone_skin, load_mesh
 
     return cone_skin() if mesh is None else load_mesh(mesh, units.value)
@@ -160,13 +154,6 @@ def _stats_line(src) -> str:
 
 def register(app: typer.Typer) -> None:
     """Add the hardware commands to the main ``skinloc`` app."""
-    from skinloc.cli.common import (
-        check_output,
-        console,
-        err_console,
-        friendly_errors,
-        progress_steps,
-    )
 
     # -------------------------------------------------------------------------------- ports
     @app.command()
@@ -207,7 +194,7 @@ def register(app: typer.Typer) -> None:
         port: PortOpt = None,
         source: SourceOpt = SourceChoice.serial,
         baud: BaudOpt = 115200,
-        fmt: FormatOpt = FormatChoice.auto,
+        fmt: FormatOpt = WireChoice.auto,
         tx: TxOpt = 8,
         rx: RxOpt = 8,
         tx_mask: TxMaskOpt = None,
@@ -303,7 +290,7 @@ def register(app: typer.Typer) -> None:
             int, typer.Option(min=2, help="No-touch frames captured first.")
         ] = 50,
         baud: BaudOpt = 115200,
-        fmt: FormatOpt = FormatChoice.auto,
+        fmt: FormatOpt = WireChoice.auto,
         tx: TxOpt = 8,
         rx: RxOpt = 8,
         tx_mask: TxMaskOpt = None,
@@ -311,7 +298,7 @@ def register(app: typer.Typer) -> None:
         mesh: Annotated[
             Path | None, typer.Option(help="Skin mesh; default: the paper's cone.")
         ] = None,
-        units: Annotated[UnitsChoice, typer.Option(help="Units of --mesh.")] = UnitsChoice.auto,
+        units: Annotated[Units, typer.Option(help="Units of --mesh.")] = Units.auto,
         timeout: Annotated[float, typer.Option(min=0.01, help="Longest wait for a frame, s.")] = 2,
         seed: SeedOpt = 0,
         allow_url: AllowUrlOpt = False,

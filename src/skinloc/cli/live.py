@@ -13,15 +13,9 @@ from typing import Annotated, Any
 
 import typer
 
+from skinloc.cli.common import WireChoice
+
 log = logging.getLogger(__name__)
-
-
-class WireChoice(StrEnum):
-    """Wire format of a serial port."""
-
-    auto = "auto"
-    text = "text"
-    binary = "binary"
 
 
 class FilterChoice(StrEnum):

@@ -11,6 +11,9 @@ from rich.table import Table
 
 from skinloc.cli.common import check_output, console, friendly_errors, print_json, progress_steps
 
+#: Columns of the real-recordings table.
+_REAL_COLUMNS = ("protocol", "arch", "train", "test", "per", "n", "mean_mm", "std_mm", "median_mm")
+
 
 def register(app: typer.Typer) -> None:
     """Add ``skinloc bench`` to ``app``."""
@@ -111,33 +114,13 @@ def register(app: typer.Typer) -> None:
                 )
         if "real" in results and not as_json:
             table = Table(title="Real recordings (2023-12-10)")
-            for c in (
-                "protocol",
-                "arch",
-                "train",
-                "test",
-                "per",
-                "n",
-                "mean_mm",
-                "std_mm",
-                "median_mm",
-            ):
+            for c in _REAL_COLUMNS:
                 table.add_column(c)
             for r in results["real"]:
                 table.add_row(
                     *[
                         f"{r[c]:.1f}" if isinstance(r[c], float) else str(r[c])
-                        for c in (
-                            "protocol",
-                            "arch",
-                            "train",
-                            "test",
-                            "per",
-                            "n",
-                            "mean_mm",
-                            "std_mm",
-                            "median_mm",
-                        )
+                        for c in _REAL_COLUMNS
                     ]
                 )
             console.print(table)

@@ -21,13 +21,8 @@ import atheris
 import numpy  # noqa: F401 - imported first so that only skinloc.hardware.framing is instrumented
 
 with atheris.instrument_imports(include=["skinloc"]):
-    from skinloc.hardware.framing import (
-        AutoParser,
-        BinaryParser,
-        TextParser,
-        encode_binary,
-        encode_text,
-    )
+    from skinloc.hardware.framing import AutoParser, BinaryParser, TextParser
+    from skinloc.hardware.wire import encode_binary, encode_text
 
 
 def feed(parser, data: bytes, fdp) -> list:

@@ -19,13 +19,8 @@ import time
 
 import numpy as np
 
-from skinloc.hardware.framing import (
-    AutoParser,
-    BinaryParser,
-    TextParser,
-    encode_binary,
-    encode_text,
-)
+from skinloc.hardware.framing import AutoParser, BinaryParser, TextParser
+from skinloc.hardware.wire import encode_binary, encode_text
 
 
 def naive(data: bytes) -> int:

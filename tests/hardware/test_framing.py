@@ -13,16 +13,13 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from skinloc.hardware.framing import (
+from skinloc.hardware.framing import AutoParser, BinaryParser, TextParser, make_parser
+from skinloc.hardware.wire import (
     MAX_LINE_BYTES,
-    AutoParser,
-    BinaryParser,
-    TextParser,
     WireFormat,
     binary_frame_size,
     encode_binary,
     encode_text,
-    make_parser,
 )
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -22,8 +22,9 @@ from typing import Any
 import numpy as np
 
 from skinloc.errors import FrameTimeoutError, SourceNotConnectedError
-from skinloc.hardware.framing import MAX_RX, MAX_TX, ParserStats, WireFormat, make_parser
+from skinloc.hardware.framing import ParserStats, make_parser
 from skinloc.hardware.ports import PortInfo, check_source, list_ports  # re-exported
+from skinloc.hardware.wire import MAX_RX, MAX_TX, WireFormat
 from skinloc.sources.base import Frame, FrameSource
 
 log = logging.getLogger(__name__)

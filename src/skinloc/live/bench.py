@@ -200,7 +200,7 @@ def _plain_map_match(spec: Any) -> Callable[[np.ndarray], np.ndarray]:
 
 def single_stream(model_path: Path, n_frames: int = 20000, random_state: int = 0) -> dict:
     """Latency and throughput of one 64-sensor stream, bytes in to contact out."""
-    from skinloc.hardware.framing import encode_binary
+    from skinloc.hardware.wire import encode_binary
     from skinloc.live.core import SkinCore
     from skinloc.models.engine import load_engine
     from skinloc.models.localizer import ContactLocalizer
@@ -291,7 +291,7 @@ def _feeder(conn: Any, n_skins: int, rate_hz: float, duration_s: float, frames: 
     import pty
     import tty
 
-    from skinloc.hardware.framing import encode_binary
+    from skinloc.hardware.wire import encode_binary
 
     masters, names = [], []
     for _ in range(n_skins):

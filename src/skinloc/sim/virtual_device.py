@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from skinloc.hardware.framing import WireFormat, encode_binary, encode_text
+from skinloc.hardware.wire import WireFormat, encode_binary, encode_text
 
 log = logging.getLogger(__name__)
 

@@ -83,6 +83,7 @@ def write_stream_recording(
     )
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+
     def write(tmp: Path) -> None:
         write_recording(rec, tmp)
         with h5py.File(tmp, "a") as f:

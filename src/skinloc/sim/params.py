@@ -63,6 +63,10 @@ class SkinParams:
     weak_touch_pressure: float = 0.3
     crossing_width_std: float = 0.0
     probe_error_std_m: float = 0.0053
+    # several fingers at once (sim/fingers.py)
+    crossing_saturation_counts: float = 1900.0
+    line_saturation_counts: float = 200.0
+    body_retransmission: float = 0.1
     # per-sensor electronics
     gain_std: float = 0.2
     baseline_mean_counts: float = 9500.0
@@ -112,6 +116,9 @@ class SkinParams:
             "weak_touch_pressure": (0.0 < self.weak_touch_pressure <= 1.0, "in (0, 1]"),
             "crossing_width_std": (0.0 <= self.crossing_width_std <= 1.0, "in [0, 1]"),
             "probe_error_std_m": (0.0 <= self.probe_error_std_m < 0.05, "in [0, 0.05) m"),
+            "crossing_saturation_counts": (self.crossing_saturation_counts > 0.0, "> 0 counts"),
+            "line_saturation_counts": (self.line_saturation_counts > 0.0, "> 0 counts"),
+            "body_retransmission": (0.0 <= self.body_retransmission <= 1.0, "in [0, 1]"),
             "gain_std": (0.0 <= self.gain_std <= 2.0, "in [0, 2]"),
             "baseline_line_std_counts": (self.baseline_line_std_counts >= 0, ">= 0 counts"),
             "baseline_sensor_std_counts": (self.baseline_sensor_std_counts >= 0, ">= 0 counts"),

@@ -6,12 +6,21 @@ function; the model is described in ``docs/simulator.md``.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from skinloc.sim.layout import SkinLayout
 from skinloc.sim.params import SkinParams
 
-__all__ = ["sensor_image", "silicone_thickness_at"]
+__all__ = [
+    "FingerTerms",
+    "apply_weak_lines",
+    "finger_terms",
+    "sensor_image",
+    "silicone_thickness_at",
+    "weak_line_mask",
+]
 
 
 def _kernel(d2: np.ndarray, width2: float, exponent: float) -> np.ndarray:
@@ -87,6 +96,52 @@ def sensor_image(
         raise ValueError(f"pressure must be a finite value >= 0, got {pressure!r}")
     if not (np.isfinite(finger_radius_m) and finger_radius_m > 0):
         raise ValueError(f"finger_radius_m must be > 0, got {finger_radius_m!r}")
+    terms = finger_terms(layout, params, contact, pressure, finger_radius_m)
+    along = (terms.line_tx[:, None] + terms.line_rx[None, :]).ravel()
+    signal = layout.gains * (terms.local + along + pressure * params.common_mode_counts)
+    return apply_weak_lines(layout, params, signal, pressure)
+
+
+@dataclass(frozen=True)
+class FingerTerms:
+    """The parts of one finger's image before the sensors' gains, counts.
+
+    Attributes
+    ----------
+    local : (n_sensors,) float
+        ``P A (h0 / h) K(d_k; r_k w)``: the field the finger takes from each crossing.
+    line_tx : (n_tx,) float
+        ``P A (h0 / h) c K(D_tx; w)``: what it takes from each whole TX line.
+    line_rx : (n_rx,) float
+        The same for each RX line.
+    couple_tx : (n_tx,) float
+        ``P (h0 / h) K(D_tx; w)``: the finger's relative capacitive coupling to each TX line.
+    couple_rx : (n_rx,) float
+        The same for each RX line.
+    """
+
+    local: np.ndarray
+    line_tx: np.ndarray
+    line_rx: np.ndarray
+    couple_tx: np.ndarray
+    couple_rx: np.ndarray
+
+
+def finger_terms(
+    layout: SkinLayout,
+    params: SkinParams,
+    contact: np.ndarray,
+    pressure: float,
+    finger_radius_m: float,
+) -> FingerTerms:
+    """The parts of one finger's image (``sensor_image`` adds them); see ``FingerTerms``."""
+    contact = np.asarray(contact, dtype=np.float64)
+    if contact.shape != (3,):
+        raise ValueError(f"contact must have shape (3,), got {contact.shape}")
+    if not (np.isfinite(pressure) and pressure >= 0):
+        raise ValueError(f"pressure must be a finite value >= 0, got {pressure!r}")
+    if not (np.isfinite(finger_radius_m) and finger_radius_m > 0):
+        raise ValueError(f"finger_radius_m must be > 0, got {finger_radius_m!r}")
     h = silicone_thickness_at(layout, params, contact)
     width2 = h**2 + finger_radius_m**2
     gamma = params.falloff_exponent
@@ -95,15 +150,35 @@ def sensor_image(
     local = _kernel(d2, width2 * scales**2, gamma)
     k_tx = _kernel(_polyline_distance2(contact, layout.tx_wires), width2, gamma)
     k_rx = _kernel(_polyline_distance2(contact, layout.rx_wires), width2, gamma)
-    along = (k_tx[:, None] + k_rx[None, :]).ravel()
     # Parallel-plate coupling through the dielectric: the signal falls as 1 / thickness.
-    amplitude = params.peak_signal_counts * params.silicone_thickness_m / h
-    signal = amplitude * (local + params.line_coupling * along)
-    signal = pressure * layout.gains * (signal + params.common_mode_counts)
+    relative = pressure * params.silicone_thickness_m / h
+    amplitude = relative * params.peak_signal_counts
+    line = amplitude * params.line_coupling
+    return FingerTerms(
+        local=amplitude * local,
+        line_tx=line * k_tx,
+        line_rx=line * k_rx,
+        couple_tx=relative * k_tx,
+        couple_rx=relative * k_rx,
+    )
+
+
+def weak_line_mask(layout: SkinLayout, params: SkinParams) -> np.ndarray:
+    """``(n_sensors,) bool``: the sensors on a weak TX or RX line."""
     weak = np.zeros((layout.n_tx, layout.n_rx), dtype=bool)
     weak[[i for i in params.weak_tx_lines if i < layout.n_tx], :] = True
     weak[:, [j for j in params.weak_rx_lines if j < layout.n_rx]] = True
-    weak = weak.ravel()
+    return weak.ravel()
+
+
+def apply_weak_lines(
+    layout: SkinLayout, params: SkinParams, signal: np.ndarray, pressure: float
+) -> np.ndarray:
+    """Sensors on weak lines give ``weak_line_gain`` x their signal + ``pressure`` x offset.
+
+    ``pressure`` is the total over the fingers on the skin; ``signal`` is changed in place.
+    """
+    weak = weak_line_mask(layout, params)
     signal[weak] = params.weak_line_gain * signal[weak] + pressure * params.weak_line_offset_counts
     return signal
 

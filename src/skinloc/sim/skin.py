@@ -12,12 +12,14 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Sequence
 
 import numpy as np
 import trimesh
 
 from skinloc._typing import Points
 from skinloc.errors import FrameTimeoutError
+from skinloc.sim.fingers import Finger, multi_touch_image
 from skinloc.sim.layout import MAX_RX, MAX_TX, SkinLayout, check_grid
 from skinloc.sim.params import COUNT_MAX, SkinParams
 from skinloc.sim.signal import sensor_image, silicone_thickness_at
@@ -229,8 +231,18 @@ class SimulatedSkin(FrameSource):
             radius * 1e3,
         )
 
+    def touch(self, fingers: Sequence[Finger]) -> None:
+        """Put ``fingers`` on the skin at once, replacing any (``[]`` lifts them all).
+
+        The image is ``fingers.multi_touch_image``: several fingers interact (shared line
+        fields, body re-transmission); one finger gives exactly ``press``'s image.
+        """
+        fingers = tuple(fingers)
+        self._signal = multi_touch_image(self.layout, self.params, fingers)
+        self.contact = np.asarray(fingers[0].position_m, dtype=np.float64) if fingers else None
+
     def release(self) -> None:
-        """Lift the finger."""
+        """Lift the finger (every finger)."""
         self._signal = np.zeros(self.n_sensors)
         self.contact = None
 

@@ -40,9 +40,9 @@ def skin_up_axis(vertices: Points) -> np.ndarray:
     v = np.asarray(vertices, dtype=np.float64)
     if v.ndim != 2 or v.shape[1] != 3 or not np.all(np.isfinite(v)):
         raise ValueError(f"vertices must be a finite (n, 3) array, got shape {v.shape}")
-    centred = v - v.mean(axis=0)
-    if len(v) < 2 or not np.any(centred):
+    if len(v) < 2 or not np.any(v - v[0]):
         raise ValueError("vertices must hold at least 2 distinct points")
+    centred = v - v.mean(axis=0)
     # eigh sorts eigenvalues ascending: the last eigenvector is the axis of largest spread
     _, vecs = np.linalg.eigh(centred.T @ centred)
     up = vecs[:, -1]

@@ -158,7 +158,8 @@ def record_gestures(
     """
     path = Path(path)
     side = side_path(partial if partial is not None else path, "partial")
-    if not skin.is_connected:
+    was_connected = skin.is_connected
+    if not was_connected:
         skin.connect()
     skin.touch([])
     base = np.stack([skin.read().values for _ in range(baseline_frames)])
@@ -175,8 +176,14 @@ def record_gestures(
         frames=np.zeros((0, 1, n), dtype=np.float32),
         meta={"sampling_mode": "none", "samples_per_touch": 0, **(meta or {})},
     )
-    write_recording(header, side)
-    writer = _Writer(side, n, chunk_frames)
+    try:
+        write_recording(header, side)
+        writer = _Writer(side, n, chunk_frames)
+    except BaseException:
+        side.unlink(missing_ok=True)
+        if not was_connected:
+            skin.disconnect()
+        raise
     gestures: list[dict[str, Any]] = []
     touches: list[dict[str, Any]] = []
     t0 = skin.time_s  # stream time 0: the first frame after the baseline capture
@@ -231,6 +238,8 @@ def record_gestures(
             raise
         finally:
             skin.touch([])
+            if not was_connected:
+                skin.disconnect()
             truth = {
                 "truth_gestures": gestures,
                 "truth_touches": sorted(touches, key=lambda d: d["start_s"]),

@@ -200,3 +200,10 @@ def test_read_gesture_truth_of_other_files(tmp_path: Path) -> None:
     with h5py.File(p, "w") as f:
         f["x"] = 1
     assert read_gesture_truth(p) is None
+
+
+def test_a_skin_too_small_for_a_swipe_says_so() -> None:
+    tiny = trimesh.creation.icosphere(subdivisions=2, radius=0.008)
+    script = GestureScript(tiny, 5, n_touches=0, random_state=0)
+    with pytest.raises(ValueError, match="no place on the skin"):
+        list(script.items())

@@ -36,6 +36,7 @@ GESTURE_KINDS = ("tap", "double_tap", "long_press", "swipe", "two_finger_tap")
 TOUCH_KINDS = ("rest", "drag")  # single touches that are not gestures
 DIRECTIONS = ("up", "down", "left", "right")
 MAX_FINGERS = 2
+_MAX_TRIES = 500  # random places tried for a swipe or a two-finger tap
 
 
 @dataclass(frozen=True)
@@ -301,9 +302,15 @@ class GestureScript:
             )
             axis_name = direction or str(rng.choice(DIRECTIONS))
             path = None
-            while path is None:
-                length = u(lengths)
-                path = self._path(self._axes[axis_name], length)
+            for _ in range(_MAX_TRIES):
+                path = self._path(self._axes[axis_name], u(lengths))
+                if path is not None:
+                    break
+            else:
+                raise ValueError(
+                    f"found no place on the skin for a {kind} {axis_name} of "
+                    f"{1e3 * lengths[0]:.0f}-{1e3 * lengths[1]:.0f} mm: is the mesh in metres?"
+                )
             speed = u(speeds)
             dur = float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum()) / speed
             pressure, radius = self._draw_touch(rng)
@@ -329,7 +336,7 @@ class GestureScript:
 
     def _two_fingers(self, now: float) -> list[Stroke]:
         t, rng = self.timing, self.rng
-        while True:
+        for _ in range(_MAX_TRIES):
             p, n = self._point()
             sep = float(rng.uniform(*t.two_finger_separation_m))
             a = rng.standard_normal(3)
@@ -337,6 +344,8 @@ class GestureScript:
             q, _ = self._project(p + sep * a / np.linalg.norm(a))
             if np.linalg.norm(q - p) > 0.8 * sep:  # not pulled back at the skin's edge
                 break
+        else:
+            raise ValueError("found no place on the skin for two fingers: is the mesh in metres?")
         press = float(rng.uniform(*t.two_finger_press_s))
         # the second finger lands d0 after the first and lifts d1 after it
         d0, d1 = (float(rng.uniform(*t.two_finger_skew_s)) for _ in range(2))

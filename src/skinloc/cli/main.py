@@ -150,15 +150,45 @@ def simulate(
     tx: Annotated[int, typer.Option(min=1, max=21, help="TX lines.")] = 8,
     rx: Annotated[int, typer.Option(min=1, max=12, help="RX lines.")] = 8,
     force: Annotated[bool, typer.Option("--force", help="Replace an existing --out.")] = False,
+    gestures: Annotated[
+        int | None,
+        typer.Option(help="Instead of a session: a raw stream of N scripted gestures (.h5)."),
+    ] = None,
+    other_touches: Annotated[
+        int | None,
+        typer.Option(help="With --gestures: touches that are not gestures (default N/4)."),
+    ] = None,
 ) -> None:
     """Record a whole calibration session from the simulated skin.
 
     Point logs go to a side file (OUT's name with .partial.h5) renamed over --out when the
     session is complete; Ctrl-C keeps the complete point logs there.
 
+    With --gestures N it records instead a raw stream in which a scripted hand performs N
+    gestures and some other touches, with the truth in the file (docs/multitouch.md).
+
     Example: skinloc simulate --points 80 --mode even --samples 50 --seed 0 --out cal.h5
     """
     import tempfile
+
+    if gestures is not None or other_touches is not None:
+        from skinloc.cli.sim_gestures import simulate_gestures
+
+        if gestures is None:
+            raise ValueError("--other-touches needs --gestures N")
+        simulate_gestures(
+            out,
+            n_gestures=gestures,
+            other_touches=other_touches,
+            seed=seed,
+            skin_seed=skin_seed,
+            mesh=mesh,
+            units=units.value,
+            tx=tx,
+            rx=rx,
+            force=force,
+        )
+        return
 
     from skinloc.calibration.session import SessionConfig, simulate_session
     from skinloc.data.recording import read_recording, write_mat
@@ -390,6 +420,7 @@ def info(
     import numpy as np
 
     from skinloc.evaluation.metrics import mean_snr_db
+    from skinloc.sim.gesture_stream import read_gesture_truth
     from skinloc.sources.replay import stream_summary
 
     (rec,) = _read_all([data])
@@ -414,6 +445,7 @@ def info(
         **(stream_summary(data) or {}),  # a `skinloc record` file: its raw stream too
         "meta": {k: v for k, v in rec.meta.items() if k not in _TRUTH_KEYS},
         **_truth_layout(rec),
+        **(read_gesture_truth(data) or {}),  # a `skinloc simulate --gestures` stream
     }
     if as_json:
         print_json(summary)
@@ -422,6 +454,8 @@ def info(
     for k, v in summary.items():
         if k == "truth_sensor_positions_m":
             table.add_row(k, f"{len(v)} true crossings (simulated skin)")
+        elif k in ("truth_gestures", "truth_touches"):
+            table.add_row(k, f"{len(v)} (see --json)")
         elif k != "meta":
             table.add_row(k, f"{v:.1f}" if isinstance(v, float) else str(v))
     for k, v in summary["meta"].items():

@@ -15,6 +15,7 @@ import trimesh
 
 from skinloc._typing import Points
 from skinloc.errors import MeshError
+from skinloc.geometry.skin_frame import skin_up_axis  # re-exported: the skin's "up"
 
 log = logging.getLogger(__name__)
 
@@ -27,6 +28,7 @@ __all__ = [
     "mesh_from_arrays",
     "nearest_on_surface",
     "sample_targets",
+    "skin_up_axis",
     "surface_points",
     "tol",
 ]

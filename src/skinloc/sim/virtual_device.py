@@ -21,12 +21,12 @@ import threading
 import time
 import zlib
 from collections import Counter, deque
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from skinloc.hardware.wire import WireFormat, encode_binary, encode_text
+from skinloc.sim.device_faults import Fate, FaultConfig, Pending, TruthLog
 
 log = logging.getLogger(__name__)
 
@@ -34,64 +34,6 @@ __all__ = ["FIRMWARE_VERSION", "FaultConfig", "Fate", "VirtualSkin"]
 
 #: Version string the virtual device reports, the same as the firmware it imitates.
 FIRMWARE_VERSION = "skinloc_muca 1.0.0"
-
-
-class Fate:
-    """What happened to a frame; codes stored in the ground-truth log."""
-
-    SENT = 0  #: written intact while a host listened: must be delivered exactly
-    DESTROYED = 1  #: its bytes were altered by a fault: must never be delivered wrong
-    UNHEARD = 2  #: generated while no host listened (before connect, during a disconnect)
-
-
-@dataclass
-class FaultConfig:
-    """Faults the virtual device injects.
-
-    Attributes
-    ----------
-    p_garbage, p_drop, p_split, p_merge : float
-        Per-frame probability of each fault: 1-32 random bytes before or inside the frame; a run
-        of 1-16 bytes removed from inside it; the frame written in 2-4 pieces with pauses of
-        1-20 ms (text: sometimes a newline inserted mid-line instead); the frame run together
-        with the next one (text: the line end removed; binary: both in one write).
-    disconnect_every_s : float
-        Mean time between disconnects, s (exponentially distributed); 0 disables them.
-    downtime_s : float
-        How long the device stays away before its port comes back, s.
-    random_state : int
-        Seed of the faults.
-    """
-
-    p_garbage: float = 0.01
-    p_drop: float = 0.01
-    p_split: float = 0.01
-    p_merge: float = 0.005
-    disconnect_every_s: float = 30.0
-    downtime_s: float = 0.3
-    random_state: int = 1
-
-    def __post_init__(self) -> None:
-        ps = (self.p_garbage, self.p_drop, self.p_split, self.p_merge)
-        if any(not 0.0 <= p <= 1.0 for p in ps) or sum(ps) > 1.0:
-            raise ValueError(f"fault probabilities must be in [0, 1] and sum to <= 1, got {ps}")
-        if self.disconnect_every_s < 0 or self.downtime_s < 0:
-            raise ValueError("disconnect_every_s and downtime_s must be >= 0")
-
-
-@dataclass
-class _Pending:
-    """A frame held back to be merged with the next one."""
-
-    index: int
-    data: bytes
-
-
-@dataclass
-class _Truth:
-    index: list[int] = field(default_factory=list)
-    crc: list[int] = field(default_factory=list)
-    fate: list[int] = field(default_factory=list)
 
 
 class VirtualSkin:
@@ -151,7 +93,7 @@ class VirtualSkin:
         )
         self.path = str(self.link_dir / "ttySKIN0")
         self.keep_truth = keep_truth
-        self._truth = _Truth()
+        self._truth = TruthLog()
         self.counts: Counter[str] = Counter()
         self._master: int | None = None
         self._thread: threading.Thread | None = None
@@ -159,7 +101,7 @@ class VirtualSkin:
         self._lock = threading.Lock()
         self._host = False
         self._host_since = 0.0
-        self._pending: _Pending | None = None
+        self._pending: Pending | None = None
         self._cmd_buf = bytearray()
         self._next_disconnect = np.inf
         self._written = 0  # bytes written to the current pty
@@ -432,19 +374,7 @@ class VirtualSkin:
         data = self._encode(values, index)
         text = self.fmt is WireFormat.TEXT
         f, rng = self.faults, self._rng
-        kind = "none"
-        if f is not None:
-            u = rng.random()
-            for name, p in (
-                ("garbage", f.p_garbage),
-                ("drop", f.p_drop),
-                ("split", f.p_split),
-                ("merge", f.p_merge),
-            ):
-                if u < p:
-                    kind = name
-                    break
-                u -= p
+        kind = "none" if f is None else f.choose(rng)
         self.counts[f"fault_{kind}"] += 1 if kind != "none" else 0
         pieces, destroyed = [data], False
         if kind == "garbage":
@@ -477,11 +407,11 @@ class VirtualSkin:
             if text:
                 # The line end is lost: this line and the next run together; both are destroyed.
                 self._record(index, values, Fate.DESTROYED)
-                self._pending = _Pending(index, data[:-2])
+                self._pending = Pending(index, data[:-2])
                 self._merge_next = True
             else:
                 self._record(index, values, Fate.SENT)
-                self._pending = _Pending(index, data)
+                self._pending = Pending(index, data)
                 self._merge_next = False
             return
         if self._pending is not None:

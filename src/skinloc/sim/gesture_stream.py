@@ -1,0 +1,289 @@
+"""Record a raw stream of a simulated skin while a scripted hand performs gestures.
+
+``record_gestures`` runs a ``GestureScript`` on a ``SimulatedSkin`` (noise and drift on) and
+writes a ``skinloc record``-style recording: the header (mesh, a no-touch baseline capture),
+the ``stream`` group (``frames``, ``times_s``, ``index``) and a ``truth`` group for diagnosis:
+
+- ``truth/fingers_m (n, 2, 3)`` float32, each frame's finger positions (NaN: no finger in that
+  slot) and ``truth/pressure (n, 2)`` float32 (0: none);
+- ``truth/gestures_json``: JSON ``{"truth_gestures": [...], "truth_touches": [...]}``, which
+  ``read_gesture_truth`` returns and ``skinloc info --json`` prints.
+
+Frames go to a side file (``NAME.partial.h5``) in chunks, so memory stays bounded however long
+the stream; the side file is renamed over the output when the script is complete.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from skinloc.data.recording import Recording, side_path, write_recording
+from skinloc.errors import Interrupted, RecordingError
+from skinloc.geometry.mesh import surface_points
+from skinloc.sim.gestures import MAX_FINGERS, GestureScript, ScriptItem, Stroke
+from skinloc.sim.signal import sensor_image
+
+log = logging.getLogger(__name__)
+
+__all__ = ["read_gesture_truth", "record_gestures"]
+
+_FELT_SIGMA = 6.0  # as for a calibration touch: 2 sensors above 6 noise stds, or press harder
+_TAIL_S = 1.0  # untouched after the last item
+
+
+def _make_felt(skin, stroke: Stroke) -> None:
+    """Raise a stroke's pressure until the skin feels it where it lands (a person would)."""
+    felt = _FELT_SIGMA * skin.layout.noise_std_counts
+    image = sensor_image(
+        skin.layout, skin.params, stroke.path_m[0], stroke.pressure, stroke.radius_m
+    )
+    second = float(np.sort(image / felt)[-2])
+    if second < 1.0:
+        stroke.pressure *= 1.1 / max(second, 1e-3)
+
+
+class _Writer:
+    """Resizable stream and truth datasets in an open HDF5 file, appended chunk by chunk."""
+
+    def __init__(self, path: Path, n_sensors: int, chunk: int) -> None:
+        import h5py
+
+        self.f = h5py.File(path, "a")
+        s = self.f.create_group("stream")
+        s.attrs["units"] = "frames in raw counts, times in s since the first frame"
+        n = n_sensors
+        self.frames = s.create_dataset(
+            "frames",
+            (0, n),
+            np.float32,
+            maxshape=(None, n),
+            chunks=(chunk, n),
+            compression="gzip",
+            compression_opts=4,
+        )
+        self.times = s.create_dataset("times_s", (0,), np.float64, maxshape=(None,))
+        self.index = s.create_dataset("index", (0,), np.int64, maxshape=(None,))
+        t = self.f.create_group("truth")
+        t.attrs["units"] = "finger positions in m (NaN: no finger in that slot), pressure relative"
+        self.fingers = t.create_dataset(
+            "fingers_m", (0, MAX_FINGERS, 3), np.float32, maxshape=(None, MAX_FINGERS, 3)
+        )
+        self.pressure = t.create_dataset(
+            "pressure", (0, MAX_FINGERS), np.float32, maxshape=(None, MAX_FINGERS)
+        )
+        self.n = 0
+
+    def _all(self):
+        return (self.frames, self.times, self.index, self.fingers, self.pressure)
+
+    def append(self, frames, times, index, fingers, pressure) -> None:
+        k = len(frames)
+        if not k:
+            return
+        for ds, data in zip(self._all(), (frames, times, index, fingers, pressure), strict=True):
+            ds.resize(self.n + k, axis=0)
+            ds[self.n :] = data
+        self.n += k
+        self.f.flush()
+
+    def truncate(self, n: int) -> None:
+        for ds in self._all():
+            ds.resize(n, axis=0)
+        self.n = n
+
+    def finish(self, truth: dict[str, Any]) -> None:
+        t = self.f["truth"]
+        if "gestures_json" in t:
+            del t["gestures_json"]
+        t["gestures_json"] = json.dumps(truth)
+        self.f.flush()
+
+    def close(self) -> None:
+        if self.f.id.valid:
+            path = self.f.filename
+            self.f.close()
+            with open(path, "rb") as fh:
+                os.fsync(fh.fileno())
+
+
+def record_gestures(
+    skin,
+    path: str | Path,
+    script: GestureScript,
+    *,
+    partial: str | Path | None = None,
+    baseline_frames: int = 50,
+    chunk_frames: int = 1024,
+    meta: dict[str, Any] | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> dict[str, Any]:
+    """Run ``script`` on ``skin`` and write the raw stream and its truth to ``path``.
+
+    Parameters
+    ----------
+    skin : SimulatedSkin
+        The skin (not connected); its mesh must be ``script.mesh``.
+    path : str or Path
+        The ``.h5`` file to write; replaced only when the stream is complete.
+    script : GestureScript
+        The gestures and touches.
+    partial : str or Path, optional
+        Where the side file goes (``NAME.partial.h5`` next to it); ``path`` by default.
+    baseline_frames : int
+        Untouched frames captured before the stream, for the recording's baseline.
+    chunk_frames : int
+        Frames held in memory before they are appended to the file.
+    meta : dict, optional
+        Stored with the recording.
+    progress : callable, optional
+        ``progress(items_done, items_total)``.
+
+    Returns
+    -------
+    dict
+        ``{"truth_gestures": [...], "truth_touches": [...], "n_frames": n, "seconds": s}``.
+
+    Raises
+    ------
+    Interrupted
+        On Ctrl-C: the side file keeps the stream up to the end of the last complete item,
+        with the truth of the items so far.
+    """
+    path = Path(path)
+    side = side_path(partial if partial is not None else path, "partial")
+    was_connected = skin.is_connected
+    if not was_connected:
+        skin.connect()
+    skin.touch([])
+    base = np.stack([skin.read().values for _ in range(baseline_frames)])
+    mesh = script.mesh
+    n = skin.n_sensors
+    header = Recording(
+        n_tx=skin.n_tx,
+        n_rx=skin.n_rx,
+        vertices=mesh.vertices,
+        faces=mesh.faces,
+        surface_points=surface_points(mesh),
+        baseline_frames=base,
+        targets=np.zeros((0, 3)),
+        frames=np.zeros((0, 1, n), dtype=np.float32),
+        meta={"sampling_mode": "none", "samples_per_touch": 0, **(meta or {})},
+    )
+    try:
+        write_recording(header, side)
+        writer = _Writer(side, n, chunk_frames)
+    except BaseException:
+        side.unlink(missing_ok=True)
+        if not was_connected:
+            skin.disconnect()
+        raise
+    gestures: list[dict[str, Any]] = []
+    touches: list[dict[str, Any]] = []
+    t0 = skin.time_s  # stream time 0: the first frame after the baseline capture
+    buf: dict[str, list] = {k: [] for k in ("frames", "times", "index", "fingers", "pressure")}
+
+    def flush() -> None:
+        if buf["frames"]:
+            writer.append(*(np.asarray(buf[k]) for k in buf))
+            for v in buf.values():
+                v.clear()
+
+    def run_until(t_end: float, item: ScriptItem | None) -> None:
+        ramp = script.timing.ramp_s
+        while skin.time_s - t0 < t_end - 1e-9:
+            t = skin.time_s - t0
+            pos = np.full((MAX_FINGERS, 3), np.nan, dtype=np.float32)
+            prs = np.zeros(MAX_FINGERS, dtype=np.float32)
+            fingers = []
+            for s in item.strokes if item is not None else ():
+                f = s.finger_at(t, ramp)
+                if f is not None:
+                    fingers.append(f)
+                    pos[s.slot], prs[s.slot] = f.position_m, f.pressure
+            skin.touch(fingers)
+            frame = skin.read()
+            buf["frames"].append(frame.values)
+            buf["times"].append(frame.timestamp_s - t0)
+            buf["index"].append(frame.index)
+            buf["fingers"].append(pos)
+            buf["pressure"].append(prs)
+            if len(buf["frames"]) >= chunk_frames:
+                flush()
+
+    safe = 0  # frames up to the end of the last complete item
+    try:
+        try:
+            for done, item in enumerate(script.items()):
+                for s in item.strokes:
+                    _make_felt(skin, s)
+                run_until(item.start_s, None)
+                run_until(item.end_s, item)
+                flush()
+                safe = writer.n
+                (gestures if item.kind not in ("rest", "drag") else touches).append(item.truth)
+                if progress is not None:
+                    progress(done + 1, script.n_items)
+            last = max((d["end_s"] for d in gestures + touches), default=0.0)
+            run_until(last + _TAIL_S, None)
+            flush()
+        except KeyboardInterrupt:
+            writer.truncate(safe)
+            raise
+        finally:
+            skin.touch([])
+            if not was_connected:
+                skin.disconnect()
+            truth = {
+                "truth_gestures": gestures,
+                "truth_touches": sorted(touches, key=lambda d: d["start_s"]),
+            }
+            if writer.f.id.valid:
+                writer.finish(truth)
+            writer.close()
+    except KeyboardInterrupt:
+        target = f"{path} is unchanged" if path.exists() else f"{path} was not written"
+        k = len(gestures) + len(touches)
+        if k == 0:
+            side.unlink(missing_ok=True)
+            raise Interrupted(f"no gesture was complete; {target}") from None
+        raise Interrupted(
+            f"kept the {k} complete gestures and touches (of {script.n_items}) in {side}; {target}"
+        ) from None
+    except BaseException:
+        side.unlink(missing_ok=True)
+        raise
+    os.replace(side, path)
+    return {**truth, "n_frames": writer.n, "seconds": writer.n / skin.rate_hz}
+
+
+def read_gesture_truth(path: str | Path) -> dict[str, Any] | None:
+    """``{"truth_gestures": [...], "truth_touches": [...]}`` of a gesture stream, else None.
+
+    Each entry has ``kind``, ``direction`` (swipes; else null), ``start_s`` and ``end_s`` (the
+    stream's time, s), ``n_fingers``, ``position_m`` (the first landing); swipes and drags add
+    ``speed_m_s``, ``length_m`` and ``path_m`` (start and end), double taps ``gap_s``.
+    """
+    import h5py
+
+    if Path(path).suffix.lower() not in (".h5", ".hdf5"):
+        return None
+    try:
+        with h5py.File(path, "r") as f:
+            if "truth" not in f or "gestures_json" not in f["truth"]:
+                return None
+            raw = f["truth/gestures_json"][()]
+    except OSError as exc:
+        raise RecordingError(f"cannot read the gesture truth of {path}: {exc}") from exc
+    text = raw.decode() if isinstance(raw, bytes) else str(raw)
+    try:
+        truth = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise RecordingError(f"{path}: the gesture truth is not valid JSON ({exc})") from exc
+    return {"truth_gestures": truth["truth_gestures"], "truth_touches": truth["truth_touches"]}

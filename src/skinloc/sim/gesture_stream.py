@@ -24,8 +24,9 @@ from typing import Any
 
 import numpy as np
 
-from skinloc.data.recording import Recording, side_path, write_recording
+from skinloc.data.recording import Recording, write_recording
 from skinloc.errors import Interrupted, RecordingError
+from skinloc.files import side_path
 from skinloc.geometry.mesh import surface_points
 from skinloc.sim.gestures import MAX_FINGERS, GestureScript, ScriptItem, Stroke
 from skinloc.sim.signal import sensor_image

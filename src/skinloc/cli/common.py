@@ -313,3 +313,10 @@ def _main(
 def print_json(obj: Any) -> None:
     """Write ``obj`` to stdout as indented JSON (numpy scalars as floats)."""
     sys.stdout.write(json.dumps(obj, indent=2, default=float) + "\n")
+
+
+def read_recordings(paths: Iterable[Path]) -> list:
+    """The recordings at ``paths``, read in order (``Recording`` each)."""
+    from skinloc.data.recording import read_recording
+
+    return [read_recording(p) for p in paths]

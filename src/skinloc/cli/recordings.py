@@ -1,0 +1,156 @@
+"""Commands about recordings themselves: ``skinloc snr``, ``info`` and ``convert``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.table import Table
+
+from skinloc.cli.common import (
+    check_output,
+    console,
+    friendly_errors,
+    print_json,
+    read_recordings,
+)
+
+#: Meta keys ``info`` shows in their own fields, not under ``meta``.
+_TRUTH_KEYS = ("true_contacts", "truth_sensor_positions_m")
+
+
+def _truth_layout(rec) -> dict[str, Any]:
+    """A simulated recording's true crossings (``skinloc simulate`` stores them), else nothing."""
+    truth = rec.meta.get("truth_sensor_positions_m")
+    return {} if truth is None else {"truth_sensor_positions_m": truth}
+
+
+def register(app: typer.Typer) -> None:
+    """Add ``skinloc snr``, ``info`` and ``convert`` to ``app``."""
+
+    # ------------------------------------------------------------------------------------ snr
+    @app.command()
+    @friendly_errors
+    def snr(
+        data: Annotated[list[Path], typer.Argument(help="Recordings.")],
+        as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
+    ) -> None:
+        """Per-sensor SNR (the paper's Eq. 1) and its mean, for each recording.
+
+        Example: skinloc snr cal.h5 --json
+        """
+        import numpy as np
+
+        from skinloc.evaluation.metrics import snr_db
+
+        results = []
+        for path, rec in zip(data, read_recordings(data), strict=True):
+            s = snr_db(rec.touch_means, rec.baseline_frames)
+            results.append(
+                {
+                    "file": str(path),
+                    "mean_snr_db": float(np.nanmean(s)),
+                    "min_snr_db": float(np.nanmin(s)),
+                    "max_snr_db": float(np.nanmax(s)),
+                    "per_sensor_db": [
+                        None if not np.isfinite(v) else round(float(v), 2) for v in s
+                    ],
+                    "tx": rec.n_tx,
+                    "rx": rec.n_rx,
+                }
+            )
+        if as_json:
+            print_json(results[0] if len(results) == 1 else results)
+            return
+        for r in results:
+            console.print(
+                f"[bold]{r['file']}[/]: mean SNR {r['mean_snr_db']:.1f} dB "
+                f"(range {r['min_snr_db']:.1f} to {r['max_snr_db']:.1f})"
+            )
+            grid = Table("TX \\ RX", *[str(j) for j in range(r["rx"])], title="SNR per sensor (dB)")
+            for i in range(r["tx"]):
+                vals = r["per_sensor_db"][i * r["rx"] : (i + 1) * r["rx"]]
+                grid.add_row(str(i), *["-" if v is None else f"{v:.0f}" for v in vals])
+            console.print(grid)
+
+    # ------------------------------------------------------------------------------------ info
+    @app.command()
+    @friendly_errors
+    def info(
+        data: Annotated[Path, typer.Argument(help="A recording.")],
+        as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
+    ) -> None:
+        """Describe a recording: grid, point logs, frames, baseline, noise, SNR.
+
+        Example: skinloc info cal.h5 --json
+        """
+        import numpy as np
+
+        from skinloc.evaluation.metrics import mean_snr_db
+        from skinloc.sim.gesture_stream import read_gesture_truth
+        from skinloc.sources.replay import stream_summary
+
+        (rec,) = read_recordings([data])
+        summary = {
+            "file": str(data),
+            "tx": rec.n_tx,
+            "rx": rec.n_rx,
+            "n_sensors": rec.n_sensors,
+            "n_point_logs": rec.n_point_logs,
+            "samples_per_touch": rec.samples_per_touch,
+            "n_frames": int(rec.n_point_logs * rec.samples_per_touch),
+            "n_baseline_frames": len(rec.baseline_frames),
+            "n_planned": None if rec.planned_targets is None else len(rec.planned_targets),
+            "baseline_counts_min": float(rec.baseline.min()),
+            "baseline_counts_max": float(rec.baseline.max()),
+            "noise_counts_median": float(np.median(rec.noise)),
+            "mean_snr_db": mean_snr_db(rec.touch_means, rec.baseline_frames)
+            if rec.n_point_logs
+            else None,
+            "mesh_vertices": len(rec.vertices),
+            "mesh_faces": len(rec.faces),
+            **(stream_summary(data) or {}),  # a `skinloc record` file: its raw stream too
+            "meta": {k: v for k, v in rec.meta.items() if k not in _TRUTH_KEYS},
+            **_truth_layout(rec),
+            **(read_gesture_truth(data) or {}),  # a `skinloc simulate --gestures` stream
+        }
+        if as_json:
+            print_json(summary)
+            return
+        table = Table(title=str(data), show_header=False)
+        for k, v in summary.items():
+            if k == "truth_sensor_positions_m":
+                table.add_row(k, f"{len(v)} true crossings (simulated skin)")
+            elif k in ("truth_gestures", "truth_touches"):
+                table.add_row(k, f"{len(v)} (see --json)")
+            elif k != "meta":
+                table.add_row(k, f"{v:.1f}" if isinstance(v, float) else str(v))
+        for k, v in summary["meta"].items():
+            table.add_row(f"meta.{k}", str(v))
+        console.print(table)
+
+    # ------------------------------------------------------------------------------------ convert
+    @app.command()
+    @friendly_errors
+    def convert(
+        src: Annotated[Path, typer.Argument(help="Recording to read (.h5 or .mat).")],
+        dst: Annotated[Path, typer.Argument(help="File to write: .mat (MATLAB touchData) or .h5.")],
+        force: Annotated[bool, typer.Option("--force", help="Replace an existing DST.")] = False,
+    ) -> None:
+        """Convert between skinloc HDF5 and the paper's MATLAB touchData layout.
+
+        Example: skinloc convert cal.h5 cal.mat
+        """
+        from skinloc.data.recording import write_mat, write_recording
+
+        suffix = dst.suffix.lower()
+        if suffix not in (".mat", ".h5", ".hdf5"):
+            raise ValueError(f"cannot tell the format of {dst}: name it .mat or .h5")
+        check_output(dst, option="DST", inputs=[src], force=force)
+        (rec,) = read_recordings([src])
+        if suffix == ".mat":
+            write_mat(rec, dst)
+        else:
+            write_recording(rec, dst)
+        console.print(f"Wrote {dst} ({rec.n_point_logs} point logs)")

@@ -1,0 +1,159 @@
+"""Gestures on simulated streams: precision and recall per kind, swipe directions, delay.
+
+For each skin seed: a calibration session of that skin (`skinloc simulate --points 80
+--skin-seed K`), the default model trained on it, a gesture stream of the same skin
+(`skinloc simulate --gestures N --seed S --skin-seed K`), replayed through `skinloc run --fast
+--sink jsonl:OUT`. The reported gesture events are matched with the stream's truth
+(`truth_gestures`, and `truth_touches` for the touches that are no gesture):
+
+* an event matches a true gesture of the same kind whose time span overlaps the event's
+  (`start_s`..`end_s`, widened by `--slack-s` on each side), each truth matched at most once;
+* precision per kind: matched events / events of that kind; recall: matched truths / truths;
+* swipe direction: share of matched swipes whose reported direction is the true one;
+* delay: the event's `timestamp_s` after the moment the gesture became unambiguous: for a tap
+  the end of the double-tap window after its lift, for a long press the moment it has been held
+  `long_press_s`, for the others the last lift (truth `end_s`).
+
+None of the seeds here set a threshold: the recogniser's thresholds are fixed in
+`skinloc.live.gestures.GestureConfig` (docs/live.md).
+
+    python bench/gesture_eval.py --skin-seeds 11 12 13 --gestures 60 --out gesture-eval.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+from collections import Counter, defaultdict
+from pathlib import Path
+
+import numpy as np
+
+from skinloc.live.gestures import GestureConfig
+from skinloc.sim.gesture_stream import read_gesture_truth
+
+KINDS = ("tap", "double_tap", "long_press", "swipe", "two_finger_tap")
+
+
+def skinloc(*args: object) -> None:
+    cmd = [sys.executable, "-c", "from skinloc.cli.main import main; main()", *map(str, args)]
+    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+
+def unambiguous_s(truth: dict, cfg: GestureConfig) -> float:
+    """When a true gesture became certain (stream time, s)."""
+    if truth["kind"] == "tap":
+        return truth["end_s"] + cfg.double_tap_gap_s
+    if truth["kind"] == "long_press":
+        return truth["start_s"] + cfg.long_press_s
+    return truth["end_s"]
+
+
+def match(events: list[dict], truths: list[dict], slack_s: float) -> list[tuple[dict, dict]]:
+    """Greedy one-to-one matching by kind and overlapping time spans, earliest first."""
+    pairs, used = [], set()
+    for ev in sorted(events, key=lambda e: e["start_s"]):
+        for i, t in enumerate(truths):
+            if i in used or t["kind"] != ev["kind"]:
+                continue
+            if ev["start_s"] - slack_s <= t["end_s"] and t["start_s"] <= ev["end_s"] + slack_s:
+                pairs.append((ev, t))
+                used.add(i)
+                break
+    return pairs
+
+
+def one_skin(skin_seed: int, seed: int, n: int, slack_s: float, tmp: Path) -> dict:
+    d = tmp / f"skin{skin_seed}"
+    d.mkdir()
+    skinloc("simulate", "--points", 80, "--skin-seed", skin_seed, "--seed", seed + 1000,
+            "--out", d / "cal.h5")  # fmt: skip
+    skinloc("train", d / "cal.h5", "--out", d / "model.h5")
+    skinloc("simulate", "--gestures", n, "--skin-seed", skin_seed, "--seed", seed,
+            "--out", d / "g.h5")  # fmt: skip
+    skinloc("run", "--model", d / "model.h5", "--source", d / "g.h5", "--fast",
+            "--sink", f"jsonl:{d / 'out.jsonl'}")  # fmt: skip
+    truth = read_gesture_truth(d / "g.h5")
+    lines = (d / "out.jsonl").read_text().splitlines()
+    events = [e for e in map(json.loads, lines) if e.get("event") == "gesture"]
+    return {"skin_seed": skin_seed, "seed": seed, "events": events, **truth}
+
+
+def score(runs: list[dict], slack_s: float, cfg: GestureConfig) -> dict:
+    n_ev, n_tr, n_ok = Counter(), Counter(), Counter()
+    delays: dict[str, list[float]] = defaultdict(list)
+    dir_ok = dir_n = 0
+    confusions: Counter = Counter()
+    for run in runs:
+        truths, events = run["truth_gestures"], run["events"]
+        pairs = match(events, truths, slack_s)
+        n_ev.update(e["kind"] for e in events)
+        n_tr.update(t["kind"] for t in truths)
+        n_ok.update(t["kind"] for _, t in pairs)
+        for ev, t in pairs:
+            delays[t["kind"]].append(ev["timestamp_s"] - unambiguous_s(t, cfg))
+            if t["kind"] == "swipe":
+                dir_n += 1
+                dir_ok += ev["direction"] == t["direction"]
+        matched = {id(e) for e, _ in pairs}
+        for ev in events:  # what each unmatched event was, by the truth it overlaps
+            if id(ev) in matched:
+                continue
+            over = [
+                t["kind"]
+                for t in truths + run["truth_touches"]
+                if ev["start_s"] - slack_s <= t["end_s"] and t["start_s"] <= ev["end_s"] + slack_s
+            ]
+            confusions[(ev["kind"], over[0] if over else "nothing")] += 1
+    rows = {}
+    for k in KINDS:
+        d = np.asarray(delays[k]) * 1e3
+        rows[k] = {
+            "n_true": n_tr[k],
+            "n_reported": n_ev[k],
+            "precision": n_ok[k] / n_ev[k] if n_ev[k] else float("nan"),
+            "recall": n_ok[k] / n_tr[k] if n_tr[k] else float("nan"),
+            "delay_median_ms": float(np.median(d)) if d.size else float("nan"),
+            "delay_p95_ms": float(np.percentile(d, 95)) if d.size else float("nan"),
+            "delay_max_ms": float(d.max()) if d.size else float("nan"),
+        }
+    return {
+        "per_kind": rows,
+        "swipe_direction_accuracy": dir_ok / dir_n if dir_n else float("nan"),
+        "false_events": {f"{a} during {b}": c for (a, b), c in confusions.most_common()},
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--skin-seeds", type=int, nargs="+", default=[11, 12, 13])
+    ap.add_argument("--seed", type=int, default=5, help="Script seed (plus the skin seed).")
+    ap.add_argument("--gestures", type=int, default=60, help="Gestures per stream.")
+    ap.add_argument("--slack-s", type=float, default=0.1)
+    ap.add_argument("--out", type=Path, default=None)
+    args = ap.parse_args()
+    cfg = GestureConfig()
+    with tempfile.TemporaryDirectory() as tmp:
+        runs = [
+            one_skin(k, args.seed + k, args.gestures, args.slack_s, Path(tmp))
+            for k in args.skin_seeds
+        ]
+    res = {"args": {k: str(v) for k, v in vars(args).items()}, **score(runs, args.slack_s, cfg)}
+    print(f"{'kind':16s} {'true':>5s} {'rep':>5s} {'prec':>6s} {'recall':>6s} "
+          f"{'delay med':>9s} {'p95':>6s} {'max':>6s} (ms)")  # fmt: skip
+    for k, r in res["per_kind"].items():
+        print(f"{k:16s} {r['n_true']:5d} {r['n_reported']:5d} {r['precision']:6.3f} "
+              f"{r['recall']:6.3f} {r['delay_median_ms']:9.0f} {r['delay_p95_ms']:6.0f} "
+              f"{r['delay_max_ms']:6.0f}")  # fmt: skip
+    print(f"swipe direction right: {res['swipe_direction_accuracy']:.3f}")
+    for k, c in res["false_events"].items():
+        print(f"  false: {k}: {c}")
+    if args.out:
+        args.out.write_text(json.dumps(res, indent=2, default=float))
+
+
+if __name__ == "__main__":
+    main()

@@ -12,7 +12,9 @@ Per skin, ``SkinCore`` runs, for every frame::
 (``process``) or wire bytes (``feed``). ``skinloc.live.runner.Pipeline`` (one skin) and
 ``skinloc.live.runner.Runner`` (many skins, one process; ``skinloc.live.skins_file`` reads its
 configuration file) connect cores to frame sources and to sinks (``skinloc.live.sinks``).
-``Contact`` lives in ``live.contact`` (the sinks import it from there) and is re-exported here.
+``Contact`` lives in ``live.contact`` (the sinks import it from there), ``PipelineConfig`` and
+``TouchState`` in ``live.config``; both are re-exported here. The compiled steps are
+``live.baseline`` (baseline subtraction, drift) and ``live.one_euro`` (the filter).
 
 Units: metres in the mesh frame, times in seconds (``time.monotonic`` for arrival and output
 times), latencies in microseconds, signals in raw counts or in noise standard deviations (z).
@@ -24,14 +26,14 @@ import logging
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, fields
-from enum import StrEnum
 from typing import Any
 
 import numpy as np
 
-from skinloc._jit import jit
+from skinloc.live.baseline import subtract_baseline as _prep
+from skinloc.live.config import PipelineConfig, TouchState
 from skinloc.live.contact import Contact
+from skinloc.live.one_euro import one_euro as _one_euro
 from skinloc.models.engine import Engine, load_engine
 
 log = logging.getLogger(__name__)
@@ -43,198 +45,6 @@ __all__ = [
     "TouchState",
     "load_fast_localizer",
 ]
-
-
-class TouchState(StrEnum):
-    """Touch state carried by every output."""
-
-    START = "start"  #: first frame of a touch (after debouncing)
-    MOVE = "move"  #: a frame while the touch lasts
-    END = "end"  #: the touch ended (after debouncing); position is the last one
-    IDLE = "idle"  #: nothing touches (emitted only with ``emit_idle``)
-
-    @classmethod
-    def _missing_(cls, value: object) -> TouchState:
-        valid = ", ".join(m.value for m in cls)
-        raise ValueError(f"unknown touch state {value!r}; choose one of: {valid}")
-
-
-@dataclass
-class PipelineConfig:
-    """Settings of the per-skin processing; every field is checked in ``__post_init__``.
-
-    Attributes
-    ----------
-    baseline_frames : int
-        Untouched frames averaged at start for the baseline and per-sensor noise.
-    drift_tracking : bool
-        Let the baseline follow slow drift while nothing touches.
-    drift_time_constant_s : float
-        Time constant of the baseline's exponential tracking, s.
-    quiet_z : float
-        Untouched frames whose peak signal exceeds this (in noise std) do not update the
-        baseline (a finger approaching), unless that lasts ``max_freeze_s``: then it is drift.
-        During a touch, sensors below it (far from the finger) keep tracking; those under the
-        finger are frozen, so a held touch is never tracked away.
-    max_freeze_s : float
-        Longest pause of idle tracking because of a raised sensor, s.
-    release_fraction : float
-        A touch also ends when its signal falls below this fraction of its level during the
-        touch (a release after a long hold, when the frozen sensors have drifted).
-    touch_on_z, touch_off_z : float
-        Hysteresis: a touch starts above ``touch_on_z`` and ends below ``touch_off_z``.
-    debounce_on_frames, debounce_off_frames : int
-        Consecutive frames beyond a threshold before a touch starts or ends.
-    noise_floor_counts : float
-        Smallest per-sensor noise std used, counts (a silent sensor does not blow up z).
-    filter : {"one-euro", "none"}
-        Temporal filter of the position on the surface.
-    min_cutoff_hz, beta, d_cutoff_hz : float
-        One-Euro filter: cutoff at rest, Hz; speed coefficient, s/m; cutoff of the speed, Hz.
-    emit_idle : bool
-        Also output one ``idle`` record per untouched frame.
-    stale_s : float
-        A touch whose frames stop for longer than this (link lost) is ended, s.
-    """
-
-    baseline_frames: int = 50
-    drift_tracking: bool = True
-    drift_time_constant_s: float = 3.0
-    quiet_z: float = 3.0
-    max_freeze_s: float = 2.0
-    release_fraction: float = 0.25
-    touch_on_z: float = 8.0
-    touch_off_z: float = 4.0
-    debounce_on_frames: int = 2
-    debounce_off_frames: int = 3
-    noise_floor_counts: float = 2.0
-    filter: str = "one-euro"
-    min_cutoff_hz: float = 2.0
-    beta: float = 20.0
-    d_cutoff_hz: float = 1.0
-    emit_idle: bool = False
-    stale_s: float = 1.0
-
-    def __post_init__(self) -> None:
-        def need(name: str, ok: bool, allowed: str) -> None:
-            if not ok:
-                raise ValueError(
-                    f"PipelineConfig.{name} must be {allowed}, got {getattr(self, name)!r}"
-                )
-
-        for name in ("baseline_frames", "debounce_on_frames", "debounce_off_frames"):
-            v = getattr(self, name)
-            need(name, isinstance(v, int) and not isinstance(v, bool) and v >= 1, "an int >= 1")
-        for name in (
-            "drift_time_constant_s",
-            "touch_on_z",
-            "touch_off_z",
-            "quiet_z",
-            "max_freeze_s",
-            "noise_floor_counts",
-            "min_cutoff_hz",
-            "d_cutoff_hz",
-            "stale_s",
-        ):
-            v = getattr(self, name)
-            need(name, isinstance(v, int | float) and math.isfinite(v) and v > 0, "a number > 0")
-        need("beta", isinstance(self.beta, int | float) and self.beta >= 0, "a number >= 0")
-        need("touch_off_z", self.touch_off_z <= self.touch_on_z, "<= touch_on_z")
-        rf = self.release_fraction
-        need("release_fraction", isinstance(rf, int | float) and 0 <= rf < 1, "in [0, 1)")
-        need("filter", self.filter in ("one-euro", "none"), "one of one-euro, none")
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any], where: str = "pipeline settings") -> PipelineConfig:
-        """Build from a dict (a config file section); unknown keys raise, naming them."""
-        known = {f.name for f in fields(cls)}
-        d = {str(k).replace("-", "_"): v for k, v in d.items()}
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise ValueError(
-                f"unknown key(s) in {where}: {', '.join(unknown)}; "
-                f"known: {', '.join(sorted(known))}"
-            )
-        return cls(**d)
-
-
-# --------------------------------------------------------------------------------------------
-# compiled per-frame steps
-
-
-@jit()
-def _prep(
-    values: np.ndarray,
-    baseline: np.ndarray,
-    inv_sigma: np.ndarray,
-    delta: np.ndarray,
-    alpha: float,
-    quiet_z: float,
-    mode: int,
-) -> float:  # pragma: no cover - compiled
-    """``delta = values - baseline``; returns the peak ``delta / sigma``.
-
-    Drift tracking moves the baseline ``alpha`` of the way towards ``values``: ``mode`` 0 not
-    at all; 1 every sensor if the peak is below ``quiet_z``; 2 every sensor; 3 only sensors
-    below ``quiet_z`` (during a touch: those away from the finger).
-    """
-    n = values.shape[0]
-    peak = -np.inf
-    for i in range(n):
-        d = values[i] - baseline[i]
-        delta[i] = d
-        z = d * inv_sigma[i]
-        if z > peak:
-            peak = z
-    if alpha > 0.0:
-        if mode == 2 or (mode == 1 and peak < quiet_z):
-            for i in range(n):
-                baseline[i] += alpha * (values[i] - baseline[i])
-        elif mode == 3:
-            for i in range(n):
-                if delta[i] * inv_sigma[i] < quiet_z:
-                    baseline[i] += alpha * (values[i] - baseline[i])
-    return peak
-
-
-@jit()
-def _one_euro(
-    state: np.ndarray, p0: float, p1: float, p2: float, t: float, prm: np.ndarray, out: np.ndarray
-) -> None:  # pragma: no cover - compiled
-    """One-Euro filter (Casiez et al. 2012) of a 3D point; ``state`` = [init, t, x3, dx3].
-
-    ``prm`` = [min_cutoff_hz, beta, d_cutoff_hz]. Writes the filtered point to ``out (3,)``.
-    """
-    if state[0] == 0.0:
-        state[0] = 1.0
-        state[1] = t
-        state[2] = p0
-        state[3] = p1
-        state[4] = p2
-        state[5] = 0.0
-        state[6] = 0.0
-        state[7] = 0.0
-        out[0] = p0
-        out[1] = p1
-        out[2] = p2
-        return
-    dt = t - state[1]
-    if dt <= 0.0:
-        dt = 1e-3
-    state[1] = t
-    ad = 1.0 / (1.0 + 1.0 / (2.0 * math.pi * prm[2] * dt))
-    speed = 0.0
-    for k in range(3):
-        p = p0 if k == 0 else (p1 if k == 1 else p2)
-        dx = (p - state[2 + k]) / dt
-        state[5 + k] += ad * (dx - state[5 + k])
-        speed += state[5 + k] * state[5 + k]
-    cutoff = prm[0] + prm[1] * math.sqrt(speed)
-    a = 1.0 / (1.0 + 1.0 / (2.0 * math.pi * cutoff * dt))
-    for k in range(3):
-        p = p0 if k == 0 else (p1 if k == 1 else p2)
-        state[2 + k] += a * (p - state[2 + k])
-        out[k] = state[2 + k]
 
 
 # --------------------------------------------------------------------------------------------

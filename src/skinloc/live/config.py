@@ -60,6 +60,17 @@ class PipelineConfig:
         Also output one ``idle`` record per untouched frame.
     stale_s : float
         A touch whose frames stop for longer than this (link lost) is ended, s.
+    max_contacts : int
+        K: contacts per frame and tracks (slots) at most. 1: the single-contact pipeline (one
+        track per touch, ``track_id`` = ``touch_id``, slot 0), no per-frame assignment.
+    track_gate_mm : float
+        Largest move of a finger between two frames for its track to continue, mm.
+    track_miss_frames : int
+        Frames a track may go without a contact before it ends (0: it ends at once).
+    track_confirm_frames : int
+        Consecutive frames a new finger needs, during a touch, before its track starts.
+    gestures : bool
+        Recognise gestures (``skinloc.live.gestures``) and send them to every sink.
     """
 
     baseline_frames: int = 50
@@ -79,6 +90,11 @@ class PipelineConfig:
     d_cutoff_hz: float = 1.0
     emit_idle: bool = False
     stale_s: float = 1.0
+    max_contacts: int = 3
+    track_gate_mm: float = 30.0
+    track_miss_frames: int = 1
+    track_confirm_frames: int = 2
+    gestures: bool = True
 
     def __post_init__(self) -> None:
         def need(name: str, ok: bool, allowed: str) -> None:
@@ -87,9 +103,21 @@ class PipelineConfig:
                     f"PipelineConfig.{name} must be {allowed}, got {getattr(self, name)!r}"
                 )
 
-        for name in ("baseline_frames", "debounce_on_frames", "debounce_off_frames"):
+        for name in (
+            "baseline_frames",
+            "debounce_on_frames",
+            "debounce_off_frames",
+            "max_contacts",
+            "track_confirm_frames",
+        ):
             v = getattr(self, name)
             need(name, isinstance(v, int) and not isinstance(v, bool) and v >= 1, "an int >= 1")
+        v = self.track_miss_frames
+        need(
+            "track_miss_frames",
+            isinstance(v, int) and not isinstance(v, bool) and v >= 0,
+            "an int >= 0",
+        )
         for name in (
             "drift_time_constant_s",
             "touch_on_z",
@@ -100,6 +128,7 @@ class PipelineConfig:
             "min_cutoff_hz",
             "d_cutoff_hz",
             "stale_s",
+            "track_gate_mm",
         ):
             v = getattr(self, name)
             need(name, isinstance(v, int | float) and math.isfinite(v) and v > 0, "a number > 0")
@@ -108,6 +137,7 @@ class PipelineConfig:
         rf = self.release_fraction
         need("release_fraction", isinstance(rf, int | float) and 0 <= rf < 1, "in [0, 1)")
         need("filter", self.filter in ("one-euro", "none"), "one of one-euro, none")
+        need("gestures", isinstance(self.gestures, bool), "true or false")
 
     @classmethod
     def from_dict(cls, d: dict[str, Any], where: str = "pipeline settings") -> PipelineConfig:

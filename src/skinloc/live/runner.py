@@ -35,8 +35,8 @@ from skinloc.live.config import PipelineConfig
 from skinloc.live.core import Contact, SkinCore, load_fast_localizer
 from skinloc.live.feeds import _NoFileDescriptor, _PortFeed, _ThreadFeed
 from skinloc.live.scripted import ScriptedFinger
-from skinloc.live.sinks.base import Sink, SkinInfo, make_sink
-from skinloc.live.spec import SkinSpec, _is_recording, open_source
+from skinloc.live.sinks.base import Sink, make_sink
+from skinloc.live.spec import SkinSpec, _is_recording, open_source, skin_info
 from skinloc.sources.base import Frame
 
 log = logging.getLogger(__name__)
@@ -60,6 +60,8 @@ class Runner:
         Sinks that receive the contacts of every skin (each skin may add its own).
     callback : callable(Contact), optional
         Called for every contact, on the loop's thread.
+    gesture_callback : callable(dict), optional
+        Called for every gesture event (``skinloc.live.gestures``), on the loop's thread.
 
     Notes
     -----
@@ -73,6 +75,7 @@ class Runner:
         skins: Sequence[SkinSpec],
         sinks: Sequence[str | Sink] = (),
         callback: Callable[[Contact], Any] | None = None,
+        gesture_callback: Callable[[dict[str, Any]], Any] | None = None,
     ) -> None:
         if not skins:
             raise ValueError("a runner needs at least one skin")
@@ -82,6 +85,7 @@ class Runner:
             raise ValueError(f"skin names must be unique; repeated: {', '.join(dup)}")
         self.specs = list(skins)
         self.callback = callback
+        self.gesture_callback = gesture_callback
         models: dict[str, Any] = {}
         self.cores: list[SkinCore] = []
         for spec in self.specs:
@@ -98,6 +102,7 @@ class Runner:
                 n_tx=spec.n_tx,
                 n_rx=spec.n_rx,
                 wire_format=spec.wire_format,
+                up=spec.up,
             )
             if spec.baseline is not None:
                 from skinloc.data.recording import read_recording
@@ -140,7 +145,7 @@ class Runner:
         os.set_blocking(self._wake_r, False)
         os.set_blocking(self._wake_w, False)
         self._sel.register(self._wake_r, selectors.EVENT_READ, None)
-        infos = [self._skin_info(i) for i in range(len(self.specs))]
+        infos = [skin_info(s, c) for s, c in zip(self.specs, self.cores, strict=True)]
         for sink in self.global_sinks:
             sink.open(infos)
         for info, sinks in zip(infos, self.skin_sinks, strict=True):
@@ -190,36 +195,21 @@ class Runner:
     def _record_frames(core: SkinCore, sinks: list[Sink]) -> None:
         """Hand every raw frame of ``core`` to ``sinks`` (``emit_frame``) before processing.
 
-        The instance's ``process`` is wrapped, so frames parsed from a serial port's bytes
-        (``SkinCore.feed``) are recorded as well as frames from thread-fed sources; skins
-        without a recording sink keep the unwrapped method.
+        The instance's ``process_frame`` is wrapped, so frames parsed from a serial port's
+        bytes (``SkinCore.feed``) are recorded as well as frames from thread-fed sources;
+        skins without a recording sink keep the unwrapped method.
         """
-        process = core.process
+        process = core.process_frame
         name = core.name
 
         def recording_process(
             values: np.ndarray, timestamp_s: float, index: int = -1, t_in: float | None = None
-        ) -> Contact | None:
+        ) -> Sequence[Contact]:
             for sink in sinks:
                 sink.emit_frame(name, values, timestamp_s, index)
             return process(values, timestamp_s, index, t_in)
 
-        core.process = recording_process  # type: ignore[method-assign]
-
-    def _skin_info(self, i: int) -> SkinInfo:
-        fast = self.cores[i].fast
-        spec = self.specs[i]
-        translation, rotation = spec.mount
-        return SkinInfo(
-            spec.name,
-            fast.spec.vertices,
-            fast.spec.faces,
-            n_tx=self.cores[i].n_tx,
-            n_rx=self.cores[i].n_rx,
-            parent_frame=spec.parent_frame,
-            translation_m=translation,
-            rotation_xyzw=rotation,
-        )
+        core.process_frame = recording_process  # type: ignore[method-assign]
 
     def close(self) -> None:
         """Stop the loop, join every thread, close ports, sources and sinks. Idempotent."""
@@ -269,15 +259,28 @@ class Runner:
                 pass
 
     # ------------------------------------------------------------------ the loop
-    def _emit(self, slot: int, c: Contact, out: list[Contact]) -> None:
-        for sink in self.skin_sinks[slot]:
-            sink.emit(c)
-        for sink in self.global_sinks:
-            sink.emit(c)
+    def _emit(self, slot: int, contacts: Sequence[Contact], out: list[Contact]) -> None:
+        """One frame's contacts of skin ``slot`` (and the gestures due) to every consumer."""
+        core = self.cores[slot]
+        gestures = core.take_gestures() if core.gestures else ()
+        if not contacts and not gestures:
+            return
+        name = core.name
+        ts = contacts[0].timestamp_s if contacts else gestures[0]["timestamp_s"]
+        for sinks in (self.skin_sinks[slot], self.global_sinks):
+            for sink in sinks:
+                if contacts:
+                    sink.emit_contacts(name, ts, contacts)
+                for g in gestures:
+                    sink.emit_gesture(name, g["timestamp_s"], g)
         if self.callback is not None:
-            self.callback(c)
-        self.n_emitted += 1
-        out.append(c)
+            for c in contacts:
+                self.callback(c)
+        if self.gesture_callback is not None:
+            for g in gestures:
+                self.gesture_callback(g)
+        self.n_emitted += len(contacts)
+        out += contacts
 
     def _retry_ports(self, now: float) -> None:
         if not self._stop_event.is_set():
@@ -309,24 +312,25 @@ class Runner:
                 feed.lost(self._sel, "end of file")
                 continue
             feed.n_bytes += len(data)
-            for c in feed.core.feed(data, t_in):
-                self._emit(feed.slot, c, out)
+            for contacts in feed.core.feed_frames(data, t_in):
+                self._emit(feed.slot, contacts, out)
+            self._emit(feed.slot, (), out)  # gestures of frames without contacts
         self._wake_pending = False
         q = self._queue
         cores = self.cores
         while q:
             slot, frame, t_arr = q.popleft()
-            c = cores[slot].process(frame.values, frame.timestamp_s, frame.index, t_arr)
-            if c is not None:
-                self._emit(slot, c, out)
+            contacts = cores[slot].process_frame(
+                frame.values, frame.timestamp_s, frame.index, t_arr
+            )
+            if contacts or cores[slot].gestures:
+                self._emit(slot, contacts, out)
         now = time.monotonic()
         if self._ports:
             self._retry_ports(now)
         for slot, core in enumerate(cores):
             if core.touching:
-                c = core.link_lost(now)
-                if c is not None:
-                    self._emit(slot, c, out)
+                self._emit(slot, core.end_stale(now), out)
         return out
 
     @property
@@ -341,12 +345,12 @@ class Runner:
             yield from self._step(0.05)
             if self.finished:
                 yield from self._step(0.0)
-                for slot, core in enumerate(self.cores):  # end touches still open
-                    c = core.link_lost(math.inf)
-                    if c is not None:
-                        out: list[Contact] = []
-                        self._emit(slot, c, out)
-                        yield from out
+                for slot, core in enumerate(self.cores):  # end touches, report what waits
+                    out: list[Contact] = []
+                    ends = core.end_stale(math.inf)
+                    core.flush_gestures()
+                    self._emit(slot, ends, out)
+                    yield from out
                 break
         self._raise_feed_errors()
 

@@ -10,14 +10,18 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from skinloc.errors import SkinlocError
 from skinloc.live.config import PipelineConfig
 from skinloc.live.scripted import ScriptedFinger
+from skinloc.live.sinks.base import SkinInfo
 from skinloc.sources.base import FrameSource
 
-__all__ = ["SkinSpec", "open_source"]
+if TYPE_CHECKING:
+    from skinloc.live.core import SkinCore
+
+__all__ = ["SkinSpec", "open_source", "skin_info"]
 
 _RECORDING_SUFFIXES = (".h5", ".hdf5", ".mat", ".mcap")
 
@@ -65,6 +69,9 @@ class SkinSpec:
         Orientation of the mesh frame in ``parent_frame``, quaternion ``x, y, z, w``.
     rpy : (3,) float or None
         The same as fixed-axis roll, pitch, yaw, rad (give ``rotation`` or ``rpy``, not both).
+    up : (3,) float or None
+        The skin's "up" in its mesh frame, for swipe directions; None: the mesh's long axis
+        toward its wider end (``skinloc.live.gestures.long_axis``).
     """
 
     model: Any
@@ -86,9 +93,15 @@ class SkinSpec:
     translation: Sequence[float] = (0.0, 0.0, 0.0)
     rotation: Sequence[float] | None = None
     rpy: Sequence[float] | None = None
+    up: Sequence[float] | None = None
 
     def __post_init__(self) -> None:
         self._mount = _mount_pose(self)
+        if self.up is not None:
+            u = _vector(self.up, 3, "up")
+            if not any(u):
+                raise ValueError("up must be a direction (3 numbers, not all 0)")
+            self.up = u
 
     @property
     def mount(self) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
@@ -174,4 +187,19 @@ def open_source(spec: SkinSpec, n_sensors: int) -> FrameSource:
             rx_mask=spec.rx_mask,
             format=spec.wire_format,
         )
+    )
+
+
+def skin_info(spec: SkinSpec, core: SkinCore) -> SkinInfo:
+    """What the sinks learn of a skin: name, mesh (the model's), grid and pose on the robot."""
+    translation, rotation = spec.mount
+    return SkinInfo(
+        spec.name,
+        core.fast.spec.vertices,
+        core.fast.spec.faces,
+        n_tx=core.n_tx,
+        n_rx=core.n_rx,
+        parent_frame=spec.parent_frame,
+        translation_m=translation,
+        rotation_xyzw=rotation,
     )

@@ -261,6 +261,11 @@ class SkinCore(WireInput):
                 self.gestures += g
         return out
 
+    @property
+    def n_gestures(self) -> int:
+        """Gesture events recognised so far."""
+        return 0 if self._recognizer is None else self._recognizer.n_events
+
     def take_gestures(self) -> list[dict[str, Any]]:
         """The gesture events due so far (JSON-ready dicts), oldest first; clears them."""
         g, self.gestures = self.gestures, []

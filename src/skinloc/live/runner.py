@@ -414,6 +414,7 @@ class Runner:
                 "frames": core.n_frames,
                 "contacts": core.n_contacts,
                 "touches": core.n_touches,
+                "gestures": core.n_gestures,
                 "calibrated": core.calibrated,
             }
             if slot in ports:

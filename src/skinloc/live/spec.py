@@ -202,4 +202,5 @@ def skin_info(spec: SkinSpec, core: SkinCore) -> SkinInfo:
         parent_frame=spec.parent_frame,
         translation_m=translation,
         rotation_xyzw=rotation,
+        max_contacts=core.max_contacts,
     )

@@ -256,7 +256,10 @@ class SkinCore(WireInput):
         out = self._frame(values, timestamp_s, index, t_in)
         rec = self._recognizer
         if rec is not None and (out or rec.busy):
-            g = rec.update(timestamp_s, out) if out else rec.tick(timestamp_s)
+            # releasing (signal below the release threshold, or the touch just ended): the
+            # fading image's positions are not the finger's
+            releasing = self._below > 0 or not self._touching
+            g = rec.update(timestamp_s, out, releasing) if out else rec.tick(timestamp_s)
             if g:
                 self.gestures += g
         return out
@@ -488,7 +491,7 @@ class SkinCore(WireInput):
         ts = (last.timestamp_s if last else 0.0) + gap if math.isfinite(gap) else self._last_ts
         out = self._end_all(ts, last.index if last else -1, math.nan, now)
         if self._recognizer is not None and out:
-            self.gestures += self._recognizer.update(ts, out)
+            self.gestures += self._recognizer.update(ts, out, releasing=True)
         return out
 
     def flush_gestures(self) -> None:

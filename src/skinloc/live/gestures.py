@@ -230,8 +230,15 @@ class GestureRecognizer:
         return self._episode is not None or self._pending is not None
 
     # ------------------------------------------------------------------ input
-    def update(self, ts: float, contacts: Sequence[Contact]) -> list[dict[str, Any]]:
-        """One frame's contacts (one per track) at stream time ``ts``; returns due events."""
+    def update(
+        self, ts: float, contacts: Sequence[Contact], releasing: bool = False
+    ) -> list[dict[str, Any]]:
+        """One frame's contacts (one per track) at stream time ``ts``; returns due events.
+
+        ``releasing``: the touch detector is ending the touch (the signal is below its release
+        threshold): the positions of such a fading image are not the finger's and are left
+        out of the paths (the states still count).
+        """
         for c in contacts:
             tid = c.track_id
             p = c.position_m
@@ -247,7 +254,7 @@ class GestureRecognizer:
                 ep.active += 1
                 continue
             f = self._fingers[tid]
-            if p[0] == p[0]:
+            if p[0] == p[0] and not releasing:
                 f.path.append(p)
                 d = math.dist(p, f.first)
                 if d > f.max_from_first:

@@ -451,6 +451,8 @@ class Pipeline(Runner):
         Detection, drift and filter settings.
     callback : callable(Contact), optional
         Called for every contact (with ``start``, on the pipeline's thread).
+    gesture_callback : callable(dict), optional
+        Called for every gesture event, on the pipeline's thread.
     **source_options
         Further ``SkinSpec`` fields: ``name``, ``baud``, ``wire_format``, ``n_tx``, ``n_rx``,
         ``realtime``, ``loop``, ``rate_hz``, ``baseline``.
@@ -470,6 +472,7 @@ class Pipeline(Runner):
         sinks: Sequence[str | Sink] = (),
         config: PipelineConfig | None = None,
         callback: Callable[[Contact], Any] | None = None,
+        gesture_callback: Callable[[dict[str, Any]], Any] | None = None,
         **source_options: Any,
     ) -> None:
         spec = SkinSpec(
@@ -478,7 +481,7 @@ class Pipeline(Runner):
             config=PipelineConfig() if config is None else config,
             **source_options,
         )
-        super().__init__([spec], sinks=sinks, callback=callback)
+        super().__init__([spec], sinks=sinks, callback=callback, gesture_callback=gesture_callback)
 
     @property
     def core(self) -> SkinCore:

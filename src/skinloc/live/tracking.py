@@ -205,7 +205,8 @@ class Tracker:
         if self._prm is None:
             t.position_m[:] = pos
         else:
-            one_euro(t.filt, pos[0], pos[1], pos[2], ts, self._prm, self._tmp)
+            x, y, z = pos.tolist()  # Python floats: numba's fastest dispatch
+            one_euro(t.filt, x, y, z, ts, self._prm, self._tmp)
             self._constrain(self._tmp[0], self._tmp[1], self._tmp[2], t.position_m)
 
     def update(
@@ -231,6 +232,11 @@ class Tracker:
         used = [False] * k
         events: list[tuple[Track, str]] = []
         matched: set[int] = set()
+        if len(live) == 1 and k == 1 and not self.candidates:
+            # one finger, one contact (the common frame): the same finger, as in step 1's
+            # lone-pair rule; no assignment to compute
+            self._measure(live[0], ts, positions[0], raw[0], strength[0], uncertainty_mm[0])
+            return [(live[0], "move")]
         if live and k:
             prev = np.array([t.last_m for t in live])
             for i, j in assign(prev, positions, self.gate_m):

@@ -244,7 +244,7 @@ def register(app: typer.Typer) -> None:
         for c in counters:
             err_console.print(
                 f"{c['skin']}: {c['frames']} frames, {c['touches']} touches, "
-                f"{c['contacts']} contacts in {elapsed:.1f} s"
+                f"{c['contacts']} contacts, {c.get('gestures', 0)} gestures in {elapsed:.1f} s"
                 + (f", {c['reconnects']} reconnects" if "reconnects" in c else ""),
                 highlight=False,
             )

@@ -35,7 +35,7 @@ from skinloc.live.config import PipelineConfig
 from skinloc.live.core import Contact, SkinCore, load_fast_localizer
 from skinloc.live.feeds import _NoFileDescriptor, _PortFeed, _ThreadFeed
 from skinloc.live.scripted import ScriptedFinger
-from skinloc.live.sinks.base import Sink, make_sink
+from skinloc.live.sinks.base import Sink, SkinInfo, make_sink
 from skinloc.live.spec import SkinSpec, _is_recording, open_source, skin_info
 from skinloc.sources.base import Frame
 
@@ -210,6 +210,10 @@ class Runner:
             return process(values, timestamp_s, index, t_in)
 
         core.process_frame = recording_process  # type: ignore[method-assign]
+
+    def _skin_info(self, i: int) -> SkinInfo:
+        """What the sinks learn of skin ``i`` (``skinloc.live.spec.skin_info``)."""
+        return skin_info(self.specs[i], self.cores[i])
 
     def close(self) -> None:
         """Stop the loop, join every thread, close ports, sources and sinks. Idempotent."""

@@ -105,7 +105,8 @@ def main() -> int:
 
     stats_line = [ln for ln in err.splitlines() if ln.startswith("[")]
     runner_stats = json.loads(stats_line[-1])[0] if stats_line else {}
-    events = [json.loads(ln) for ln in events_path.read_text().splitlines() if ln.strip()]
+    lines = [json.loads(ln) for ln in events_path.read_text().splitlines() if ln.strip()]
+    events = [e for e in lines if "event" not in e]  # contacts; gesture lines have "event"
     starts = np.array([e["timestamp_s"] for e in events if e["state"] == "start"])
     ends = np.array([e["timestamp_s"] for e in events if e["state"] == "end"])
     press = np.array([s[0] for s in script])

@@ -89,3 +89,62 @@ def stream_recording() -> Path:
         index=np.arange(len(frames)),
     )
     return path
+
+
+@functools.lru_cache(maxsize=1)
+def gesture_recording() -> Path:
+    """A 100 Hz stream of the simulated skin (seed 0): a tap, a long press and a swipe.
+
+    Scripted by hand, firm presses: 1.5 s untouched, a 0.12 s tap, a 1.0 s press, a 0.3 s
+    swipe along the cone's long axis toward its base (about 50 mm), each 1.2 s apart.
+    """
+    from skinloc.geometry.mesh import cone_skin
+    from skinloc.sim.skin import SimulatedSkin
+    from skinloc.sources.replay import write_stream_recording
+
+    mesh = cone_skin()
+    v = np.asarray(mesh.vertices)
+    skin = SimulatedSkin(mesh, random_state=0)
+    skin.connect()
+    frames = []
+
+    def idle(n: int) -> None:
+        skin.release()
+        frames.extend(skin.read().values for _ in range(n))
+
+    def press_path(points: np.ndarray) -> None:
+        for p in points:
+            skin.press(p, pressure=1.0, finger_radius_m=0.008)
+            frames.append(skin.read().values)
+
+    # a surface point a quarter along the long axis, and a path 50 mm from it toward the base
+    import trimesh
+
+    from skinloc.live.gestures import long_axis
+
+    up = long_axis(v)
+    s = (v - v.mean(axis=0)) @ up
+    mid = v[np.argmin(np.abs(s - np.quantile(s, 0.3)) + 10 * np.abs(v[:, 0]))]
+    line = mid + np.linspace(0.0, 0.05, 30)[:, None] * up
+    swipe = trimesh.proximity.closest_point(mesh, line)[0]
+    idle(150)
+    press_path(np.repeat(mid[None], 12, axis=0))
+    idle(120)
+    press_path(np.repeat(mid[None], 100, axis=0))
+    idle(120)
+    press_path(swipe)
+    idle(120)
+    skin.disconnect()
+    frames = np.asarray(frames)
+    path = _DIR / "gestures.h5"
+    write_stream_recording(
+        path,
+        n_tx=8,
+        n_rx=8,
+        mesh=mesh,
+        baseline_frames=frames[:100],
+        frames=frames,
+        times_s=np.arange(len(frames)) / 100.0,
+        index=np.arange(len(frames)),
+    )
+    return path

@@ -35,10 +35,40 @@ def test_run_replays_a_recording_to_json_lines(tmp_path):
     assert res.exit_code == 0, res.output
     lines = [json.loads(ln) for ln in res.stdout.splitlines() if ln.startswith("{")]
     assert lines and lines == [json.loads(ln) for ln in out.read_text().splitlines()]
-    states = [c["state"] for c in lines]
+    states = [c["state"] for c in lines if "event" not in c]  # gesture lines have "event"
     assert states.count("start") == states.count("end") > 3
     for key in ("timestamp_s", "position_m", "confidence", "state", "latency_us"):
         assert key in lines[0]
+
+
+def test_run_writes_gesture_events_next_to_the_contacts(tmp_path):
+    from tests._live import gesture_recording
+
+    out = tmp_path / "g.jsonl"
+    r = run(
+        "run", "--model", model_path("map"), "--source", gesture_recording(), "--fast",
+        "--sink", f"jsonl:{out}",
+    )  # fmt: skip
+    assert r.exit_code == 0, r.output
+    lines = [json.loads(ln) for ln in out.read_text().splitlines()]
+    gestures = [d for d in lines if d.get("event") == "gesture"]
+    assert [g["kind"] for g in gestures] == ["tap", "long_press", "swipe"]
+    keys = {"event", "kind", "direction", "start_s", "end_s", "timestamp_s", "track_ids"}
+    assert all(keys <= set(g) for g in gestures)
+    assert {"path_m", "speed_m_s"} <= set(gestures[2])
+    contacts = [d for d in lines if "event" not in d]
+    assert contacts and all(d["slot"] == 0 and d["track_id"] >= 1 for d in contacts)
+    # --max-contacts 1 and --no-gestures: today's single-contact stream, no gesture lines
+    out1 = tmp_path / "one.jsonl"
+    r = run(
+        "run", "--model", model_path("map"), "--source", gesture_recording(), "--fast",
+        "--sink", f"jsonl:{out1}", "--max-contacts", "1", "--no-gestures",
+    )  # fmt: skip
+    assert r.exit_code == 0, r.output
+    one = [json.loads(ln) for ln in out1.read_text().splitlines()]
+    assert one and all("event" not in d and d["track_id"] == d["touch_id"] for d in one)
+    r = run("run", "--model", model_path("map"), "--max-contacts", "0")
+    assert r.exit_code != 0
 
 
 def test_run_says_which_port_a_port_zero_server_got(tmp_path):

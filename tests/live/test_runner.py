@@ -177,3 +177,35 @@ def test_serial_url_without_file_descriptor_uses_a_thread():
     finally:
         runner.close()
     assert runner.cores[0].n_frames == 80 and runner.cores[0].calibrated
+
+
+def test_a_recording_of_gestures_gives_each_gesture_once_to_sinks_and_callback():
+    from tests._live import gesture_recording
+
+    sink, got = ListSink(), []
+    spec = SkinSpec(model=model_path("map"), source=str(gesture_recording()), realtime=False)
+    with Runner([spec], sinks=[sink], gesture_callback=got.append) as runner:
+        runner.run()
+        stats = runner.stats()
+    kinds = [(g["kind"], g["direction"]) for g in sink.gestures]
+    assert kinds == [("tap", None), ("long_press", None), ("swipe", "up")]
+    assert got == sink.gestures and stats[0]["gestures"] == 3
+    tap, press, swipe = sink.gestures
+    assert tap["timestamp_s"] - tap["end_s"] <= 0.30 + 0.011  # the double-tap window, + a frame
+    assert press["timestamp_s"] - press["start_s"] <= 0.60 + 0.011
+    assert swipe["timestamp_s"] == swipe["end_s"] and swipe["speed_m_s"] > 0.08
+    assert {c.track_id for c in sink.contacts} == {1, 2, 3}
+    assert all(len(f) == 1 and f[0].slot == 0 for f in sink.frames)  # one finger at a time
+
+
+def test_skins_file_up_and_max_contacts(tmp_path):
+    cfg = tmp_path / "skins.toml"
+    cfg.write_text(
+        f'[[skin]]\nmodel = "{model_path("map")}"\nup = [0.0, 0.0, 1.0]\n'
+        "pipeline = { max_contacts = 2 }\n"
+    )
+    specs, _ = load_skins(cfg)
+    assert specs[0].up == (0.0, 0.0, 1.0) and specs[0].config.max_contacts == 2
+    cfg.write_text(f'[[skin]]\nmodel = "{model_path("map")}"\nup = [0.0, 0.0, 0.0]\n')
+    with pytest.raises(ValueError, match="up must be a direction"):
+        load_skins(cfg)

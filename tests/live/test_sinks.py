@@ -178,9 +178,144 @@ def test_lsl_outlet():
     sink.emit(_contact())
     outlet = sink._outlets["arm"]
     info = outlet.get_info()
-    assert info.name() == "skinloc-test-arm" and info.channel_count() == 9
+    assert info.name() == "skinloc-test-arm" and info.channel_count() == 11  # K = 1
     assert info.type() == "Contact" and pylsl is not None
     sink.close()
+
+
+# ---------------------------------------------------------------------------- several contacts
+
+
+def _frame_contacts() -> list[Contact]:
+    """One frame, two fingers: slot 0 (track 4) moves, slot 2 (track 7) starts."""
+    a = _contact("move", 3)
+    a.track_id, a.slot, a.strength = 4, 0, 120.0
+    b = _contact("start", 3)
+    b.position_m, b.track_id, b.slot = (0.04, 0.05, 0.06), 7, 2
+    return [a, b]
+
+
+GESTURE = {
+    "event": "gesture",
+    "skin": "arm",
+    "kind": "swipe",
+    "direction": "up",
+    "start_s": 1.0,
+    "end_s": 1.3,
+    "timestamp_s": 1.3,
+    "track_ids": [7],
+    "path_m": [[0.0, 0.0, 0.0], [0.0, 0.04, 0.0]],
+    "speed_m_s": 0.13,
+}
+
+
+def _check_lines(lines: list[dict]) -> None:
+    contacts = [d for d in lines if d.get("event") != "gesture"]
+    gestures = [d for d in lines if d.get("event") == "gesture"]
+    assert [(d["track_id"], d["slot"], d["state"]) for d in contacts] == [
+        (4, 0, "move"),
+        (7, 2, "start"),
+    ]
+    assert contacts[0]["strength"] == 120.0 and contacts[1]["strength"] is None  # nan
+    assert len(gestures) == 1
+    g = gestures[0]
+    assert {k: g[k] for k in GESTURE} == GESTURE
+
+
+def test_jsonl_carries_every_contact_and_gesture_lines(tmp_path):
+    sink = make_sink(f"jsonl:{tmp_path / 'out.jsonl'}")
+    sink.open(_skins())
+    sink.emit_contacts("arm", 4.0, _frame_contacts())
+    sink.emit_gesture("arm", 4.0, dict(GESTURE, speed_m_s=0.13))
+    sink.emit_gesture("arm", 4.1, {"kind": "tap", "bad": math.nan})  # nan -> null, keys set
+    sink.close()
+    lines = [json.loads(ln) for ln in (tmp_path / "out.jsonl").read_text().splitlines()]
+    _check_lines(lines[:3])
+    assert lines[3] == {"kind": "tap", "bad": None, "event": "gesture", "skin": "arm"}
+
+
+def test_udp_carries_every_contact_and_gestures():
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind(("127.0.0.1", 0))
+    rx.settimeout(30.0)
+    sink = make_sink(f"udp://127.0.0.1:{rx.getsockname()[1]}")
+    with sink:
+        sink.emit_contacts("arm", 4.0, _frame_contacts())
+        sink.emit_gesture("arm", 4.0, GESTURE)
+        lines = [json.loads(rx.recv(65536)) for _ in range(3)]
+    rx.close()
+    _check_lines(lines)
+
+
+def test_websocket_carries_every_contact_and_gestures():
+    from websockets.sync.client import connect
+
+    sink = make_sink("ws://127.0.0.1:0")
+    sink.open(_skins())
+    try:
+        with connect(sink.url, open_timeout=30) as ws:
+            json.loads(ws.recv(timeout=30))  # hello
+            _wait_until(lambda: sink.n_clients == 1, "the server to see the client")
+            sink.emit_contacts("arm", 4.0, _frame_contacts())
+            sink.emit_gesture("arm", 4.0, GESTURE)
+            msgs = [json.loads(ws.recv(timeout=30)) for _ in range(3)]
+    finally:
+        sink.close()
+    assert [m["type"] for m in msgs] == ["contact", "contact", "gesture"]
+    _check_lines(msgs)
+
+
+def test_foxglove_draws_a_sphere_per_track_and_logs_gestures(tmp_path):
+    from mcap.reader import make_reader
+
+    path = tmp_path / "multi.mcap"
+    sink = make_sink(f"mcap:{path}")
+    sink.open(_skins())
+    sink.emit_contacts("arm", 4.0, _frame_contacts())
+    end = _frame_contacts()[1]
+    end.state = "end"
+    sink.emit_contacts("arm", 4.01, [end])
+    sink.emit_gesture("arm", 4.01, GESTURE)
+    sink.close()
+    by_topic: dict[str, list[bytes]] = {}
+    with path.open("rb") as fh:
+        for _, channel, message in make_reader(fh).iter_messages():
+            by_topic.setdefault(channel.topic, []).append(message.data)
+    scene = by_topic["/skinloc/scene"]
+    assert any(b"arm/slot0" in m and b"arm/slot2" in m for m in scene)  # both in one update
+    assert b"arm/slot2" in scene[-1]  # the lifted finger's sphere is deleted
+    assert len(by_topic["/skinloc/contacts"]) == 3
+    assert b"swipe up (tracks 7)" in by_topic["/skinloc/gestures"][0]
+    assert json.loads(by_topic["/skinloc/gesture_events"][0])["kind"] == "swipe"
+
+
+def test_lsl_lays_out_k_slots_and_sends_gestures_as_markers():
+    pytest.importorskip("pylsl")
+    from skinloc.live.sinks.lsl import lsl_channels
+
+    sink = make_sink("lsl:skinloc-multi")
+    sink.open([SkinInfo("arm", max_contacts=3)])
+    try:
+        info = sink._outlets["arm"].get_info()
+        assert info.channel_count() == 3 + 8 * 3 == len(lsl_channels(3))
+        assert sink._markers["arm"].get_info().type() == "Markers"
+        pushed = []
+
+        class Capture:
+            def push_sample(self, sample):
+                pushed.append(sample)
+
+        sink._outlets["arm"] = sink._markers["arm"] = Capture()
+        sink.emit_contacts("arm", 4.0, _frame_contacts())
+        sink.emit_gesture("arm", 4.0, GESTURE)
+    finally:
+        sink.close()
+    sample = dict(zip(lsl_channels(3), pushed[0], strict=True))
+    assert sample["s0_track_id"] == 4 and sample["s0_state"] == 2 and sample["s0_strength"] == 120
+    assert sample["s2_track_id"] == 7 and sample["s2_x_m"] == 0.04 and sample["s2_state"] == 1
+    assert all(math.isnan(v) for k, v in sample.items() if k.startswith("s1_"))  # empty slot
+    assert sample["touch_id"] == 1
+    assert json.loads(pushed[1][0])["kind"] == "swipe"
 
 
 def test_make_sink_errors_and_callback():

@@ -131,6 +131,23 @@ def register(app: typer.Typer) -> None:
         emit_idle: Annotated[
             bool, typer.Option("--emit-idle", help="Also output untouched frames.")
         ] = False,
+        max_contacts: Annotated[
+            int,
+            typer.Option(
+                "--max-contacts",
+                min=1,
+                max=10,
+                help="Contacts (fingers, tracks) per frame at most; 1: one contact per touch, "
+                "as before multi-touch.",
+            ),
+        ] = 3,
+        gestures: Annotated[
+            bool,
+            typer.Option(
+                "--gestures/--no-gestures",
+                help="Recognise taps, double taps, long presses, swipes, two-finger taps.",
+            ),
+        ] = True,
         stats: Annotated[
             bool, typer.Option("--stats", help="Print per-skin counters as JSON on stderr at exit.")
         ] = False,
@@ -175,6 +192,8 @@ def register(app: typer.Typer) -> None:
                 touch_on_z=on_z,
                 touch_off_z=off_z,
                 emit_idle=emit_idle,
+                max_contacts=max_contacts,
+                gestures=gestures,
             )
             spec = SkinSpec(
                 model=model,
@@ -219,7 +238,7 @@ def register(app: typer.Typer) -> None:
         for c in counters:
             err_console.print(
                 f"{c['skin']}: {c['frames']} frames, {c['touches']} touches, "
-                f"{c['contacts']} contacts in {elapsed:.1f} s"
+                f"{c['contacts']} contacts, {c.get('gestures', 0)} gestures in {elapsed:.1f} s"
                 + (f", {c['reconnects']} reconnects" if "reconnects" in c else ""),
                 highlight=False,
             )

@@ -12,7 +12,9 @@ Per skin, ``SkinCore`` runs, for every frame::
 (``process``) or wire bytes (``feed``). ``skinloc.live.runner.Pipeline`` (one skin) and
 ``skinloc.live.runner.Runner`` (many skins, one process; ``skinloc.live.skins_file`` reads its
 configuration file) connect cores to frame sources and to sinks (``skinloc.live.sinks``).
-``Contact`` lives in ``live.contact`` (the sinks import it from there) and is re-exported here.
+``Contact`` lives in ``live.contact`` (the sinks import it from there), ``PipelineConfig`` and
+``TouchState`` in ``live.config``; both are re-exported here. The compiled steps are
+``live.baseline`` (baseline subtraction, drift) and ``live.one_euro`` (the filter).
 
 Units: metres in the mesh frame, times in seconds (``time.monotonic`` for arrival and output
 times), latencies in microseconds, signals in raw counts or in noise standard deviations (z).
@@ -23,15 +25,18 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Callable
-from dataclasses import dataclass, fields
-from enum import StrEnum
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
-from skinloc._jit import jit
+from skinloc.live.baseline import subtract_baseline as _prep
+from skinloc.live.config import PipelineConfig, TouchState
 from skinloc.live.contact import Contact
+from skinloc.live.gestures import GestureConfig, GestureRecognizer, SkinFrame
+from skinloc.live.one_euro import one_euro as _one_euro
+from skinloc.live.tracking import Track, Tracker, frame_contacts
+from skinloc.live.wire_input import WireInput
 from skinloc.models.engine import Engine, load_engine
 
 log = logging.getLogger(__name__)
@@ -45,198 +50,6 @@ __all__ = [
 ]
 
 
-class TouchState(StrEnum):
-    """Touch state carried by every output."""
-
-    START = "start"  #: first frame of a touch (after debouncing)
-    MOVE = "move"  #: a frame while the touch lasts
-    END = "end"  #: the touch ended (after debouncing); position is the last one
-    IDLE = "idle"  #: nothing touches (emitted only with ``emit_idle``)
-
-    @classmethod
-    def _missing_(cls, value: object) -> TouchState:
-        valid = ", ".join(m.value for m in cls)
-        raise ValueError(f"unknown touch state {value!r}; choose one of: {valid}")
-
-
-@dataclass
-class PipelineConfig:
-    """Settings of the per-skin processing; every field is checked in ``__post_init__``.
-
-    Attributes
-    ----------
-    baseline_frames : int
-        Untouched frames averaged at start for the baseline and per-sensor noise.
-    drift_tracking : bool
-        Let the baseline follow slow drift while nothing touches.
-    drift_time_constant_s : float
-        Time constant of the baseline's exponential tracking, s.
-    quiet_z : float
-        Untouched frames whose peak signal exceeds this (in noise std) do not update the
-        baseline (a finger approaching), unless that lasts ``max_freeze_s``: then it is drift.
-        During a touch, sensors below it (far from the finger) keep tracking; those under the
-        finger are frozen, so a held touch is never tracked away.
-    max_freeze_s : float
-        Longest pause of idle tracking because of a raised sensor, s.
-    release_fraction : float
-        A touch also ends when its signal falls below this fraction of its level during the
-        touch (a release after a long hold, when the frozen sensors have drifted).
-    touch_on_z, touch_off_z : float
-        Hysteresis: a touch starts above ``touch_on_z`` and ends below ``touch_off_z``.
-    debounce_on_frames, debounce_off_frames : int
-        Consecutive frames beyond a threshold before a touch starts or ends.
-    noise_floor_counts : float
-        Smallest per-sensor noise std used, counts (a silent sensor does not blow up z).
-    filter : {"one-euro", "none"}
-        Temporal filter of the position on the surface.
-    min_cutoff_hz, beta, d_cutoff_hz : float
-        One-Euro filter: cutoff at rest, Hz; speed coefficient, s/m; cutoff of the speed, Hz.
-    emit_idle : bool
-        Also output one ``idle`` record per untouched frame.
-    stale_s : float
-        A touch whose frames stop for longer than this (link lost) is ended, s.
-    """
-
-    baseline_frames: int = 50
-    drift_tracking: bool = True
-    drift_time_constant_s: float = 3.0
-    quiet_z: float = 3.0
-    max_freeze_s: float = 2.0
-    release_fraction: float = 0.25
-    touch_on_z: float = 8.0
-    touch_off_z: float = 4.0
-    debounce_on_frames: int = 2
-    debounce_off_frames: int = 3
-    noise_floor_counts: float = 2.0
-    filter: str = "one-euro"
-    min_cutoff_hz: float = 2.0
-    beta: float = 20.0
-    d_cutoff_hz: float = 1.0
-    emit_idle: bool = False
-    stale_s: float = 1.0
-
-    def __post_init__(self) -> None:
-        def need(name: str, ok: bool, allowed: str) -> None:
-            if not ok:
-                raise ValueError(
-                    f"PipelineConfig.{name} must be {allowed}, got {getattr(self, name)!r}"
-                )
-
-        for name in ("baseline_frames", "debounce_on_frames", "debounce_off_frames"):
-            v = getattr(self, name)
-            need(name, isinstance(v, int) and not isinstance(v, bool) and v >= 1, "an int >= 1")
-        for name in (
-            "drift_time_constant_s",
-            "touch_on_z",
-            "touch_off_z",
-            "quiet_z",
-            "max_freeze_s",
-            "noise_floor_counts",
-            "min_cutoff_hz",
-            "d_cutoff_hz",
-            "stale_s",
-        ):
-            v = getattr(self, name)
-            need(name, isinstance(v, int | float) and math.isfinite(v) and v > 0, "a number > 0")
-        need("beta", isinstance(self.beta, int | float) and self.beta >= 0, "a number >= 0")
-        need("touch_off_z", self.touch_off_z <= self.touch_on_z, "<= touch_on_z")
-        rf = self.release_fraction
-        need("release_fraction", isinstance(rf, int | float) and 0 <= rf < 1, "in [0, 1)")
-        need("filter", self.filter in ("one-euro", "none"), "one of one-euro, none")
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any], where: str = "pipeline settings") -> PipelineConfig:
-        """Build from a dict (a config file section); unknown keys raise, naming them."""
-        known = {f.name for f in fields(cls)}
-        d = {str(k).replace("-", "_"): v for k, v in d.items()}
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise ValueError(
-                f"unknown key(s) in {where}: {', '.join(unknown)}; "
-                f"known: {', '.join(sorted(known))}"
-            )
-        return cls(**d)
-
-
-# --------------------------------------------------------------------------------------------
-# compiled per-frame steps
-
-
-@jit()
-def _prep(
-    values: np.ndarray,
-    baseline: np.ndarray,
-    inv_sigma: np.ndarray,
-    delta: np.ndarray,
-    alpha: float,
-    quiet_z: float,
-    mode: int,
-) -> float:  # pragma: no cover - compiled
-    """``delta = values - baseline``; returns the peak ``delta / sigma``.
-
-    Drift tracking moves the baseline ``alpha`` of the way towards ``values``: ``mode`` 0 not
-    at all; 1 every sensor if the peak is below ``quiet_z``; 2 every sensor; 3 only sensors
-    below ``quiet_z`` (during a touch: those away from the finger).
-    """
-    n = values.shape[0]
-    peak = -np.inf
-    for i in range(n):
-        d = values[i] - baseline[i]
-        delta[i] = d
-        z = d * inv_sigma[i]
-        if z > peak:
-            peak = z
-    if alpha > 0.0:
-        if mode == 2 or (mode == 1 and peak < quiet_z):
-            for i in range(n):
-                baseline[i] += alpha * (values[i] - baseline[i])
-        elif mode == 3:
-            for i in range(n):
-                if delta[i] * inv_sigma[i] < quiet_z:
-                    baseline[i] += alpha * (values[i] - baseline[i])
-    return peak
-
-
-@jit()
-def _one_euro(
-    state: np.ndarray, p0: float, p1: float, p2: float, t: float, prm: np.ndarray, out: np.ndarray
-) -> None:  # pragma: no cover - compiled
-    """One-Euro filter (Casiez et al. 2012) of a 3D point; ``state`` = [init, t, x3, dx3].
-
-    ``prm`` = [min_cutoff_hz, beta, d_cutoff_hz]. Writes the filtered point to ``out (3,)``.
-    """
-    if state[0] == 0.0:
-        state[0] = 1.0
-        state[1] = t
-        state[2] = p0
-        state[3] = p1
-        state[4] = p2
-        state[5] = 0.0
-        state[6] = 0.0
-        state[7] = 0.0
-        out[0] = p0
-        out[1] = p1
-        out[2] = p2
-        return
-    dt = t - state[1]
-    if dt <= 0.0:
-        dt = 1e-3
-    state[1] = t
-    ad = 1.0 / (1.0 + 1.0 / (2.0 * math.pi * prm[2] * dt))
-    speed = 0.0
-    for k in range(3):
-        p = p0 if k == 0 else (p1 if k == 1 else p2)
-        dx = (p - state[2 + k]) / dt
-        state[5 + k] += ad * (dx - state[5 + k])
-        speed += state[5 + k] * state[5 + k]
-    cutoff = prm[0] + prm[1] * math.sqrt(speed)
-    a = 1.0 / (1.0 + 1.0 / (2.0 * math.pi * cutoff * dt))
-    for k in range(3):
-        p = p0 if k == 0 else (p1 if k == 1 else p2)
-        state[2 + k] += a * (p - state[2 + k])
-        out[k] = state[2 + k]
-
-
 # --------------------------------------------------------------------------------------------
 # one skin
 
@@ -246,7 +59,7 @@ def load_fast_localizer(model: Any) -> Engine:
     return load_engine(model)
 
 
-class SkinCore:
+class SkinCore(WireInput):
     """The per-skin processing chain, pure and single-threaded.
 
     Parameters
@@ -261,6 +74,16 @@ class SkinCore:
         Grid, for ``feed`` (bytes); by default 8 x 8 when it matches the model.
     wire_format : {"auto", "binary", "text"}, default="auto"
         Wire format for ``feed``.
+    up : (3,) float, optional
+        The skin's "up" in the mesh frame, for swipe directions (default: the mesh's long
+        axis, ``skinloc.live.gestures.long_axis``).
+    gesture_config : GestureConfig, optional
+        Thresholds of the gesture recogniser.
+
+    Notes
+    -----
+    ``process_frame`` returns every contact of a frame (one per track); gesture events due at
+    that frame wait in ``gestures`` until ``take_gestures`` collects them.
 
     Examples
     --------
@@ -278,6 +101,8 @@ class SkinCore:
         n_tx: int | None = None,
         n_rx: int | None = None,
         wire_format: str = "auto",
+        up: Sequence[float] | None = None,
+        gesture_config: GestureConfig | None = None,
     ) -> None:
         self.fast = load_fast_localizer(localizer)
         self.config = PipelineConfig() if config is None else config
@@ -326,22 +151,34 @@ class SkinCore:
         self._level = 0.0
         self._frozen_s = 0.0
         self._last_ts: float | None = None
+        cfg = self.config
+        self.max_contacts = cfg.max_contacts
+        self._tracker: Tracker | None = None
+        if cfg.max_contacts > 1:
+            self._tracker = Tracker(
+                cfg.max_contacts,
+                cfg.track_gate_mm,
+                cfg.track_miss_frames,
+                cfg.track_confirm_frames,
+                self.fast.constrain_into,
+                self._filt_prm if cfg.filter == "one-euro" else None,
+            )
+        self.gestures: list[dict[str, Any]] = []  # events due, collected by ``take_gestures``
+        self._recognizer: GestureRecognizer | None = None
+        if cfg.gestures:
+            spec = self.fast.spec
+            vertices = getattr(spec, "vertices", None)
+            if vertices is not None or up is not None:
+                frame = SkinFrame(vertices, getattr(spec, "faces", None), up)
+                self._recognizer = GestureRecognizer(name, frame, gesture_config)
         self._warm_up()
 
     def _warm_up(self) -> None:
         """Compile (or load from numba's cache) the per-frame kernels now, not on a touch."""
         n = self.n_sensors
-        scratch = np.zeros(n, dtype=np.float32)
+        scratch, base = np.zeros(n, dtype=np.float32), self._baseline.copy()
         for dtype in (np.float32, np.uint16):
-            _prep(
-                np.zeros(n, dtype=dtype),
-                self._baseline.copy(),
-                self._inv_sigma,
-                scratch,
-                0.0,
-                1.0,
-                0,
-            )
+            _prep(np.zeros(n, dtype=dtype), base, self._inv_sigma, scratch, 0.0, 1.0, 0)
         _one_euro(np.zeros(8), 0.0, 0.0, 0.0, 0.0, self._filt_prm, np.zeros(3))
         self.fast.constrain_into(0.0, 0.0, 0.0, np.zeros(3))
 
@@ -399,11 +236,47 @@ class SkinCore:
     def process(
         self, values: np.ndarray, timestamp_s: float, index: int = -1, t_in: float | None = None
     ) -> Contact | None:
-        """Process one frame of raw counts ``(n_sensors,)``; returns its output, if any.
+        """Process one frame; returns its first contact (lowest slot), if any.
 
-        ``t_in`` is when the frame's bytes arrived (``time.monotonic()``), for the latency; by
-        default now.
+        The single-contact form of ``process_frame`` (which returns them all).
         """
+        out = self.process_frame(values, timestamp_s, index, t_in)
+        return out[0] if out else None
+
+    def process_frame(
+        self, values: np.ndarray, timestamp_s: float, index: int = -1, t_in: float | None = None
+    ) -> Sequence[Contact]:
+        """Process one frame of raw counts ``(n_sensors,)``; returns its contacts, by slot.
+
+        One ``Contact`` per track (``start``, ``move`` or ``end``), none while nothing touches
+        (one ``idle`` record with ``emit_idle``). Gesture events due at this frame are appended
+        to ``gestures``. ``t_in`` is when the frame's bytes arrived (``time.monotonic()``), for
+        the latency; by default now.
+        """
+        out = self._frame(values, timestamp_s, index, t_in)
+        rec = self._recognizer
+        if rec is not None and (out or rec.busy):
+            # releasing (signal below the release threshold, or the touch just ended): the
+            # fading image's positions are not the finger's
+            releasing = self._below > 0 or not self._touching
+            g = rec.update(timestamp_s, out, releasing) if out else rec.tick(timestamp_s)
+            if g:
+                self.gestures += g
+        return out
+
+    @property
+    def n_gestures(self) -> int:
+        """Gesture events recognised so far."""
+        return 0 if self._recognizer is None else self._recognizer.n_events
+
+    def take_gestures(self) -> list[dict[str, Any]]:
+        """The gesture events due so far (JSON-ready dicts), oldest first; clears them."""
+        g, self.gestures = self.gestures, []
+        return g
+
+    def _frame(
+        self, values: np.ndarray, timestamp_s: float, index: int, t_in: float | None
+    ) -> Sequence[Contact]:
         if t_in is None:
             t_in = time.monotonic()
         if values.shape[0] != self.n_sensors:
@@ -414,7 +287,7 @@ class SkinCore:
         self.n_frames += 1
         if not self.calibrated:
             self._accumulate(values)
-            return None
+            return ()
         cfg = self.config
         if self._last_ts is not None:
             dt = timestamp_s - self._last_ts
@@ -448,7 +321,7 @@ class SkinCore:
                     self._touching = False
                     self._below = 0
                     self._holdoff = cfg.debounce_off_frames
-                    return self._end(timestamp_s, index, z, t_in)
+                    return self._end_all(timestamp_s, index, z, t_in)
             else:
                 self._below = 0
             state = TouchState.MOVE
@@ -467,9 +340,11 @@ class SkinCore:
             self._above = 0
         if state is None:
             if cfg.emit_idle:
-                return self._idle(timestamp_s, index, z, t_in)
-            return None
-        return self._localise(state, timestamp_s, index, z, t_in)
+                return [self._idle(timestamp_s, index, z, t_in)]
+            return ()
+        if self._tracker is not None:
+            return self._localise_tracks(state, timestamp_s, index, z, t_in)
+        return [self._localise(state, timestamp_s, index, z, t_in)]
 
     def _localise(self, state: TouchState, ts: float, index: int, z: float, t_in: float) -> Contact:
         out = self._out
@@ -499,11 +374,64 @@ class SkinCore:
             spread,
             (time.monotonic() - t_in) * 1e6,
             self._touch_id,
+            self._touch_id,  # one track per touch: its tracking id is the touch's number
+            0,
         )
         self._last_contact = c
         self._last_t_in = t_in
         self.n_contacts += 1
         return c
+
+    def _localise_tracks(
+        self, state: TouchState, ts: float, index: int, z: float, t_in: float
+    ) -> list[Contact]:
+        """K > 1: the frame's contacts, matched to tracks; one ``Contact`` per track."""
+        pos, raw, strength, unc = frame_contacts(
+            self.fast, self._delta, self.max_contacts, self._out
+        )
+        events = self._tracker.update(
+            ts, pos, raw, strength, unc, state is TouchState.START, self._below == 0
+        )
+        self._last_t_in = t_in
+        out = [self._track_contact(tr, st, ts, index, z, t_in) for tr, st in events]
+        self.n_contacts += len(out)
+        if out:
+            self._last_contact = out[-1]
+        return out
+
+    def _track_contact(
+        self, tr: Track, state: str, ts: float, index: int, z: float, t_in: float
+    ) -> Contact:
+        cfg = self.config
+        spread = tr.uncertainty_mm
+        conf = 1.0 - math.exp(-max(z - cfg.touch_off_z, 0.0) / cfg.touch_on_z)
+        if spread == spread:  # not nan
+            conf *= math.exp(-spread / 10.0)
+        p, r = tr.position_m.tolist(), tr.raw_m.tolist()
+        return Contact(
+            self.name,
+            ts,
+            index,
+            state,
+            (p[0], p[1], p[2]),
+            (r[0], r[1], r[2]),
+            conf,
+            z,
+            spread,
+            (time.monotonic() - t_in) * 1e6,
+            self._touch_id,
+            tr.track_id,
+            tr.slot,
+            tr.strength,
+        )
+
+    def _end_all(self, ts: float, index: int, z: float, t_in: float) -> list[Contact]:
+        """The touch ended: an ``end`` for every track."""
+        if self._tracker is None:
+            return [self._end(ts, index, z, t_in)]
+        out = [self._track_contact(tr, "end", ts, index, z, t_in) for tr in self._tracker.end_all()]
+        self.n_contacts += len(out)
+        return out
 
     def _end(self, ts: float, index: int, z: float, t_in: float) -> Contact:
         last = self._last_contact
@@ -522,6 +450,8 @@ class SkinCore:
             last.uncertainty_mm if last else math.nan,
             (time.monotonic() - t_in) * 1e6,
             self._touch_id,
+            self._touch_id,
+            0,
         )
 
     def _idle(self, ts: float, index: int, z: float, t_in: float) -> Contact:
@@ -541,58 +471,30 @@ class SkinCore:
         )
 
     def link_lost(self, now: float | None = None) -> Contact | None:
+        """The first ``end`` of ``end_stale`` (the single-contact form), if one is due."""
+        out = self.end_stale(now)
+        return out[0] if out else None
+
+    def end_stale(self, now: float | None = None) -> list[Contact]:
         """The source stopped delivering; ends a touch whose frames are over ``stale_s`` old.
 
-        Call it periodically while a link is down. Returns the ``end`` event, if one is due.
+        Call it periodically while a link is down. Returns the ``end`` of every track, if due
+        (gestures they complete go to ``gestures``).
         """
         now = time.monotonic() if now is None else now
-        if self._touching and now - self._last_t_in > self.config.stale_s:
-            self._touching = False
-            self._below = 0
-            last = self._last_contact
-            ts = (last.timestamp_s if last else 0.0) + (now - self._last_t_in)
-            return self._end(ts, last.index if last else -1, math.nan, now)
-        return None
-
-    # ------------------------------------------------------------------ bytes
-    def feed(self, data: bytes, t_in: float | None = None) -> list[Contact]:
-        """Parse wire bytes (``skinloc.hardware.framing``) and process every complete frame in them.
-
-        Frame timestamps are ``t_in`` (arrival, ``time.monotonic()``); indices are the device's
-        counter, unwrapped (binary) or a running count (text).
-        """
-        if t_in is None:
-            t_in = time.monotonic()
-        if self._parser is None:
-            from skinloc.hardware.framing import make_parser
-
-            self._parser = make_parser(self.wire_format, self.n_tx, self.n_rx)
-        out: list[Contact] = []
-        for raw in self._parser.feed(data):
-            counter = raw.counter
-            if counter is None:
-                index = self.n_frames
-            else:
-                if self._last_counter is not None and counter < self._last_counter:
-                    self._counter_base += 1 << 16
-                self._last_counter = counter
-                index = self._counter_base + counter
-            c = self.process(raw.values, t_in, index, t_in)
-            if c is not None:
-                out.append(c)
+        if not (self._touching and now - self._last_t_in > self.config.stale_s):
+            return []
+        self._touching = False
+        self._below = 0
+        last = self._last_contact
+        gap = now - self._last_t_in  # inf: the stream ended, the last frame's time
+        ts = (last.timestamp_s if last else 0.0) + gap if math.isfinite(gap) else self._last_ts
+        out = self._end_all(ts, last.index if last else -1, math.nan, now)
+        if self._recognizer is not None and out:
+            self.gestures += self._recognizer.update(ts, out, releasing=True)
         return out
 
-    def reset_link(self) -> None:
-        """Forget partial wire input after a reconnect (the touch state is kept)."""
-        if self._parser is not None:
-            self._parser.reset()
-        self._last_counter = None
-        self._counter_base = (self._counter_base >> 16) + 1 << 16
-
-    @property
-    def parser_stats(self) -> dict[str, int]:
-        """Counters of the wire parser (empty before ``feed``)."""
-        return {} if self._parser is None else self._parser.stats.as_dict()
-
-
-ContactCallback = Callable[[Contact], None]
+    def flush_gestures(self) -> None:
+        """The stream ended: every gesture still waiting (a tap's open window) is due now."""
+        if self._recognizer is not None and self._last_ts is not None:
+            self.gestures += self._recognizer.flush(self._last_ts)

@@ -18,7 +18,6 @@ thread it started.
 from __future__ import annotations
 
 import collections
-import io
 import logging
 import math
 import os
@@ -26,377 +25,23 @@ import selectors
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from skinloc.errors import FrameTimeoutError, SkinlocError, SourceNotConnectedError
-from skinloc.live.core import Contact, PipelineConfig, SkinCore, load_fast_localizer
+from skinloc.errors import SourceNotConnectedError
+from skinloc.live.config import PipelineConfig
+from skinloc.live.core import Contact, SkinCore, load_fast_localizer
+from skinloc.live.feeds import _NoFileDescriptor, _PortFeed, _ThreadFeed
+from skinloc.live.scripted import ScriptedFinger
 from skinloc.live.sinks.base import Sink, SkinInfo, make_sink
-from skinloc.sources.base import Frame, FrameSource
+from skinloc.live.spec import SkinSpec, _is_recording, open_source, skin_info
+from skinloc.sources.base import Frame
 
 log = logging.getLogger(__name__)
 
 __all__ = ["Pipeline", "Runner", "ScriptedFinger", "SkinSpec", "open_source"]
-
-_RECORDING_SUFFIXES = (".h5", ".hdf5", ".mat", ".mcap")
-_MAX_QUEUED = 256  # frames waiting for the loop before a fast source is held back
-
-
-# --------------------------------------------------------------------------------------------
-# a scripted finger on the simulated skin
-
-
-class ScriptedFinger(FrameSource):
-    """A ``SimulatedSkin`` touched by a scripted finger: random targets, holds and pauses.
-
-    The script runs on the skin's simulated clock: after ``start_s`` the finger presses near a
-    random target for ``hold_s`` (uniform in the range), lifts for ``gap_s``, and so on. Every
-    touch is logged in ``script`` as ``(t_press_s, t_release_s, contact (3,) m)``.
-
-    Parameters
-    ----------
-    skin : SimulatedSkin
-        The skin.
-    start_s : float
-        Untouched time at start (the pipeline's baseline capture), s.
-    hold_s, gap_s : (float, float)
-        Ranges of touch and pause durations, s.
-    random_state : int
-        Seed of the script.
-    """
-
-    def __init__(
-        self,
-        skin: Any,
-        *,
-        start_s: float = 1.5,
-        hold_s: tuple[float, float] = (0.6, 1.5),
-        gap_s: tuple[float, float] = (0.6, 1.5),
-        random_state: int = 0,
-    ) -> None:
-        self.skin = skin
-        self.n_tx, self.n_rx = skin.n_tx, skin.n_rx
-        self.start_s, self.hold_s, self.gap_s = start_s, hold_s, gap_s
-        self._rng = np.random.default_rng(random_state)
-        self._next = start_s
-        self._pressed = False
-        self.script: list[tuple[float, float, np.ndarray]] = []
-        from skinloc.geometry.mesh import sample_surface
-
-        self._targets = sample_surface(skin.mesh, 4096, self._rng)[0]
-
-    @property
-    def name(self) -> str:
-        """The skin's name, scripted."""
-        return f"{self.skin.name} + scripted finger"
-
-    @property
-    def is_connected(self) -> bool:
-        """Whether the skin is connected."""
-        return self.skin.is_connected
-
-    def _connect(self) -> None:
-        self.skin.connect()
-
-    def _disconnect(self) -> None:
-        self.skin.disconnect()
-
-    def _read(self, timeout_s: float) -> Frame:
-        t = self.skin.time_s
-        if t >= self._next:
-            if self._pressed:
-                self.skin.release()
-                p, _, c = self.script[-1]
-                self.script[-1] = (p, t, c)
-                self._next = t + self._rng.uniform(*self.gap_s)
-            else:
-                target = self._targets[self._rng.integers(len(self._targets))]
-                contact = self.skin.touch_near(target, self._rng)
-                self.script.append((t, math.inf, contact))
-                self._next = t + self._rng.uniform(*self.hold_s)
-            self._pressed = not self._pressed
-        return self.skin.read(timeout_s)
-
-
-# --------------------------------------------------------------------------------------------
-# configuration of one skin
-
-
-@dataclass
-class SkinSpec:
-    """One skin of a ``Runner``: model, source, sinks and settings.
-
-    Attributes
-    ----------
-    model : str, Path, ContactLocalizer or Engine
-        The localiser.
-    source : str or FrameSource
-        ``sim`` (simulated skin with a scripted finger; ``sim:SEED`` picks the skin), a serial
-        port or pyserial URL, a recording (``.h5``, ``.mat``), or any ``FrameSource``.
-    name : str
-        Name carried by the contacts.
-    sinks : list of str or Sink
-        This skin's sinks (see ``skinloc.live.sinks.make_sink``).
-    config : PipelineConfig
-        Detection, drift and filter settings.
-    baud : int
-        Baud rate of a serial port.
-    wire_format : {"auto", "binary", "text"}
-        Wire format of a serial port.
-    n_tx, n_rx : int or None
-        Grid the device sends (default: 8 x 8 for a 64-input model).
-    tx_mask, rx_mask : str or None
-        Lines to keep, as for ``SerialSourceConfig``.
-    realtime : bool
-        Replay a recording at its recorded rate (``False``: as fast as possible); run the
-        simulated skin in real time.
-    loop : bool
-        Replay a recording over and over.
-    rate_hz : float
-        Frame rate of the simulated skin, Hz.
-    baseline : str, Path or None
-        A recording whose baseline capture to use instead of capturing one at start.
-    parent_frame : str or None
-        The robot frame (link) the skin is mounted on, for ROS 2 ``/tf_static``
-        (``parent_frame -> skin/<name>``); None: no transform is published.
-    translation : (3,) float
-        Origin of the skin's mesh frame in ``parent_frame``, m.
-    rotation : (4,) float or None
-        Orientation of the mesh frame in ``parent_frame``, quaternion ``x, y, z, w``.
-    rpy : (3,) float or None
-        The same as fixed-axis roll, pitch, yaw, rad (give ``rotation`` or ``rpy``, not both).
-    """
-
-    model: Any
-    source: Any = "sim"
-    name: str = "skin"
-    sinks: list[Any] = field(default_factory=list)
-    config: PipelineConfig = field(default_factory=PipelineConfig)
-    baud: int = 115200
-    wire_format: str = "auto"
-    n_tx: int | None = None
-    n_rx: int | None = None
-    tx_mask: str | None = None
-    rx_mask: str | None = None
-    realtime: bool = True
-    loop: bool = False
-    rate_hz: float = 100.0
-    baseline: str | Path | None = None
-    parent_frame: str | None = None
-    translation: Sequence[float] = (0.0, 0.0, 0.0)
-    rotation: Sequence[float] | None = None
-    rpy: Sequence[float] | None = None
-
-    def __post_init__(self) -> None:
-        self._mount = _mount_pose(self)
-
-    @property
-    def mount(self) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
-        """The skin frame's pose in ``parent_frame``: translation (m), quaternion ``xyzw``."""
-        return self._mount
-
-
-def _vector(value: Any, n: int, what: str) -> tuple[float, ...]:
-    try:
-        out = tuple(float(v) for v in value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{what} must be {n} numbers, not {value!r}") from None
-    if len(out) != n or not all(math.isfinite(v) for v in out):
-        raise ValueError(f"{what} must be {n} finite numbers, not {value!r}")
-    return out
-
-
-def _mount_pose(
-    spec: SkinSpec,
-) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
-    """Check and normalise a spec's mounting pose (translation m, unit quaternion xyzw)."""
-    if spec.parent_frame is not None and (
-        not isinstance(spec.parent_frame, str) or not spec.parent_frame.strip()
-    ):
-        raise ValueError(f"parent_frame must be a frame name, not {spec.parent_frame!r}")
-    t = _vector(spec.translation, 3, "translation")
-    if spec.rotation is not None and spec.rpy is not None:
-        raise ValueError("give rotation (quaternion x, y, z, w) or rpy (rad), not both")
-    if spec.rpy is not None:
-        from skinloc.live.sinks.ros2 import quaternion_from_rpy
-
-        q = quaternion_from_rpy(*_vector(spec.rpy, 3, "rpy"))
-    elif spec.rotation is not None:
-        q = _vector(spec.rotation, 4, "rotation (quaternion x, y, z, w)")
-        norm = math.sqrt(sum(v * v for v in q))
-        if abs(norm - 1.0) > 1e-3:
-            raise ValueError(f"rotation must be a unit quaternion x, y, z, w (norm {norm:.4g})")
-        q = tuple(v / norm for v in q)
-    else:
-        q = (0.0, 0.0, 0.0, 1.0)
-    return (t[0], t[1], t[2]), (q[0], q[1], q[2], q[3])
-
-
-def _is_recording(source: str) -> bool:
-    p = Path(source)
-    return p.suffix.lower() in _RECORDING_SUFFIXES
-
-
-def open_source(spec: SkinSpec, n_sensors: int) -> FrameSource:
-    """The ``FrameSource`` for a spec whose source is not read through the selector loop."""
-    src = spec.source
-    if isinstance(src, FrameSource):
-        return src
-    text = str(src)
-    if text == "sim" or text.startswith("sim:"):
-        from skinloc.sim.skin import SimulatedSkin
-
-        seed = int(text.partition(":")[2] or 0) if text != "sim" else 0
-        n_tx, n_rx = spec.n_tx or 8, spec.n_rx or max(n_sensors // (spec.n_tx or 8), 1)
-        skin = SimulatedSkin(
-            n_tx=n_tx, n_rx=n_rx, random_state=seed, rate_hz=spec.rate_hz, realtime=spec.realtime
-        )
-        return ScriptedFinger(skin, random_state=seed)
-    if _is_recording(text):
-        if not Path(text).is_file():
-            raise SkinlocError(f"recording not found: {text}")
-        if Path(text).suffix.lower() == ".mcap":
-            from skinloc.sources.mcap_ros2 import McapReplaySource
-
-            return McapReplaySource(text, skin=spec.name, loop=spec.loop)
-        from skinloc.sources.replay import ReplaySource
-
-        return ReplaySource(text, loop=spec.loop)
-    from skinloc.hardware.serial import SerialSource, SerialSourceConfig
-
-    return SerialSource(
-        SerialSourceConfig(
-            text,
-            baud=spec.baud,
-            n_tx=spec.n_tx or 8,
-            n_rx=spec.n_rx or 8,
-            tx_mask=spec.tx_mask,
-            rx_mask=spec.rx_mask,
-            format=spec.wire_format,
-        )
-    )
-
-
-# --------------------------------------------------------------------------------------------
-# feeds: how frames reach the loop
-
-
-class _NoFileDescriptor(Exception):
-    """The port (a pyserial URL such as ``loop://``) has no file descriptor to wait on."""
-
-
-class _PortFeed:
-    """A serial port read by the loop itself (non-blocking file descriptor, no thread)."""
-
-    def __init__(self, slot: int, spec: SkinSpec, core: SkinCore) -> None:
-        from skinloc.hardware.serial import SerialSourceConfig
-
-        self.slot = slot
-        self.core = core
-        self.cfg = SerialSourceConfig(
-            str(spec.source),
-            baud=spec.baud,
-            n_tx=spec.n_tx or core.n_tx,
-            n_rx=spec.n_rx or core.n_rx,
-            tx_mask=spec.tx_mask,
-            rx_mask=spec.rx_mask,
-            format=spec.wire_format,
-        )
-        self.port = self.cfg.port
-        self.ser: Any = None
-        self.fd = -1
-        self.n_disconnects = 0
-        self.n_reconnects = 0
-        self.n_bytes = 0
-        self.retry_at = 0.0
-        self.last_error = ""
-
-    def open(self) -> None:
-        import serial
-
-        self.ser = serial.serial_for_url(self.port, baudrate=self.cfg.baud, timeout=0)
-        try:
-            fd = self.ser.fileno()
-            if not isinstance(fd, int):
-                raise AttributeError("fileno")
-            self.fd = fd
-        except (AttributeError, io.UnsupportedOperation):
-            self.ser.close()
-            self.ser = None
-            raise _NoFileDescriptor(self.port) from None
-        os.set_blocking(self.fd, False)
-
-    def close(self) -> None:
-        if self.ser is not None:
-            try:
-                self.ser.close()
-            except Exception:  # noqa: BLE001 - closing a dead port may fail in many ways
-                pass
-        self.ser = None
-        self.fd = -1
-
-
-class _ThreadFeed:
-    """Any ``FrameSource`` read on a thread of its own; frames are queued for the loop."""
-
-    def __init__(
-        self, slot: int, source: FrameSource, runner: Runner, realtime_replay: bool
-    ) -> None:
-        self.slot = slot
-        self.source = source
-        self.runner = runner
-        self.realtime = realtime_replay
-        self.finished = False
-        self.error: BaseException | None = None
-        self.thread = threading.Thread(
-            target=self._run, name=f"skinloc-feed-{source.name}", daemon=True
-        )
-        self._arrival_is_timestamp = type(source).__name__ == "SerialSource"
-
-    def _run(self) -> None:
-        src = self.source
-        stop = self.runner._stop_event
-        replay = getattr(src, "is_replay", False) or type(src).__name__ == "ReplaySource"
-        wall0 = ts0 = None
-        try:
-            if not src.is_connected:
-                src.connect()
-            while not stop.is_set():
-                try:
-                    frame = src.read(timeout_s=0.2)
-                except FrameTimeoutError:
-                    if replay:
-                        break
-                    continue
-                if replay and self.realtime:
-                    if wall0 is None:
-                        wall0, ts0 = time.monotonic(), frame.timestamp_s
-                    wait = wall0 + (frame.timestamp_s - ts0) - time.monotonic()
-                    if wait > 0 and stop.wait(wait):
-                        break
-                t_in = frame.timestamp_s if self._arrival_is_timestamp else time.monotonic()
-                self.runner._push(self.slot, frame, t_in)
-                # Back-pressure for sources faster than the loop (replay with --fast).
-                while len(self.runner._queue) > _MAX_QUEUED and not stop.is_set():
-                    stop.wait(0.0005)
-        except (SkinlocError, OSError, ValueError) as exc:
-            self.error = exc
-            log.error("%s: %s", src.name, exc)
-        finally:
-            self.finished = True
-            self.runner._wake()
-
-    def close(self) -> None:
-        if self.thread.is_alive():
-            self.thread.join(5.0)
-        if self.source.is_connected:
-            try:
-                self.source.disconnect()
-            except (SkinlocError, OSError):
-                pass
 
 
 # --------------------------------------------------------------------------------------------
@@ -415,6 +60,8 @@ class Runner:
         Sinks that receive the contacts of every skin (each skin may add its own).
     callback : callable(Contact), optional
         Called for every contact, on the loop's thread.
+    gesture_callback : callable(dict), optional
+        Called for every gesture event (``skinloc.live.gestures``), on the loop's thread.
 
     Notes
     -----
@@ -428,6 +75,7 @@ class Runner:
         skins: Sequence[SkinSpec],
         sinks: Sequence[str | Sink] = (),
         callback: Callable[[Contact], Any] | None = None,
+        gesture_callback: Callable[[dict[str, Any]], Any] | None = None,
     ) -> None:
         if not skins:
             raise ValueError("a runner needs at least one skin")
@@ -437,6 +85,7 @@ class Runner:
             raise ValueError(f"skin names must be unique; repeated: {', '.join(dup)}")
         self.specs = list(skins)
         self.callback = callback
+        self.gesture_callback = gesture_callback
         models: dict[str, Any] = {}
         self.cores: list[SkinCore] = []
         for spec in self.specs:
@@ -453,6 +102,7 @@ class Runner:
                 n_tx=spec.n_tx,
                 n_rx=spec.n_rx,
                 wire_format=spec.wire_format,
+                up=spec.up,
             )
             if spec.baseline is not None:
                 from skinloc.data.recording import read_recording
@@ -495,7 +145,7 @@ class Runner:
         os.set_blocking(self._wake_r, False)
         os.set_blocking(self._wake_w, False)
         self._sel.register(self._wake_r, selectors.EVENT_READ, None)
-        infos = [self._skin_info(i) for i in range(len(self.specs))]
+        infos = [skin_info(s, c) for s, c in zip(self.specs, self.cores, strict=True)]
         for sink in self.global_sinks:
             sink.open(infos)
         for info, sinks in zip(infos, self.skin_sinks, strict=True):
@@ -545,36 +195,25 @@ class Runner:
     def _record_frames(core: SkinCore, sinks: list[Sink]) -> None:
         """Hand every raw frame of ``core`` to ``sinks`` (``emit_frame``) before processing.
 
-        The instance's ``process`` is wrapped, so frames parsed from a serial port's bytes
-        (``SkinCore.feed``) are recorded as well as frames from thread-fed sources; skins
-        without a recording sink keep the unwrapped method.
+        The instance's ``process_frame`` is wrapped, so frames parsed from a serial port's
+        bytes (``SkinCore.feed``) are recorded as well as frames from thread-fed sources;
+        skins without a recording sink keep the unwrapped method.
         """
-        process = core.process
+        process = core.process_frame
         name = core.name
 
         def recording_process(
             values: np.ndarray, timestamp_s: float, index: int = -1, t_in: float | None = None
-        ) -> Contact | None:
+        ) -> Sequence[Contact]:
             for sink in sinks:
                 sink.emit_frame(name, values, timestamp_s, index)
             return process(values, timestamp_s, index, t_in)
 
-        core.process = recording_process  # type: ignore[method-assign]
+        core.process_frame = recording_process  # type: ignore[method-assign]
 
     def _skin_info(self, i: int) -> SkinInfo:
-        fast = self.cores[i].fast
-        spec = self.specs[i]
-        translation, rotation = spec.mount
-        return SkinInfo(
-            spec.name,
-            fast.spec.vertices,
-            fast.spec.faces,
-            n_tx=self.cores[i].n_tx,
-            n_rx=self.cores[i].n_rx,
-            parent_frame=spec.parent_frame,
-            translation_m=translation,
-            rotation_xyzw=rotation,
-        )
+        """What the sinks learn of skin ``i`` (``skinloc.live.spec.skin_info``)."""
+        return skin_info(self.specs[i], self.cores[i])
 
     def close(self) -> None:
         """Stop the loop, join every thread, close ports, sources and sinks. Idempotent."""
@@ -624,40 +263,33 @@ class Runner:
                 pass
 
     # ------------------------------------------------------------------ the loop
-    def _emit(self, slot: int, c: Contact, out: list[Contact]) -> None:
-        for sink in self.skin_sinks[slot]:
-            sink.emit(c)
-        for sink in self.global_sinks:
-            sink.emit(c)
+    def _emit(self, slot: int, contacts: Sequence[Contact], out: list[Contact]) -> None:
+        """One frame's contacts of skin ``slot`` (and the gestures due) to every consumer."""
+        core = self.cores[slot]
+        gestures = core.take_gestures() if core.gestures else ()
+        if not contacts and not gestures:
+            return
+        name = core.name
+        ts = contacts[0].timestamp_s if contacts else gestures[0]["timestamp_s"]
+        for sinks in (self.skin_sinks[slot], self.global_sinks):
+            for sink in sinks:
+                if contacts:
+                    sink.emit_contacts(name, ts, contacts)
+                for g in gestures:
+                    sink.emit_gesture(name, g["timestamp_s"], g)
         if self.callback is not None:
-            self.callback(c)
-        self.n_emitted += 1
-        out.append(c)
-
-    def _port_lost(self, feed: _PortFeed, exc: BaseException | str) -> None:
-        feed.last_error = str(exc) or type(exc).__name__
-        log.warning("lost %s: %s", feed.port, feed.last_error)
-        if self._sel is not None and feed.fd >= 0:
-            try:
-                self._sel.unregister(feed.fd)
-            except (KeyError, ValueError):
-                pass
-        feed.close()
-        feed.core.reset_link()
-        feed.n_disconnects += 1
-        feed.retry_at = time.monotonic() + 0.1
+            for c in contacts:
+                self.callback(c)
+        if self.gesture_callback is not None:
+            for g in gestures:
+                self.gesture_callback(g)
+        self.n_emitted += len(contacts)
+        out += contacts
 
     def _retry_ports(self, now: float) -> None:
-        for feed in self._ports:
-            if feed.ser is None and now >= feed.retry_at and not self._stop_event.is_set():
-                try:
-                    feed.open()
-                except Exception:  # noqa: BLE001 - still unplugged: try again later
-                    feed.retry_at = now + 0.1
-                    continue
-                self._sel.register(feed.fd, selectors.EVENT_READ, feed)
-                feed.n_reconnects += 1
-                log.warning("reconnected to %s", feed.port)
+        if not self._stop_event.is_set():
+            for feed in self._ports:
+                feed.retry(self._sel, now)
 
     def _step(self, timeout_s: float) -> list[Contact]:
         """One turn of the loop: wait up to ``timeout_s`` for input, process it all."""
@@ -678,30 +310,31 @@ class Runner:
             except BlockingIOError:
                 continue
             except OSError as exc:
-                self._port_lost(feed, exc)
+                feed.lost(self._sel, exc)
                 continue
             if not data:
-                self._port_lost(feed, "end of file")
+                feed.lost(self._sel, "end of file")
                 continue
             feed.n_bytes += len(data)
-            for c in feed.core.feed(data, t_in):
-                self._emit(feed.slot, c, out)
+            for contacts in feed.core.feed_frames(data, t_in):
+                self._emit(feed.slot, contacts, out)
+            self._emit(feed.slot, (), out)  # gestures of frames without contacts
         self._wake_pending = False
         q = self._queue
         cores = self.cores
         while q:
             slot, frame, t_arr = q.popleft()
-            c = cores[slot].process(frame.values, frame.timestamp_s, frame.index, t_arr)
-            if c is not None:
-                self._emit(slot, c, out)
+            contacts = cores[slot].process_frame(
+                frame.values, frame.timestamp_s, frame.index, t_arr
+            )
+            if contacts or cores[slot].gestures:
+                self._emit(slot, contacts, out)
         now = time.monotonic()
         if self._ports:
             self._retry_ports(now)
         for slot, core in enumerate(cores):
             if core.touching:
-                c = core.link_lost(now)
-                if c is not None:
-                    self._emit(slot, c, out)
+                self._emit(slot, core.end_stale(now), out)
         return out
 
     @property
@@ -716,12 +349,12 @@ class Runner:
             yield from self._step(0.05)
             if self.finished:
                 yield from self._step(0.0)
-                for slot, core in enumerate(self.cores):  # end touches still open
-                    c = core.link_lost(math.inf)
-                    if c is not None:
-                        out: list[Contact] = []
-                        self._emit(slot, c, out)
-                        yield from out
+                for slot, core in enumerate(self.cores):  # end touches, report what waits
+                    out: list[Contact] = []
+                    ends = core.end_stale(math.inf)
+                    core.flush_gestures()
+                    self._emit(slot, ends, out)
+                    yield from out
                 break
         self._raise_feed_errors()
 
@@ -785,6 +418,7 @@ class Runner:
                 "frames": core.n_frames,
                 "contacts": core.n_contacts,
                 "touches": core.n_touches,
+                "gestures": core.n_gestures,
                 "calibrated": core.calibrated,
             }
             if slot in ports:
@@ -821,6 +455,8 @@ class Pipeline(Runner):
         Detection, drift and filter settings.
     callback : callable(Contact), optional
         Called for every contact (with ``start``, on the pipeline's thread).
+    gesture_callback : callable(dict), optional
+        Called for every gesture event, on the pipeline's thread.
     **source_options
         Further ``SkinSpec`` fields: ``name``, ``baud``, ``wire_format``, ``n_tx``, ``n_rx``,
         ``realtime``, ``loop``, ``rate_hz``, ``baseline``.
@@ -840,6 +476,7 @@ class Pipeline(Runner):
         sinks: Sequence[str | Sink] = (),
         config: PipelineConfig | None = None,
         callback: Callable[[Contact], Any] | None = None,
+        gesture_callback: Callable[[dict[str, Any]], Any] | None = None,
         **source_options: Any,
     ) -> None:
         spec = SkinSpec(
@@ -848,7 +485,7 @@ class Pipeline(Runner):
             config=PipelineConfig() if config is None else config,
             **source_options,
         )
-        super().__init__([spec], sinks=sinks, callback=callback)
+        super().__init__([spec], sinks=sinks, callback=callback, gesture_callback=gesture_callback)
 
     @property
     def core(self) -> SkinCore:

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import abc
+import json
 import logging
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -18,7 +20,15 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-__all__ = ["SINK_SPECS", "CallbackSink", "ListSink", "Sink", "SkinInfo", "make_sink"]
+__all__ = [
+    "SINK_SPECS",
+    "CallbackSink",
+    "ListSink",
+    "Sink",
+    "SkinInfo",
+    "gesture_json",
+    "make_sink",
+]
 
 #: The spec forms ``make_sink`` understands, for help texts and error messages.
 SINK_SPECS = (
@@ -53,6 +63,8 @@ class SkinInfo:
         Origin of the skin's mesh frame in ``parent_frame``, m.
     rotation_xyzw : (float, float, float, float)
         Orientation of the mesh frame in ``parent_frame``, unit quaternion.
+    max_contacts : int
+        K: contacts (tracks, slots) per frame at most.
     """
 
     name: str
@@ -63,6 +75,27 @@ class SkinInfo:
     parent_frame: str | None = None
     translation_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     rotation_xyzw: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
+    max_contacts: int = 1
+
+
+def _json_ready(value: Any) -> Any:
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _json_ready(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_json_ready(v) for v in value]
+    return value
+
+
+def gesture_json(skin: str, event: dict[str, Any], **extra: Any) -> str:
+    """A gesture event as one line of JSON.
+
+    ``"event": "gesture"`` and ``"skin"`` are always set, nan and infinities become null, and
+    ``extra`` keys come first (the WebSocket sink's ``"type"``).
+    """
+    d = {**extra, **event, "event": "gesture", "skin": event.get("skin", skin)}
+    return json.dumps(_json_ready(d), separators=(",", ":"))
 
 
 class Sink(abc.ABC):
@@ -124,16 +157,27 @@ class CallbackSink(Sink):
 
 
 class ListSink(Sink):
-    """Keep every contact in ``self.contacts`` (tests, notebooks)."""
+    """Keep every contact in ``contacts``, every frame's in ``frames``, gestures in ``gestures``."""
 
     name = "list"
 
     def __init__(self) -> None:
         self.contacts: list[Contact] = []
+        self.frames: list[list[Contact]] = []
+        self.gestures: list[dict[str, Any]] = []
 
     def emit(self, contact: Contact) -> None:
         """Append."""
         self.contacts.append(contact)
+
+    def emit_contacts(self, skin: str, timestamp_s: float, contacts: Sequence[Contact]) -> None:
+        """Append the frame's contacts (to ``frames`` and one by one to ``contacts``)."""
+        self.frames.append(list(contacts))
+        self.contacts.extend(contacts)
+
+    def emit_gesture(self, skin: str, timestamp_s: float, event: dict[str, Any]) -> None:
+        """Append."""
+        self.gestures.append(event)
 
 
 def _host_port(spec: str, default_port: int) -> tuple[str, int]:

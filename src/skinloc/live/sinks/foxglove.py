@@ -1,23 +1,28 @@
-"""Foxglove: a live 3D scene of the skin and its contact (WebSocket), and MCAP recording.
+"""Foxglove: a live 3D scene of the skin and its contacts (WebSocket), and MCAP recording.
 
 Through ``foxglove-sdk``. Topics: ``/skinloc/scene`` (``foxglove.SceneUpdate``: each skin's mesh
-as a translucent triangle list and the contact as a sphere, green while touching and grey after
-the touch ends), ``/skinloc/<skin>/contact`` (``foxglove.Point3InFrame``, m) and
-``/skinloc/contacts`` (JSON, the same object as the JSON-lines sink). Every skin is drawn in the
-frame ``skin/<name>`` (its mesh frame). Open the live view in Foxglove with "Open connection",
-``ws://HOST:PORT``, or open the ``.mcap`` file.
+as a translucent triangle list and every contact of a frame as a sphere, one entity per slot
+(``<skin>/slot<k>``) coloured by its track's id, removed when the finger lifts),
+``/skinloc/<skin>/contact`` (``foxglove.Point3InFrame``, m: the frame's first contact, lowest
+slot), ``/skinloc/contacts`` (JSON, the same object as the JSON-lines sink, one per contact),
+``/skinloc/gestures`` (``foxglove.Log``: one line per gesture, for the Log panel) and
+``/skinloc/gesture_events`` (JSON, the same object as the JSON-lines sink's gesture lines).
+Every skin is drawn in the frame ``skin/<name>`` (its mesh frame). Open the live view in
+Foxglove with "Open connection", ``ws://HOST:PORT``, or open the ``.mcap`` file.
 """
 
 from __future__ import annotations
 
+import json
 import logging
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from skinloc.live.sinks.base import Sink, SkinInfo
+from skinloc.live.sinks.base import Sink, SkinInfo, gesture_json
 
 if TYPE_CHECKING:
     from skinloc.live.contact import Contact
@@ -27,6 +32,15 @@ log = logging.getLogger(__name__)
 __all__ = ["FoxgloveSink"]
 
 _MESH_REPUBLISH_S = 2.0  # clients that connect later get the mesh within this time
+#: Track colours (r, g, b), by tracking id: neighbouring ids differ at a glance
+TRACK_COLOURS = (
+    (0.10, 0.80, 0.20),
+    (0.95, 0.45, 0.05),
+    (0.15, 0.45, 0.95),
+    (0.85, 0.15, 0.65),
+    (0.95, 0.85, 0.10),
+    (0.10, 0.80, 0.85),
+)
 
 
 def _require_foxglove() -> Any:
@@ -75,6 +89,8 @@ class FoxgloveSink(Sink):
         self._skins: list[SkinInfo] = []
         self._scene = None
         self._json = None
+        self._log = None
+        self._gestures = None
         self._points: dict[str, Any] = {}
         self._last_mesh = 0.0
         self.n_sent = 0
@@ -113,6 +129,10 @@ class FoxgloveSink(Sink):
             log.info("Foxglove live view on %s", self.url)
         self._scene = channels.SceneUpdateChannel("/skinloc/scene", context=self._ctx)
         self._json = fg.Channel("/skinloc/contacts", message_encoding="json", context=self._ctx)
+        self._log = channels.LogChannel("/skinloc/gestures", context=self._ctx)
+        self._gestures = fg.Channel(
+            "/skinloc/gesture_events", message_encoding="json", context=self._ctx
+        )
         for s in self._skins:
             self._points[s.name] = channels.Point3InFrameChannel(
                 f"/skinloc/{s.name}/contact", context=self._ctx
@@ -153,9 +173,13 @@ class FoxgloveSink(Sink):
         self._last_mesh = time.monotonic()
 
     def emit(self, contact: Contact) -> None:
-        """Log the contact on every topic."""
+        """Log one contact (a frame of one contact)."""
+        self.emit_contacts(contact.skin, contact.timestamp_s, [contact])
+
+    def emit_contacts(self, skin: str, timestamp_s: float, contacts: Sequence[Contact]) -> None:
+        """Log a frame's contacts: one sphere per slot, the first as a point, each as JSON."""
         if self._ctx is None:
-            self.open([SkinInfo(contact.skin)])
+            self.open([SkinInfo(skin)])
         from foxglove.messages import (
             Color,
             Point3,
@@ -163,6 +187,8 @@ class FoxgloveSink(Sink):
             Pose,
             Quaternion,
             SceneEntity,
+            SceneEntityDeletion,
+            SceneEntityDeletionType,
             SceneUpdate,
             SpherePrimitive,
             Vector3,
@@ -173,37 +199,67 @@ class FoxgloveSink(Sink):
         now = time.time()
         log_ns = int(now * 1e9)
         stamp = self._stamp(now)
-        x, y, z = contact.position_m
-        frame = f"skin/{contact.skin}"
-        if x == x:  # not nan
-            touching = contact.state in ("start", "move")
-            color = (
-                Color(r=0.1, g=0.8, b=0.2, a=1.0) if touching else Color(r=0.5, g=0.5, b=0.5, a=0.6)
-            )
-            sphere = SpherePrimitive(
-                pose=Pose(
-                    position=Vector3(x=x, y=y, z=z), orientation=Quaternion(x=0, y=0, z=0, w=1)
-                ),
-                size=Vector3(x=0.01, y=0.01, z=0.01),
-                color=color,
-            )
-            ent = SceneEntity(
-                timestamp=stamp, frame_id=frame, id=f"{contact.skin}/contact", spheres=[sphere]
-            )
-            self._scene.log(SceneUpdate(entities=[ent]), log_time=log_ns)
-            ch = self._points.get(contact.skin)
+        frame = f"skin/{skin}"
+        entities, deletions = [], []
+        first = None
+        for c in contacts:
+            x, y, z = c.position_m
+            ent_id = f"{skin}/slot{max(c.slot, 0)}"
+            if c.state == "end":  # the finger lifted: its sphere goes
+                deletions.append(
+                    SceneEntityDeletion(
+                        timestamp=stamp, type=SceneEntityDeletionType.MatchingId, id=ent_id
+                    )
+                )
+            elif x == x:  # not nan
+                r, g, b = TRACK_COLOURS[max(c.track_id, 0) % len(TRACK_COLOURS)]
+                sphere = SpherePrimitive(
+                    pose=Pose(
+                        position=Vector3(x=x, y=y, z=z), orientation=Quaternion(x=0, y=0, z=0, w=1)
+                    ),
+                    size=Vector3(x=0.01, y=0.01, z=0.01),
+                    color=Color(r=r, g=g, b=b, a=1.0),
+                )
+                entities.append(
+                    SceneEntity(timestamp=stamp, frame_id=frame, id=ent_id, spheres=[sphere])
+                )
+                if first is None:
+                    first = (x, y, z)
+            self._json.log(c.to_dict(), log_time=log_ns)
+            self.n_sent += 1
+        if entities or deletions:
+            self._scene.log(SceneUpdate(entities=entities, deletions=deletions), log_time=log_ns)
+        if first is not None:
+            ch = self._points.get(skin)
             if ch is None:
                 from foxglove import channels
 
-                ch = self._points[contact.skin] = channels.Point3InFrameChannel(
-                    f"/skinloc/{contact.skin}/contact", context=self._ctx
+                ch = self._points[skin] = channels.Point3InFrameChannel(
+                    f"/skinloc/{skin}/contact", context=self._ctx
                 )
+            x, y, z = first
             ch.log(
                 Point3InFrame(timestamp=stamp, frame_id=frame, point=Point3(x=x, y=y, z=z)),
                 log_time=log_ns,
             )
-        self._json.log(contact.to_dict(), log_time=log_ns)
-        self.n_sent += 1
+
+    def emit_gesture(self, skin: str, timestamp_s: float, event: dict[str, Any]) -> None:
+        """Log the gesture: a line on ``/skinloc/gestures``, the event on ``gesture_events``."""
+        if self._ctx is None:
+            self.open([SkinInfo(skin)])
+        from foxglove.messages import Log, LogLevel
+
+        now = time.time()
+        log_ns = int(now * 1e9)
+        kind = event.get("kind", "?")
+        direction = event.get("direction")
+        ids = ", ".join(str(i) for i in event.get("track_ids", []))
+        text = f"{kind}{' ' + direction if direction else ''} (tracks {ids})"
+        self._log.log(
+            Log(timestamp=self._stamp(now), level=LogLevel.Info, message=text, name=skin),
+            log_time=log_ns,
+        )
+        self._gestures.log(json.loads(gesture_json(skin, event)), log_time=log_ns)
 
     def close(self) -> None:
         """Stop the server and finish the MCAP file."""

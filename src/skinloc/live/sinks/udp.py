@@ -1,12 +1,12 @@
-"""UDP: one JSON datagram per contact to a host and port (fire and forget)."""
+"""UDP: one JSON datagram per contact and per gesture event to a host and port (fire and forget)."""
 
 from __future__ import annotations
 
 import logging
 import socket
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
-from skinloc.live.sinks.base import Sink
+from skinloc.live.sinks.base import Sink, gesture_json
 
 if TYPE_CHECKING:
     from skinloc.live.contact import Contact
@@ -42,10 +42,17 @@ class UdpSink(Sink):
 
     def emit(self, contact: Contact) -> None:
         """Send one datagram."""
+        self._send(contact.to_json())
+
+    def emit_gesture(self, skin: str, timestamp_s: float, event: dict[str, Any]) -> None:
+        """Send the gesture event as one datagram (``"event": "gesture"``)."""
+        self._send(gesture_json(skin, event))
+
+    def _send(self, text: str) -> None:
         if self._sock is None:
             self.open([])
         try:
-            self._sock.sendto(contact.to_json().encode(), self.address)
+            self._sock.sendto(text.encode(), self.address)
             self.n_sent += 1
         except OSError as exc:
             self.n_errors += 1

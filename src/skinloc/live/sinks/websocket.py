@@ -2,8 +2,9 @@
 
 On connecting, a client first receives ``{"type": "hello", "skins": [...]}`` (names and meshes,
 m); then one message per contact, the same JSON object as the JSON-lines sink (with
-``"type": "contact"``). The server runs on its own thread with its own asyncio loop, so a slow
-client never stalls the pipeline (``websockets`` drops it when its buffer fills).
+``"type": "contact"``), and one per gesture event (``"type": "gesture"``). The server runs
+on its own thread with its own asyncio loop, so a slow client never stalls the pipeline
+(``websockets`` drops it when its buffer fills).
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import socket
 import threading
 from typing import TYPE_CHECKING, Any
 
-from skinloc.live.sinks.base import Sink, SkinInfo
+from skinloc.live.sinks.base import Sink, SkinInfo, gesture_json
 
 if TYPE_CHECKING:
     from skinloc.live.contact import Contact
@@ -169,8 +170,18 @@ class WebSocketSink(Sink):
             return
         d = contact.to_dict()
         d["type"] = "contact"
+        self._queue(json.dumps(d, separators=(",", ":")))
+
+    def emit_gesture(self, skin: str, timestamp_s: float, event: dict[str, Any]) -> None:
+        """Queue the gesture event for every client (``"type": "gesture"``)."""
+        self._queue(gesture_json(skin, event, type="gesture"))
+
+    def _queue(self, text: str) -> None:
+        loop = self._loop
+        if loop is None or self._server is None:
+            return
         try:
-            loop.call_soon_threadsafe(self._broadcast, json.dumps(d, separators=(",", ":")))
+            loop.call_soon_threadsafe(self._broadcast, text)
         except RuntimeError:  # the loop is closing
             pass
 

@@ -1,0 +1,385 @@
+"""Gestures from tracks: tap, double tap, long press, swipe (with a direction), two-finger tap.
+
+``GestureRecognizer`` reads a skin's tracked contacts frame by frame (``update``: one ``Contact``
+per track, ``start``/``move``/``end``) and returns gesture events, JSON-ready dicts::
+
+    {"event": "gesture", "skin": "arm", "kind": "swipe", "direction": "up",
+     "start_s": 12.31, "end_s": 12.62, "timestamp_s": 12.62, "track_ids": [7],
+     "path_m": [[x, y, z], ...], "speed_m_s": 0.21}
+
+It works on *episodes*: from the first finger down to the last finger up. An episode of one
+finger is a tap (short, still), a long press (still for ``long_press_s``: reported then, while
+the finger may still be down), a swipe (far and fast enough: reported when the finger lifts) or
+nothing (a slow drag, a hold between a tap and a long press). An episode of two fingers that
+land together and both tap is a two-finger tap. Two taps close in time and place are one
+double tap, so a tap is reported only when the double-tap window after it has closed (or the
+next touch shows it is no second tap); a double tap is never also two taps, a long press or a
+swipe never also a tap. Every event is reported on the first frame at which it is certain.
+
+Directions are in the skin's own frame: ``up`` is a direction of the mesh frame (per skin;
+default: the mesh's long axis, see ``long_axis``); at the swipe, "up" is that axis projected
+onto the surface's tangent plane and "right" is up x outward normal (the right hand of someone
+facing the skin, head towards "up"). The swipe's displacement is split between the two and the
+larger part names the direction.
+
+Units: metres and seconds inside; thresholds in mm and s (``GestureConfig``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+import numpy as np
+
+from skinloc.live.contact import Contact
+
+__all__ = ["GestureConfig", "GestureRecognizer", "SkinFrame", "long_axis"]
+
+#: Points of a swipe's ``path_m`` at most (a longer path is subsampled evenly).
+MAX_PATH_POINTS = 64
+
+
+@dataclass
+class GestureConfig:
+    """Thresholds of the recogniser (docs/live.md, "Multi-touch and gestures").
+
+    Attributes
+    ----------
+    tap_max_s : float
+        Longest touch that is a tap, s (finger down to up as tracked).
+    still_mm : float
+        Largest distance from where a finger landed for a tap or a long press, mm.
+    double_tap_gap_s : float
+        Longest time from a tap's end to the next tap's start for a double tap, s; also how
+        long a tap waits before it is reported.
+    double_tap_mm : float
+        Largest distance between the two taps of a double tap, mm.
+    long_press_s : float
+        Time a still finger must be held for a long press, s.
+    swipe_min_mm : float
+        Shortest straight distance, landing to lift, of a swipe, mm.
+    swipe_min_speed_m_s : float
+        Slowest mean speed (that distance over the touch's duration) of a swipe, m/s.
+    two_finger_sync_s : float
+        Largest time between the two fingers' landings (and lifts) of a two-finger tap, s.
+    """
+
+    tap_max_s: float = 0.30
+    still_mm: float = 20.0
+    double_tap_gap_s: float = 0.30
+    double_tap_mm: float = 30.0
+    long_press_s: float = 0.60
+    swipe_min_mm: float = 30.0
+    swipe_min_speed_m_s: float = 0.08
+    two_finger_sync_s: float = 0.15
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if not isinstance(v, int | float) or isinstance(v, bool) or not v > 0:
+                raise ValueError(f"GestureConfig.{f.name} must be a number > 0, got {v!r}")
+            if not math.isfinite(v):
+                raise ValueError(f"GestureConfig.{f.name} must be finite, got {v!r}")
+        if self.long_press_s <= self.tap_max_s:
+            raise ValueError("GestureConfig.long_press_s must be longer than tap_max_s")
+        if self.swipe_min_mm <= self.still_mm:
+            raise ValueError("GestureConfig.swipe_min_mm must be larger than still_mm")
+
+
+def long_axis(vertices: np.ndarray) -> np.ndarray:
+    """The mesh's long axis, unit ``(3,)``: principal axis of the vertices, toward the wider end.
+
+    The wider end is the one where the vertices lie farther from the axis (a cone's base, a
+    forearm's elbow); a shape without one (a cylinder, a flat sheet) keeps the sign that makes
+    the axis' largest component positive.
+    """
+    v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+    c = v.mean(axis=0)
+    _, _, vt = np.linalg.svd(v - c, full_matrices=False)
+    a = vt[0]
+    s = (v - c) @ a
+    r = np.linalg.norm((v - c) - s[:, None] * a, axis=1)
+    cov = float(np.mean((s - s.mean()) * (r - r.mean())))
+    if abs(cov) > 1e-9 * max(float(np.ptp(s)) * float(np.ptp(r)), 1e-30):
+        return a if cov > 0 else -a
+    return a if a[np.argmax(np.abs(a))] > 0 else -a
+
+
+class SkinFrame:
+    """Up / right on a skin's surface, for swipe directions.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float or None
+        Mesh vertices, m (None: no mesh; then ``up`` must be given and the surface is taken as
+        facing the mesh frame's +z).
+    faces : (F, 3) int or None
+        Triangles (outward normals: away from the long axis; see ``normal_at``).
+    up : (3,) float, optional
+        "Up" in the mesh frame; default ``long_axis(vertices)``.
+    """
+
+    def __init__(
+        self,
+        vertices: np.ndarray | None,
+        faces: np.ndarray | None,
+        up: Sequence[float] | None = None,
+    ) -> None:
+        if up is None and vertices is None:
+            raise ValueError("a skin frame needs the mesh or an 'up' direction")
+        if up is not None:
+            u = np.asarray(up, dtype=np.float64).reshape(-1)
+            if u.shape != (3,) or not np.all(np.isfinite(u)) or np.linalg.norm(u) < 1e-9:
+                raise ValueError(f"'up' must be 3 finite numbers, not all 0, got {up!r}")
+            self.up = u / np.linalg.norm(u)
+        else:
+            self.up = long_axis(vertices)
+        self._v = None if vertices is None else np.asarray(vertices, dtype=np.float64)
+        self._n = None
+        if self._v is not None and faces is not None:
+            f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+            fn = np.cross(self._v[f[:, 1]] - self._v[f[:, 0]], self._v[f[:, 2]] - self._v[f[:, 0]])
+            n = np.zeros_like(self._v)
+            for k in range(3):
+                np.add.at(n, f[:, k], fn)
+            self._n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+            self._c = self._v.mean(axis=0)
+            self._axis = long_axis(self._v)
+
+    def normal_at(self, p: np.ndarray) -> np.ndarray:
+        """Outward unit normal of the surface near ``p (3,)`` m.
+
+        The nearest vertex's normal, turned away from the mesh's long axis (outward on a cone,
+        a cylinder or a limb); on a flat skin, where that is undefined, the faces' winding.
+        """
+        if self._n is None:
+            return np.array([0.0, 0.0, 1.0])
+        i = int(np.argmin(((self._v - p) ** 2).sum(axis=1)))
+        n = self._n[i]
+        radial = (p - self._c) - ((p - self._c) @ self._axis) * self._axis
+        if np.linalg.norm(radial) > 1e-6 and abs(n @ radial) > 0.1 * np.linalg.norm(radial):
+            return n if n @ radial > 0 else -n
+        return n
+
+    def direction(self, start: np.ndarray, end: np.ndarray) -> str:
+        """``up``, ``down``, ``left`` or ``right`` of the move ``start -> end`` (m)."""
+        d = end - start
+        n = self.normal_at(0.5 * (start + end))
+        up = self.up - (self.up @ n) * n
+        if np.linalg.norm(up) < 1e-9:  # "up" along the normal here: no in-surface up
+            up = self.up
+        up /= np.linalg.norm(up)
+        right = np.cross(up, n)
+        a, b = float(d @ up), float(d @ right)
+        if abs(a) >= abs(b):
+            return "up" if a >= 0 else "down"
+        return "right" if b >= 0 else "left"
+
+
+@dataclass(eq=False)
+class _Finger:
+    track_id: int
+    start_s: float
+    first: np.ndarray
+    path: list[tuple[float, float, float]]
+    end_s: float = math.nan
+    last_s: float = math.nan
+    max_from_first: float = 0.0  # m
+
+    @property
+    def ended(self) -> bool:
+        return self.end_s == self.end_s
+
+
+@dataclass(eq=False)
+class _Episode:
+    start_s: float
+    fingers: list[_Finger] = field(default_factory=list)
+    active: int = 0
+    done: bool = False  # reported (a long press) or ruled out: nothing more from it
+
+
+class GestureRecognizer:
+    """Gesture events of one skin from its tracked contacts.
+
+    Parameters
+    ----------
+    skin : str
+        Name carried by the events.
+    frame : SkinFrame
+        Up / right on the surface.
+    config : GestureConfig, optional
+        Thresholds.
+    """
+
+    def __init__(self, skin: str, frame: SkinFrame, config: GestureConfig | None = None) -> None:
+        self.skin = skin
+        self.frame = frame
+        self.cfg = GestureConfig() if config is None else config
+        self._fingers: dict[int, _Finger] = {}
+        self._episode: _Episode | None = None
+        self._pending: _Finger | None = None  # a tap waiting for its double-tap window
+        self.n_events = 0
+
+    @property
+    def busy(self) -> bool:
+        """Whether a finger is down or a tap waits: ``tick`` must be called every frame."""
+        return self._episode is not None or self._pending is not None
+
+    # ------------------------------------------------------------------ input
+    def update(
+        self, ts: float, contacts: Sequence[Contact], releasing: bool = False
+    ) -> list[dict[str, Any]]:
+        """One frame's contacts (one per track) at stream time ``ts``; returns due events.
+
+        ``releasing``: the touch detector is ending the touch (the signal is below its release
+        threshold): the positions of such a fading image are not the finger's and are left
+        out of the paths (the states still count).
+        """
+        for c in contacts:
+            tid = c.track_id
+            p = c.position_m
+            if c.state == "start" or tid not in self._fingers:
+                if c.state not in ("start", "move"):
+                    continue
+                f = _Finger(tid, c.timestamp_s, np.array(p), [p], last_s=c.timestamp_s)
+                self._fingers[tid] = f
+                ep = self._episode
+                if ep is None:
+                    ep = self._episode = _Episode(c.timestamp_s)
+                ep.fingers.append(f)
+                ep.active += 1
+                continue
+            f = self._fingers[tid]
+            if p[0] == p[0] and not releasing:
+                f.path.append(p)
+                d = math.dist(p, f.first)
+                if d > f.max_from_first:
+                    f.max_from_first = d
+            f.last_s = c.timestamp_s
+            if c.state == "end":
+                f.end_s = c.timestamp_s
+                del self._fingers[tid]
+                if self._episode is not None:
+                    self._episode.active -= 1
+        return self.tick(ts)
+
+    def tick(self, ts: float) -> list[dict[str, Any]]:
+        """Advance the clock to ``ts`` (a frame without contacts); returns due events."""
+        out: list[dict[str, Any]] = []
+        cfg = self.cfg
+        ep = self._episode
+        pend = self._pending
+        if pend is not None and ts >= pend.end_s + cfg.double_tap_gap_s:
+            if ep is None or ep.start_s > pend.end_s + cfg.double_tap_gap_s:
+                out.append(self._event("tap", [pend], ts))  # the window closed: a single tap
+                self._pending = pend = None
+        if ep is None:
+            return out
+        if not ep.done and len(ep.fingers) == 1:
+            f = ep.fingers[0]
+            still = f.max_from_first <= cfg.still_mm * 1e-3
+            held = (f.end_s if f.ended else ts) - f.start_s
+            if still and held >= cfg.long_press_s:
+                out += self._resolve_pending(ts)
+                # reported now, the finger may still be down: ``end_s`` is this moment
+                out.append(self._event("long_press", [f], ts, end_s=f.end_s if f.ended else ts))
+                ep.done = True
+        if pend is not None and not self._could_pair(ep, pend):
+            out += self._resolve_pending(ts)
+        if ep.active <= 0:
+            self._episode = None
+            if not ep.done:
+                out += self._classify(ep, ts)
+        return out
+
+    def flush(self, ts: float) -> list[dict[str, Any]]:
+        """The stream ended at ``ts``: report what waits (a tap whose window is still open)."""
+        return self._resolve_pending(ts)
+
+    # ------------------------------------------------------------------ decisions
+    def _is_tap(self, f: _Finger) -> bool:
+        cfg = self.cfg
+        return (
+            f.ended
+            and f.end_s - f.start_s <= cfg.tap_max_s
+            and f.max_from_first <= cfg.still_mm * 1e-3
+        )
+
+    def _could_pair(self, ep: _Episode, pend: _Finger) -> bool:
+        """Whether episode ``ep`` may still be the second tap of the pending tap."""
+        cfg = self.cfg
+        if ep.done or len(ep.fingers) != 1 or ep.start_s > pend.end_s + cfg.double_tap_gap_s:
+            return False
+        f = ep.fingers[0]
+        if math.dist(f.path[0], pend.path[-1]) > cfg.double_tap_mm * 1e-3:
+            return False
+        if f.max_from_first > cfg.still_mm * 1e-3:
+            return False
+        return (f.end_s if f.ended else f.last_s) - f.start_s <= cfg.tap_max_s
+
+    def _resolve_pending(self, ts: float) -> list[dict[str, Any]]:
+        pend, self._pending = self._pending, None
+        return [] if pend is None else [self._event("tap", [pend], ts)]
+
+    def _classify(self, ep: _Episode, ts: float) -> list[dict[str, Any]]:
+        """An episode that just ended (every finger up), not yet reported."""
+        cfg = self.cfg
+        out: list[dict[str, Any]] = []
+        fs = ep.fingers
+        if len(fs) == 1:
+            f = fs[0]
+            if self._is_tap(f):
+                pend = self._pending
+                if pend is not None and self._could_pair(ep, pend):
+                    self._pending = None
+                    out.append(self._event("double_tap", [pend, f], ts))
+                else:
+                    out += self._resolve_pending(ts)
+                    self._pending = f
+                return out
+            out += self._resolve_pending(ts)
+            dist = math.dist(f.path[0], f.path[-1])
+            dur = max(f.end_s - f.start_s, 1e-6)
+            if dist >= cfg.swipe_min_mm * 1e-3 and dist / dur >= cfg.swipe_min_speed_m_s:
+                out.append(self._event("swipe", [f], ts))
+            return out
+        out += self._resolve_pending(ts)
+        if len(fs) == 2 and all(self._is_tap(f) for f in fs):
+            a, b = fs
+            sync = cfg.two_finger_sync_s
+            if abs(a.start_s - b.start_s) <= sync and abs(a.end_s - b.end_s) <= sync:
+                out.append(self._event("two_finger_tap", fs, ts))
+        return out
+
+    def _event(
+        self, kind: str, fs: list[_Finger], ts: float, end_s: float | None = None
+    ) -> dict[str, Any]:
+        start = min(f.start_s for f in fs)
+        end = max(f.end_s for f in fs) if end_s is None else end_s
+        ev: dict[str, Any] = {
+            "event": "gesture",
+            "skin": self.skin,
+            "kind": kind,
+            "direction": None,
+            "start_s": start,
+            "end_s": end,
+            "timestamp_s": ts,
+            "track_ids": [f.track_id for f in fs],
+        }
+        if kind == "swipe":
+            f = fs[0]
+            path = f.path
+            if len(path) > MAX_PATH_POINTS:
+                idx = np.linspace(0, len(path) - 1, MAX_PATH_POINTS).round().astype(int)
+                path = [path[i] for i in idx]
+            a, b = np.array(f.path[0]), np.array(f.path[-1])
+            ev["direction"] = self.frame.direction(a, b)
+            ev["path_m"] = [list(p) for p in path]
+            length = sum(math.dist(p, q) for p, q in zip(f.path, f.path[1:], strict=False))
+            ev["speed_m_s"] = length / max(f.end_s - f.start_s, 1e-6)
+        self.n_events += 1
+        return ev

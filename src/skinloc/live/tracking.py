@@ -1,0 +1,299 @@
+"""Touch tracking: a frame's contacts become tracks with stable ids (multi-touch protocol B).
+
+The convention is the Linux kernel's multi-touch protocol B: a fixed set of ``K`` slots
+(``0..K-1``); a finger that lands takes the lowest free slot and a new tracking id (ids increase
+by one per finger landing, never reused); the track lives in its slot until the finger lifts,
+then the slot is free again. Each track has its own start, move and end events, so fingers land
+and lift independently.
+
+Per frame, ``Tracker.update`` receives the contacts the localiser found (positions on the
+surface, strongest first) and:
+
+1. matches them to the live tracks by distance (the smallest total distance, each pair within
+   ``gate_mm``; straight-line distance, which on a skin is the distance along the surface to
+   within 2 % for the few centimetres a finger moves between frames); when one track and one
+   contact are left over, they are matched whatever their distance (the localiser jumped on a
+   weak image: a finger lifting and another landing in the same frame is far rarer);
+2. a live track with no match keeps its slot and last position for ``miss_frames`` frames (a
+   contact the localiser misses for one frame does not end the finger), then ends;
+3. a contact with no match is a candidate finger; it becomes a track (``start``) when seen in
+   ``confirm_frames`` consecutive frames (one-frame ghosts never reach the sinks), except on
+   the frame a touch starts, whose contacts the touch detector has already debounced;
+4. every track's position goes through its own One-Euro filter, then back onto the surface.
+
+``frame_contacts`` is the one place that asks the model for a frame's contacts.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from skinloc.live.one_euro import one_euro
+
+__all__ = ["Track", "Tracker", "assign", "frame_contacts"]
+
+#: ``(positions (k, 3) m on the surface, raw (k, 3) m, strength (k,) counts, uncertainty (k,) mm)``
+FrameContacts = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+
+def frame_contacts(
+    engine: object, delta: np.ndarray, max_contacts: int, out: np.ndarray
+) -> FrameContacts:
+    """The contacts of one baseline-subtracted frame, strongest first (0..``max_contacts``).
+
+    Uses ``engine.contacts(delta, max_contacts=K)`` (a ``ContactSet``) when the engine has it;
+    otherwise one contact from ``engine.localise_into`` (strength unknown: nan). This is the one
+    adapter to replace when multi-contact localisation lands in ``skinloc.models``.
+
+    Parameters
+    ----------
+    engine : Engine
+        The model's engine.
+    delta : (n_sensors,) float32
+        Baseline-subtracted counts.
+    max_contacts : int
+        K.
+    out : (7,) float64
+        Scratch for ``localise_into``.
+    """
+    contacts = getattr(engine, "contacts", None)
+    if contacts is not None:
+        cs = contacts(delta, max_contacts=max_contacts)
+        pos = np.asarray(cs.positions_m, dtype=np.float64).reshape(-1, 3)
+        return pos, pos, np.asarray(cs.strength, float), np.asarray(cs.uncertainty_mm, float)
+    engine.localise_into(delta, out)
+    return out[None, 3:6], out[None, 0:3], np.full(1, math.nan), out[6:7]
+
+
+def assign(tracks: np.ndarray, detections: np.ndarray, gate_m: float) -> list[tuple[int, int]]:
+    """Pairs ``(track i, detection j)`` of least total distance, each pair within ``gate_m``.
+
+    Exact. Among the matchings of the largest size, the one with the smallest summed distance:
+    a far pair never displaces a near one. By enumeration up to 4 x 4 (the live case, K <= 3:
+    at most 24 orders), ``scipy.optimize.linear_sum_assignment`` beyond.
+
+    Parameters
+    ----------
+    tracks : (m, 3) float
+        Last positions of the live tracks, m.
+    detections : (n, 3) float
+        This frame's contacts, m.
+    gate_m : float
+        Largest distance a finger moves between two frames, m.
+    """
+    m, n = len(tracks), len(detections)
+    if m == 0 or n == 0:
+        return []
+    d = np.linalg.norm(tracks[:, None, :] - detections[None, :, :], axis=2)
+    ok = d <= gate_m
+    if m * n > 16:
+        from scipy.optimize import linear_sum_assignment
+
+        big = gate_m * (m + n + 1) * 10.0  # any gated pair costs more than all pairs within
+        rows, cols = linear_sum_assignment(np.where(ok, d, big))
+        return [(int(i), int(j)) for i, j in zip(rows, cols, strict=True) if ok[i, j]]
+    best: list[tuple[int, int]] = []
+    best_key = (0, 0.0)
+    if m <= n:
+        for cols in itertools.permutations(range(n), m):
+            pairs = [(i, j) for i, j in enumerate(cols) if ok[i, j]]
+            key = (len(pairs), -sum(d[i, j] for i, j in pairs))
+            if key > best_key or not best:
+                best, best_key = pairs, key
+    else:
+        for rows in itertools.permutations(range(m), n):
+            pairs = [(i, j) for j, i in enumerate(rows) if ok[i, j]]
+            key = (len(pairs), -sum(d[i, j] for i, j in pairs))
+            if key > best_key or not best:
+                best, best_key = pairs, key
+    return sorted(best)
+
+
+@dataclass(eq=False)
+class Track:
+    """One finger: its slot, tracking id and latest state.
+
+    Attributes
+    ----------
+    slot : int
+        Slot 0..K-1 (-1 while a candidate).
+    track_id : int
+        Tracking id (-1 while a candidate).
+    position_m : (3,) float
+        Filtered position on the surface, m.
+    raw_m : (3,) float
+        This frame's localiser output for it, m.
+    strength : float
+        Fitted strength, counts (nan: unknown).
+    uncertainty_mm : float
+        The localiser's spread, mm.
+    seen : int
+        Consecutive frames matched (candidates: towards ``confirm_frames``).
+    missed : int
+        Consecutive frames unmatched.
+    """
+
+    slot: int = -1
+    track_id: int = -1
+    position_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    raw_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    last_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    strength: float = math.nan
+    uncertainty_mm: float = math.nan
+    seen: int = 0
+    missed: int = 0
+    filt: np.ndarray = field(default_factory=lambda: np.zeros(8))
+
+
+class Tracker:
+    """Protocol-B tracks of one skin from per-frame contacts.
+
+    Parameters
+    ----------
+    max_contacts : int
+        K: slots.
+    gate_mm : float
+        Largest distance between a track's last contact and its next one, mm.
+    miss_frames : int
+        Frames a track may go unmatched and live on (its position held).
+    confirm_frames : int
+        Consecutive frames a new contact needs to become a track (not on a touch's first frame).
+    constrain : callable(x, y, z, out (3,))
+        Puts a point back onto the surface (``Engine.constrain_into``).
+    filter_params : (3,) float or None
+        One-Euro ``[min_cutoff_hz, beta s/m, d_cutoff_hz]``; None: no filter.
+    """
+
+    def __init__(
+        self,
+        max_contacts: int,
+        gate_mm: float,
+        miss_frames: int,
+        confirm_frames: int,
+        constrain: Callable[[float, float, float, np.ndarray], None],
+        filter_params: np.ndarray | None,
+    ) -> None:
+        self.max_contacts = int(max_contacts)
+        self.gate_m = float(gate_mm) * 1e-3
+        self.miss_frames = int(miss_frames)
+        self.confirm_frames = int(confirm_frames)
+        self._constrain = constrain
+        self._prm = filter_params
+        self.slots: list[Track | None] = [None] * self.max_contacts
+        self.candidates: list[Track] = []
+        self.next_id = 1
+        self._tmp = np.zeros(3)
+
+    @property
+    def tracks(self) -> list[Track]:
+        """The live tracks, by slot."""
+        return [t for t in self.slots if t is not None]
+
+    def _measure(
+        self, t: Track, ts: float, pos: np.ndarray, raw: np.ndarray, s: float, u: float
+    ) -> None:
+        t.raw_m[:] = raw
+        t.last_m[:] = pos
+        t.strength, t.uncertainty_mm = float(s), float(u)
+        t.seen += 1
+        t.missed = 0
+        if self._prm is None:
+            t.position_m[:] = pos
+        else:
+            x, y, z = pos.tolist()  # Python floats: numba's fastest dispatch
+            one_euro(t.filt, x, y, z, ts, self._prm, self._tmp)
+            self._constrain(self._tmp[0], self._tmp[1], self._tmp[2], t.position_m)
+
+    def update(
+        self,
+        ts: float,
+        positions: np.ndarray,
+        raw: np.ndarray,
+        strength: np.ndarray,
+        uncertainty_mm: np.ndarray,
+        touch_start: bool = False,
+        new_fingers: bool = True,
+    ) -> list[tuple[Track, str]]:
+        """One frame's contacts ``(k, 3)`` m into ``(track, state)`` events, by slot.
+
+        ``state`` is ``start``, ``move`` or ``end``; a track missed this frame but within
+        ``miss_frames`` reports ``move`` at its last position. ``touch_start``: the touch
+        detector's first frame of a touch (its contacts start tracks at once); ``new_fingers``
+        False (the touch is being released, its signal below the release threshold): contacts
+        that match no track are ignored, as the localiser's answers on a fading image are.
+        """
+        live = [t for t in self.slots if t is not None]
+        k = len(positions)
+        used = [False] * k
+        events: list[tuple[Track, str]] = []
+        matched: set[int] = set()
+        if len(live) == 1 and k == 1 and not self.candidates:
+            # one finger, one contact (the common frame): the same finger, as in step 1's
+            # lone-pair rule; no assignment to compute
+            self._measure(live[0], ts, positions[0], raw[0], strength[0], uncertainty_mm[0])
+            return [(live[0], "move")]
+        if live and k:
+            prev = np.array([t.last_m for t in live])
+            for i, j in assign(prev, positions, self.gate_m):
+                self._measure(live[i], ts, positions[j], raw[j], strength[j], uncertainty_mm[j])
+                used[j] = True
+                matched.add(i)
+            lone_t = [i for i in range(len(live)) if i not in matched]
+            lone_d = [j for j in range(k) if not used[j]]
+            if len(lone_t) == 1 and len(lone_d) == 1:
+                # one finger left and one contact left: the same finger, whose position jumped
+                # (a weak or changing image), not a lift and a landing in the same frame
+                i, j = lone_t[0], lone_d[0]
+                self._measure(live[i], ts, positions[j], raw[j], strength[j], uncertainty_mm[j])
+                used[j] = True
+                matched.add(i)
+        for i, t in enumerate(live):
+            if i in matched:
+                events.append((t, "move"))
+                continue
+            t.missed += 1
+            if t.missed > self.miss_frames:
+                self.slots[t.slot] = None
+                events.append((t, "end"))
+            else:
+                events.append((t, "move"))
+        # candidates: matched ones grow, unmatched ones vanish
+        rest = [j for j in range(k) if not used[j]] if new_fingers else []
+        cands = self.candidates
+        keep: list[Track] = []
+        if cands and rest:
+            prev = np.array([c.last_m for c in cands])
+            for i, jj in assign(prev, positions[rest], self.gate_m):
+                j = rest[jj]
+                self._measure(cands[i], ts, positions[j], raw[j], strength[j], uncertainty_mm[j])
+                used[j] = True
+                keep.append(cands[i])
+        for j in rest:
+            if not used[j]:
+                c = Track()
+                self._measure(c, ts, positions[j], raw[j], strength[j], uncertainty_mm[j])
+                keep.append(c)
+        self.candidates = []
+        for c in keep:
+            if (touch_start or c.seen >= self.confirm_frames) and None in self.slots:
+                c.slot = self.slots.index(None)
+                c.track_id = self.next_id
+                self.next_id += 1
+                self.slots[c.slot] = c
+                events.append((c, "start"))
+            else:
+                self.candidates.append(c)
+        events.sort(key=lambda e: e[0].slot)
+        return events
+
+    def end_all(self) -> list[Track]:
+        """End every track (the touch ended); returns them by slot and frees every slot."""
+        out = [t for t in self.slots if t is not None]
+        self.slots = [None] * self.max_contacts
+        self.candidates = []
+        return out

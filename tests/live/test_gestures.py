@@ -1,0 +1,171 @@
+"""Gesture recognition from synthetic tracked-contact streams: exact events, nothing extra."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from skinloc.geometry.mesh import cone_skin
+from skinloc.live.contact import Contact
+from skinloc.live.gestures import GestureConfig, GestureRecognizer, SkinFrame, long_axis
+
+DT = 0.01  # 100 Hz
+CFG = GestureConfig()
+
+
+def still(p):
+    return lambda k: p
+
+
+def line(a, b, k0, k1):
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    return lambda k: tuple((a + (b - a) * (k - k0) / max(k1 - k0, 1)).tolist())
+
+
+def stream(fingers, n_frames):
+    """Frames ``(t, contacts)``; fingers are ``(track_id, slot, first frame, last frame, pos)``."""
+    out = []
+    for k in range(n_frames):
+        t = k * DT
+        cs = []
+        for tid, slot, k0, k1, pos in fingers:
+            if k0 <= k <= k1:
+                state = "start" if k == k0 else "end" if k == k1 else "move"
+                p = tuple(float(v) for v in pos(k))
+                cs.append(Contact("s", t, k, state, p, p, 0.9, 20.0, math.nan, 1.0, 1, tid, slot))
+        out.append((t, cs))
+    return out
+
+
+def run(frames, frame=None, cfg=CFG):
+    rec = GestureRecognizer("s", frame or SkinFrame(None, None, up=(0.0, 1.0, 0.0)), cfg)
+    events = []
+    for t, cs in frames:
+        events += rec.update(t, cs) if cs else rec.tick(t)
+    events += rec.flush(frames[-1][0])
+    return events
+
+
+P = (0.0, 0.0, 0.0)
+FAR = (0.06, 0.0, 0.0)
+
+
+def test_a_tap_is_reported_once_when_its_double_tap_window_closes():
+    ev = run(stream([(1, 0, 100, 110, still(P))], 200))
+    assert [e["kind"] for e in ev] == ["tap"]
+    e = ev[0]
+    assert e["start_s"] == pytest.approx(1.00) and e["end_s"] == pytest.approx(1.10)
+    assert e["track_ids"] == [1] and e["direction"] is None and e["event"] == "gesture"
+    due = 1.10 + CFG.double_tap_gap_s
+    assert due - 1e-9 <= e["timestamp_s"] <= due + DT + 1e-9  # on the first frame after
+
+
+def test_two_close_taps_are_one_double_tap_not_taps():
+    ev = run(stream([(1, 0, 100, 110, still(P)), (2, 0, 125, 135, still((0.005, 0, 0)))], 300))
+    assert [e["kind"] for e in ev] == ["double_tap"]
+    assert ev[0]["track_ids"] == [1, 2]
+    assert ev[0]["start_s"] == pytest.approx(1.00) and ev[0]["end_s"] == pytest.approx(1.35)
+    assert ev[0]["timestamp_s"] == pytest.approx(1.35)  # certain when the second tap lifts
+
+
+@pytest.mark.parametrize(
+    ("second", "why"),
+    [((2, 0, 125, 135, still(FAR)), "far apart"), ((2, 0, 160, 170, still(P)), "too late")],
+)
+def test_taps_too_far_apart_in_place_or_time_are_two_taps(second, why):
+    ev = run(stream([(1, 0, 100, 110, still(P)), second], 400))
+    assert [e["kind"] for e in ev] == ["tap", "tap"], why
+    assert [e["track_ids"] for e in ev] == [[1], [2]]
+
+
+def test_a_long_press_is_reported_while_held_and_never_as_a_tap():
+    ev = run(stream([(1, 0, 100, 250, still(P))], 400))
+    assert [e["kind"] for e in ev] == ["long_press"]
+    assert ev[0]["timestamp_s"] == pytest.approx(1.00 + CFG.long_press_s, abs=DT + 1e-9)
+    assert ev[0]["start_s"] == pytest.approx(1.00)
+
+
+def test_a_hold_between_a_tap_and_a_long_press_is_nothing():
+    assert run(stream([(1, 0, 100, 145, still(P))], 300)) == []
+
+
+def test_a_tap_then_a_long_press_is_a_tap_and_a_long_press():
+    ev = run(stream([(1, 0, 100, 110, still(P)), (2, 0, 120, 250, still(P))], 400))
+    assert [e["kind"] for e in ev] == ["tap", "long_press"]
+    # the tap is certain once the second touch outlasts a tap
+    assert ev[0]["timestamp_s"] <= 1.20 + CFG.tap_max_s + DT + 1e-9
+
+
+@pytest.mark.parametrize(
+    ("end", "direction"),
+    [
+        ((0, 0.05, 0), "up"),
+        ((0, -0.05, 0), "down"),
+        ((0.05, 0, 0), "right"),
+        ((-0.05, 0, 0), "left"),
+    ],
+)
+def test_swipes_have_their_direction_path_and_speed(end, direction):
+    ev = run(stream([(1, 0, 100, 125, line(P, end, 100, 125))], 300))
+    assert [(e["kind"], e["direction"]) for e in ev] == [("swipe", direction)]
+    e = ev[0]
+    assert e["timestamp_s"] == pytest.approx(1.25)  # reported when the finger lifts
+    assert e["speed_m_s"] == pytest.approx(0.05 / 0.25, rel=1e-6)
+    assert len(e["path_m"]) == 26 and e["path_m"][0] == [0.0, 0.0, 0.0]
+    assert np.allclose(e["path_m"][-1], end)
+
+
+def test_direction_follows_a_rotated_skin_frame():
+    # "up" along +x: right is up x normal(+z) = -y
+    frame = SkinFrame(None, None, up=(1.0, 0.0, 0.0))
+    moves = {(0.05, 0, 0): "up", (0, -0.05, 0): "right", (0, 0.05, 0): "left"}
+    for end, direction in moves.items():
+        ev = run(stream([(1, 0, 100, 125, line(P, end, 100, 125))], 300), frame)
+        assert [e["direction"] for e in ev] == [direction]
+
+
+def test_default_up_is_the_cone_long_axis_toward_its_base():
+    mesh = cone_skin()
+    v = np.asarray(mesh.vertices)
+    up = long_axis(v)
+    s = (v - v.mean(axis=0)) @ up
+    radial = np.linalg.norm((v - v.mean(axis=0)) - s[:, None] * up, axis=1)
+    assert radial[s > np.median(s)].mean() > radial[s < np.median(s)].mean()  # wider end
+    frame = SkinFrame(v, np.asarray(mesh.faces))
+    # a swipe on the surface toward the base is "up"; the opposite is "down"
+    i, j = np.argmin(s), np.argmax(s)
+    a, b = v[i], v[i] + 0.5 * (v[j] - v[i])
+    assert frame.direction(a, b) == "up" and frame.direction(b, a) == "down"
+
+
+def test_slow_drags_and_short_moves_are_not_swipes_nor_taps():
+    slow = stream([(1, 0, 100, 190, line(P, (0, 0.05, 0), 100, 190))], 300)  # 0.055 m/s
+    assert run(slow) == []
+    short = stream([(1, 0, 100, 125, line(P, (0, 0.025, 0), 100, 125))], 300)  # 25 mm
+    assert run(short) == []
+
+
+def test_two_fingers_tapping_together_are_one_two_finger_tap():
+    ev = run(stream([(1, 0, 100, 112, still(P)), (2, 1, 103, 114, still(FAR))], 300))
+    assert [e["kind"] for e in ev] == ["two_finger_tap"]
+    assert ev[0]["track_ids"] == [1, 2] and ev[0]["timestamp_s"] == pytest.approx(1.14)
+
+
+def test_two_fingers_landing_apart_in_time_are_nothing():
+    assert run(stream([(1, 0, 100, 125, still(P)), (2, 1, 120, 130, still(FAR))], 300)) == []
+
+
+def test_a_tap_waiting_at_the_end_of_the_stream_is_flushed():
+    ev = run(stream([(1, 0, 100, 110, still(P))], 115))
+    assert [e["kind"] for e in ev] == ["tap"]
+
+
+def test_config_is_checked():
+    with pytest.raises(ValueError, match="long_press_s"):
+        GestureConfig(long_press_s=0.1)
+    with pytest.raises(ValueError, match="tap_max_s"):
+        GestureConfig(tap_max_s=-1.0)
+    with pytest.raises(ValueError, match="up"):
+        SkinFrame(None, None, up=(0.0, 0.0, 0.0))

@@ -1,0 +1,203 @@
+"""Tracking (multi-touch protocol B): slots, ids, fingers landing and lifting, missed frames."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+
+from skinloc.live.config import PipelineConfig
+from skinloc.live.core import SkinCore
+from skinloc.live.sinks import ListSink
+from skinloc.live.tracking import Tracker, assign
+from skinloc.models.engine import load_engine
+from tests._live import model_path
+
+A, B, C = np.array([0.0, 0.0, 0.0]), np.array([0.05, 0.0, 0.0]), np.array([0.0, 0.05, 0.0])
+
+
+def _tracker(k: int = 3, miss: int = 1, confirm: int = 2) -> Tracker:
+    def constrain(x, y, z, out):
+        out[:] = (x, y, z)
+
+    return Tracker(k, 30.0, miss, confirm, constrain, None)
+
+
+def _step(tr: Tracker, t: float, *points: np.ndarray, start: bool = False):
+    p = np.array(points, dtype=float).reshape(-1, 3)
+    n = len(p)
+    ev = tr.update(t, p, p, np.full(n, math.nan), np.full(n, 1.0), touch_start=start)
+    return [(e.track_id, e.slot, s) for e, s in ev]
+
+
+def test_fingers_land_and_lift_independently_with_stable_ids_and_slot_reuse():
+    tr = _tracker()
+    assert _step(tr, 0.00, A, start=True) == [(1, 0, "start")]
+    assert _step(tr, 0.01, A) == [(1, 0, "move")]
+    # a second finger lands: a candidate for one frame, a track on the second
+    assert _step(tr, 0.02, A, B) == [(1, 0, "move")]
+    assert _step(tr, 0.03, B + 0.001, A + 0.001) == [(1, 0, "move"), (2, 1, "start")]
+    for k in range(4, 8):
+        assert _step(tr, k * 0.01, A, B) == [(1, 0, "move"), (2, 1, "move")]
+    # the first finger lifts: one frame held (hysteresis), then its end; the second goes on
+    assert _step(tr, 0.08, B) == [(1, 0, "move"), (2, 1, "move")]
+    assert _step(tr, 0.09, B) == [(1, 0, "end"), (2, 1, "move")]
+    assert _step(tr, 0.10, B) == [(2, 1, "move")]
+    # a third finger takes the free slot 0 and a new id
+    _step(tr, 0.11, B, C)
+    assert _step(tr, 0.12, B, C) == [(3, 0, "start"), (2, 1, "move")]
+    assert [t.track_id for t in tr.end_all()] == [3, 2]
+    assert tr.tracks == []
+
+
+def test_one_missed_frame_does_not_end_a_track_and_its_position_is_held():
+    tr = _tracker()
+    _step(tr, 0.0, A, start=True)
+    _step(tr, 0.01, A + 0.002)
+    assert _step(tr, 0.02) == [(1, 0, "move")]  # missed: held
+    assert np.allclose(tr.tracks[0].position_m, A + 0.002)
+    assert _step(tr, 0.03, A + 0.003) == [(1, 0, "move")]  # back: the same track
+    assert _step(tr, 0.04) == [(1, 0, "move")]
+    assert _step(tr, 0.05) == [(1, 0, "end")]  # two in a row: it ends
+    tr0 = _tracker(miss=0)
+    _step(tr0, 0.0, A, start=True)
+    assert _step(tr0, 0.01) == [(1, 0, "end")]
+
+
+def test_a_one_frame_ghost_never_becomes_a_track_and_slots_are_capped():
+    tr = _tracker(k=2)
+    _step(tr, 0.0, A, start=True)
+    assert _step(tr, 0.01, A, B) == [(1, 0, "move")]
+    assert _step(tr, 0.02, A) == [(1, 0, "move")]
+    assert tr.next_id == 2
+    # K = 2: a third finger waits for a free slot
+    _step(tr, 0.03, A, B)
+    _step(tr, 0.04, A, B)
+    assert _step(tr, 0.05, A, B, C) == [(1, 0, "move"), (2, 1, "move")]
+    assert _step(tr, 0.06, A, B, C) == [(1, 0, "move"), (2, 1, "move")]
+
+
+def test_close_fingers_moving_together_keep_their_ids():
+    # 10 mm apart, both 6 mm along +x per frame: the second track's nearest new contact is the
+    # first finger's (4 mm), but the least total distance keeps each finger on its own track
+    tr = _tracker()
+    step = np.array([0.006, 0.0, 0.0])
+    a, b = A.copy(), A + [0.010, 0.0, 0.0]
+    _step(tr, 0.0, a, b, start=True)
+    for k in range(1, 6):
+        a, b = a + step, b + step
+        tr.update(k * 0.01, np.array([b, a]), np.array([b, a]), np.ones(2), np.ones(2))
+    got = {t.track_id: t.last_m for t in tr.tracks}
+    assert np.allclose(got[1], a) and np.allclose(got[2], b)
+
+
+def test_lone_track_and_lone_contact_are_the_same_finger_whatever_the_jump():
+    tr = _tracker()
+    _step(tr, 0.0, A, start=True)
+    assert _step(tr, 0.01, A + 0.1) == [(1, 0, "move")]
+    assert tr.next_id == 2
+
+
+def test_while_releasing_no_new_finger_starts():
+    tr = _tracker()
+    _step(tr, 0.0, A, start=True)
+    p = np.array([A, B])
+    for k in range(1, 4):
+        ev = tr.update(k * 0.01, p, p, np.ones(2), np.ones(2), new_fingers=False)
+        assert [(e.track_id, s) for e, s in ev] == [(1, "move")]
+
+
+def test_assignment_is_the_least_total_distance_within_the_gate():
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        m, n = rng.integers(1, 5, size=2)
+        t, d = rng.uniform(0, 0.05, (m, 3)), rng.uniform(0, 0.05, (n, 3))
+        pairs = assign(t, d, 0.03)
+        dist = np.linalg.norm(t[:, None] - d[None], axis=2)
+        assert all(dist[i, j] <= 0.03 for i, j in pairs)
+        best = (0, 0.0)
+        for perm in itertools.permutations(range(max(m, n))):
+            ps = [(i, perm[i]) for i in range(m) if perm[i] < n and dist[i, perm[i]] <= 0.03]
+            best = max(best, (len(ps), -sum(dist[i, j] for i, j in ps)))
+        assert (len(pairs), -sum(dist[i, j] for i, j in pairs)) == pytest.approx(best)
+    assert assign(np.zeros((0, 3)), np.zeros((2, 3)), 0.03) == []
+    big = assign(rng.uniform(0, 0.01, (5, 3)), rng.uniform(0, 0.01, (5, 3)), 0.03)
+    assert len(big) == 5  # scipy beyond 4 x 4
+
+
+# ---------------------------------------------------------------------------- in the pipeline
+
+
+class _Scripted:
+    """An engine whose ``contacts`` returns scripted points (the multi-contact API)."""
+
+    def __init__(self, script):
+        self.script = list(script)
+        self.calls = 0
+
+    def __call__(self, x, max_contacts=3):
+        pts = self.script[min(self.calls, len(self.script) - 1)][:max_contacts]
+        self.calls += 1
+        n = len(pts)
+
+        class CS:
+            positions_m = np.array(pts, dtype=float).reshape(-1, 3)
+            strength = np.full(n, 100.0)
+            uncertainty_mm = np.full(n, 2.0)
+
+        return CS
+
+
+def _frames(n_touch: int, rng) -> np.ndarray:
+    base = 1000.0 + rng.normal(0, 2.0, (60 + n_touch + 10, 64))
+    base[60 : 60 + n_touch, 10] += 400.0
+    return base
+
+
+def test_pipeline_emits_one_contact_per_track_and_a_two_finger_tap():
+    rng = np.random.default_rng(0)
+    engine = load_engine(model_path("map"))
+    script = [[A]] * 2 + [[A, B]] * 8 + [[A]] * 3
+    engine.contacts = _Scripted(script)
+    try:
+        core = SkinCore(engine, PipelineConfig(baseline_frames=50), name="s")
+        sink = ListSink()
+        frames = _frames(12, rng)
+        for k, f in enumerate(frames):
+            cs = core.process_frame(f, k * 0.01, k)
+            if cs:
+                sink.emit_contacts("s", k * 0.01, cs)
+        core.flush_gestures()
+        per_frame = [[(c.track_id, c.slot, c.state) for c in f] for f in sink.frames]
+        assert per_frame[0] == [(1, 0, "start")]
+        assert [x for x in per_frame[2] if x[0] == 2] == []  # a candidate for one frame
+        assert [(2, 1, "start")] == [x for x in per_frame[3] if x[0] == 2]
+        assert max(len(f) for f in per_frame) == 2
+        assert all(c.strength == 100.0 for c in sink.contacts if c.state != "end")
+        ends = [(c.track_id, c.state) for c in sink.contacts if c.state == "end"]
+        assert sorted(ends) == [(1, "end"), (2, "end")]
+        kinds = [g["kind"] for g in core.take_gestures()]
+        assert kinds == ["two_finger_tap"]
+    finally:
+        del engine.contacts
+
+
+def test_max_contacts_1_is_one_track_per_touch():
+    rng = np.random.default_rng(1)
+    core = SkinCore(model_path("map"), PipelineConfig(baseline_frames=50, max_contacts=1))
+    out = []
+    for k, f in enumerate(_frames(20, rng)):
+        out += core.process_frame(f, k * 0.01, k)
+    assert {(c.track_id, c.slot, c.touch_id) for c in out} == {(1, 0, 1)}
+    assert [c.state for c in out][0] == "start" and out[-1].state == "end"
+
+
+def test_pipeline_config_checks_the_tracking_fields():
+    with pytest.raises(ValueError, match="max_contacts"):
+        PipelineConfig(max_contacts=0)
+    with pytest.raises(ValueError, match="track_miss_frames"):
+        PipelineConfig(track_miss_frames=-1)
+    with pytest.raises(ValueError, match="gestures"):
+        PipelineConfig(gestures="yes")

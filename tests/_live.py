@@ -117,12 +117,12 @@ def gesture_recording() -> Path:
             skin.press(p, pressure=1.0, finger_radius_m=0.008)
             frames.append(skin.read().values)
 
-    # a surface point a quarter along the long axis, and a path 50 mm from it toward the base
+    # a surface point 30 % along the long axis, and a path 50 mm from it "up" the skin
     import trimesh
 
-    from skinloc.live.gestures import long_axis
+    from skinloc.geometry.skin_frame import skin_up_axis
 
-    up = long_axis(v)
+    up = skin_up_axis(v)
     s = (v - v.mean(axis=0)) @ up
     mid = v[np.argmin(np.abs(s - np.quantile(s, 0.3)) + 10 * np.abs(v[:, 0]))]
     line = mid + np.linspace(0.0, 0.05, 30)[:, None] * up

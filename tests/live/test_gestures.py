@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from skinloc.geometry.mesh import cone_skin
+from skinloc.geometry.skin_frame import skin_frame, skin_up_axis
 from skinloc.live.contact import Contact
-from skinloc.live.gestures import GestureConfig, GestureRecognizer, SkinFrame, long_axis
+from skinloc.live.gestures import GestureConfig, GestureRecognizer, SkinFrame
 
 DT = 0.01  # 100 Hz
 CFG = GestureConfig()
@@ -126,15 +127,16 @@ def test_direction_follows_a_rotated_skin_frame():
         assert [e["direction"] for e in ev] == [direction]
 
 
-def test_default_up_is_the_cone_long_axis_toward_its_base():
+def test_default_up_is_the_skin_frame_of_the_simulator():
     mesh = cone_skin()
     v = np.asarray(mesh.vertices)
-    up = long_axis(v)
+    up = skin_up_axis(v)
     s = (v - v.mean(axis=0)) @ up
-    radial = np.linalg.norm((v - v.mean(axis=0)) - s[:, None] * up, axis=1)
-    assert radial[s > np.median(s)].mean() > radial[s < np.median(s)].mean()  # wider end
     frame = SkinFrame(v, np.asarray(mesh.faces))
-    # a swipe on the surface toward the base is "up"; the opposite is "down"
+    # the recogniser's frame is the simulator's gesture frame (geometry.skin_frame)
+    want = skin_frame(v, np.asarray(mesh.faces))
+    assert np.allclose(frame.up, want[0]) and np.allclose(frame.right, want[1])
+    # a swipe on the surface along the long axis is "up"; the opposite is "down"
     i, j = np.argmin(s), np.argmax(s)
     a, b = v[i], v[i] + 0.5 * (v[j] - v[i])
     assert frame.direction(a, b) == "up" and frame.direction(b, a) == "down"

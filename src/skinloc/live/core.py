@@ -76,7 +76,7 @@ class SkinCore(WireInput):
         Wire format for ``feed``.
     up : (3,) float, optional
         The skin's "up" in the mesh frame, for swipe directions (default: the mesh's long
-        axis, ``skinloc.live.gestures.long_axis``).
+        axis, ``skinloc.geometry.skin_frame.skin_up_axis``).
     gesture_config : GestureConfig, optional
         Thresholds of the gesture recogniser.
 

@@ -16,11 +16,11 @@ double tap, so a tap is reported only when the double-tap window after it has cl
 next touch shows it is no second tap); a double tap is never also two taps, a long press or a
 swipe never also a tap. Every event is reported on the first frame at which it is certain.
 
-Directions are in the skin's own frame: ``up`` is a direction of the mesh frame (per skin;
-default: the mesh's long axis, see ``long_axis``); at the swipe, "up" is that axis projected
-onto the surface's tangent plane and "right" is up x outward normal (the right hand of someone
-facing the skin, head towards "up"). The swipe's displacement is split between the two and the
-larger part names the direction.
+Directions are in the skin's own frame, the one the simulator's gesture script uses too
+(``geometry.skin_frame``): ``up`` is a direction of the mesh frame (per skin; default: the mesh's
+long axis, ``skin_up_axis``) and "right" is up x the skin's mean outward normal (the right hand
+of someone facing the skin, head towards "up"). The swipe's displacement, landing to lift, is
+split between the two and the larger part names the direction.
 
 Units: metres and seconds inside; thresholds in mm and s (``GestureConfig``).
 """
@@ -34,9 +34,10 @@ from typing import Any
 
 import numpy as np
 
+from skinloc.geometry.skin_frame import skin_frame, skin_up_axis
 from skinloc.live.contact import Contact
 
-__all__ = ["GestureConfig", "GestureRecognizer", "SkinFrame", "long_axis"]
+__all__ = ["GestureConfig", "GestureRecognizer", "SkinFrame"]
 
 #: Points of a swipe's ``path_m`` at most (a longer path is subsampled evenly).
 MAX_PATH_POINTS = 64
@@ -89,37 +90,18 @@ class GestureConfig:
             raise ValueError("GestureConfig.swipe_min_mm must be larger than still_mm")
 
 
-def long_axis(vertices: np.ndarray) -> np.ndarray:
-    """The mesh's long axis, unit ``(3,)``: principal axis of the vertices, toward the wider end.
-
-    The wider end is the one where the vertices lie farther from the axis (a cone's base, a
-    forearm's elbow); a shape without one (a cylinder, a flat sheet) keeps the sign that makes
-    the axis' largest component positive.
-    """
-    v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
-    c = v.mean(axis=0)
-    _, _, vt = np.linalg.svd(v - c, full_matrices=False)
-    a = vt[0]
-    s = (v - c) @ a
-    r = np.linalg.norm((v - c) - s[:, None] * a, axis=1)
-    cov = float(np.mean((s - s.mean()) * (r - r.mean())))
-    if abs(cov) > 1e-9 * max(float(np.ptp(s)) * float(np.ptp(r)), 1e-30):
-        return a if cov > 0 else -a
-    return a if a[np.argmax(np.abs(a))] > 0 else -a
-
-
 class SkinFrame:
-    """Up / right on a skin's surface, for swipe directions.
+    """Up and right on a skin, for swipe directions (``geometry.skin_frame``).
 
     Parameters
     ----------
     vertices : (V, 3) float or None
-        Mesh vertices, m (None: no mesh; then ``up`` must be given and the surface is taken as
+        Mesh vertices, m (None: no mesh; then ``up`` must be given and the skin is taken as
         facing the mesh frame's +z).
     faces : (F, 3) int or None
-        Triangles (outward normals: away from the long axis; see ``normal_at``).
+        Triangles (their winding says which side is outward).
     up : (3,) float, optional
-        "Up" in the mesh frame; default ``long_axis(vertices)``.
+        "Up" in the mesh frame; default ``skin_up_axis(vertices)``, the mesh's long axis.
     """
 
     def __init__(
@@ -130,50 +112,26 @@ class SkinFrame:
     ) -> None:
         if up is None and vertices is None:
             raise ValueError("a skin frame needs the mesh or an 'up' direction")
+        u = None
         if up is not None:
             u = np.asarray(up, dtype=np.float64).reshape(-1)
             if u.shape != (3,) or not np.all(np.isfinite(u)) or np.linalg.norm(u) < 1e-9:
                 raise ValueError(f"'up' must be 3 finite numbers, not all 0, got {up!r}")
-            self.up = u / np.linalg.norm(u)
-        else:
-            self.up = long_axis(vertices)
-        self._v = None if vertices is None else np.asarray(vertices, dtype=np.float64)
-        self._n = None
-        if self._v is not None and faces is not None:
-            f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
-            fn = np.cross(self._v[f[:, 1]] - self._v[f[:, 0]], self._v[f[:, 2]] - self._v[f[:, 0]])
-            n = np.zeros_like(self._v)
-            for k in range(3):
-                np.add.at(n, f[:, k], fn)
-            self._n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-            self._c = self._v.mean(axis=0)
-            self._axis = long_axis(self._v)
-
-    def normal_at(self, p: np.ndarray) -> np.ndarray:
-        """Outward unit normal of the surface near ``p (3,)`` m.
-
-        The nearest vertex's normal, turned away from the mesh's long axis (outward on a cone,
-        a cylinder or a limb); on a flat skin, where that is undefined, the faces' winding.
-        """
-        if self._n is None:
-            return np.array([0.0, 0.0, 1.0])
-        i = int(np.argmin(((self._v - p) ** 2).sum(axis=1)))
-        n = self._n[i]
-        radial = (p - self._c) - ((p - self._c) @ self._axis) * self._axis
-        if np.linalg.norm(radial) > 1e-6 and abs(n @ radial) > 0.1 * np.linalg.norm(radial):
-            return n if n @ radial > 0 else -n
-        return n
+        if vertices is not None and faces is not None:
+            self.up, self.right, self.normal = skin_frame(vertices, faces, u)
+            return
+        if u is None:
+            u = skin_up_axis(vertices)
+        u = u / np.linalg.norm(u)
+        n = np.array([0.0, 0.0, 1.0]) if abs(u[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+        n = n - (n @ u) * u
+        self.up, self.normal = u, n / np.linalg.norm(n)
+        self.right = np.cross(self.up, self.normal)
 
     def direction(self, start: np.ndarray, end: np.ndarray) -> str:
         """``up``, ``down``, ``left`` or ``right`` of the move ``start -> end`` (m)."""
-        d = end - start
-        n = self.normal_at(0.5 * (start + end))
-        up = self.up - (self.up @ n) * n
-        if np.linalg.norm(up) < 1e-9:  # "up" along the normal here: no in-surface up
-            up = self.up
-        up /= np.linalg.norm(up)
-        right = np.cross(up, n)
-        a, b = float(d @ up), float(d @ right)
+        d = np.asarray(end, dtype=np.float64) - np.asarray(start, dtype=np.float64)
+        a, b = float(d @ self.up), float(d @ self.right)
         if abs(a) >= abs(b):
             return "up" if a >= 0 else "down"
         return "right" if b >= 0 else "left"

@@ -71,7 +71,7 @@ class SkinSpec:
         The same as fixed-axis roll, pitch, yaw, rad (give ``rotation`` or ``rpy``, not both).
     up : (3,) float or None
         The skin's "up" in its mesh frame, for swipe directions; None: the mesh's long axis
-        toward its wider end (``skinloc.live.gestures.long_axis``).
+        (``skinloc.geometry.skin_frame.skin_up_axis``).
     """
 
     model: Any

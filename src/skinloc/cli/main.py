@@ -18,6 +18,7 @@ from rich.table import Table
 from skinloc.cli import app as app_cli
 from skinloc.cli import hardware as cli_hardware
 from skinloc.cli import live as cli_live
+from skinloc.cli import predict as cli_predict
 from skinloc.cli import skin as cli_skin
 from skinloc.cli.common import (
     Arch,
@@ -618,6 +619,7 @@ def _register_groups() -> None:
     app_cli.register(app)  # skinloc app
     cli_live.register(app)  # skinloc run, export
     cli_skin.register(app)  # skinloc sensors, coverage
+    cli_predict.register(app)  # skinloc predict
 
 
 _register_groups()

@@ -360,20 +360,20 @@ def search_into(
             bb = bC[c]
             # rows are mostly non-negative: a partner the image does not correlate with
             # cannot take a positive strength
-            if bb <= 0.0 or c == a or not _far(Cpos[a], Cpos[c], min2):
+            if bb <= 0.0 or c == a:
                 continue
             gab = float(ga_row[c])
             gbb = Cd[c]
             det = gaa * gbb - gab * gab
             if det <= 1e-12 * gaa * gbb:
                 continue
-            sa = (gbb * ba - gab * bb) / det
-            sb = (gaa * bb - gab * ba) / det
-            if sa <= 0.0 or sb <= 0.0:
+            # s_a, s_b and the gain over det, free of divisions: det > 0
+            na = gbb * ba - gab * bb
+            nb = gaa * bb - gab * ba
+            if na <= 0.0 or nb <= 0.0:
                 continue
-            g = sa * ba + sb * bb
-            if g > bestg:
-                bestg = g
+            if na * ba + nb * bb > bestg * det and _far(Cpos[a], Cpos[c], min2):
+                bestg = (na * ba + nb * bb) / det
                 pa = a
                 pb = c
     if pa < 0:

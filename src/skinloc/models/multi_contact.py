@@ -20,14 +20,17 @@ candidates of the 7 coarse cells around it), twice. A third contact is searched 
 from the refined pair. The count (``CountRule``): 0 if no sensor reaches ``z_on`` noise
 levels; ``m`` contacts rather than ``m - 1`` if the relative residual reduction
 ``(R_{m-1} - R_m) / R_m`` reaches ``tau_m`` and the weakest of the ``m`` contacts reaches
-``z_on`` on its own. ``tau_2`` and ``tau_3`` are calibrated on the training recording only
-(``skinloc.models.contact_calibration``: cross-validation over its point logs).
+``z_m_min`` noise levels on its own. The thresholds are calibrated on the training recording
+only (``skinloc.models.contact_calibration``: cross-validation over its point logs).
 
 One contact is reported by the model's own single-contact answer (``Engine.localise_into``),
 so ``max_contacts=1`` is today's answer; its strength is the L2 norm of the image's positive
-part, counts. Each contact of several has its fitted strength (the L2 norm of its modelled
-image's positive part, counts) and an uncertainty: the spread of its candidates weighted by
-``exp(-(R(q) - R_min) / (2 chi2_red))``, mm.
+part, counts. Each contact of several is then placed by that single-contact answer on the
+image less the other contacts' fitted images (a response map's ``_peel``), so that each finger
+is placed as precisely as a finger alone; it has its fitted strength (the L2 norm of its
+modelled image's positive part, counts) and an uncertainty: the spread of its candidates
+weighted by ``exp(-(R(q) - R_min) / (2 chi2_red))`` with ``chi2_red = max(R_min / (k - 4m), 1)``,
+mm. Figures on the real skin: ``docs/multitouch.md``.
 """
 
 from __future__ import annotations
@@ -105,7 +108,7 @@ class CountRule:
         return cls(**{k: v for k, v in d.items() if k in names})
 
     def params(self) -> np.ndarray:
-        """The kernels' parameter vector."""
+        """The kernels' parameters: z_on, min separation^2 (m^2), tau2, tau3, n_top, z2, z3."""
         return np.array(
             [
                 self.z_on,

@@ -212,3 +212,18 @@ def test_contact_set_json():
         {"position_m": [0.1, 0.2, 0.3], "uncertainty_mm": 4.5, "strength": 120.0},
         {"position_m": [0.0, 0.0, 0.1], "uncertainty_mm": None, "strength": 50.0},
     ]
+
+
+def test_each_of_two_contacts_has_a_single_contacts_uncertainty(engine, touches):
+    # each finger of a pair is placed by the single-contact match on its own image, and
+    # reports that match's spread: the same scale as a finger alone
+    X, y = touches
+    alone = np.median([engine.predict_one(x)[2] for x in X])
+    two = [
+        u
+        for a, b in _far_pairs(y, 60.0)
+        for cs in [engine.contacts(X[a] + X[b], 2)]
+        if len(cs) == 2
+        for u in cs.uncertainty_mm
+    ]
+    assert 1 / 2.5 < np.median(two) / alone < 2.5

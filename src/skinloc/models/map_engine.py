@@ -325,8 +325,9 @@ def _peel(
 
     Contact ``i``'s image is ``x`` less the others' fitted images (strength times the unit
     image at their rows ``rows``); the single-contact match is the map's best-tuned answer, so
-    each finger is placed as precisely as a finger alone. A place within the minimum
-    separation of another contact keeps the search's own.
+    each finger is placed as precisely as a finger alone, with that answer's spread (mm) as
+    its uncertainty. A place within the minimum separation of another contact keeps the
+    search's own place and spread.
     """
     w, Ft = arrays[0], arrays[6]
     for i in range(n):
@@ -344,8 +345,9 @@ def _peel(
                 d += (out7[3 + t] - out[o, t]) ** 2
             if o != i and d < min2:
                 ok = False
-        if ok:
+        if ok:  # the single-contact answer's place and spread, as for a finger alone
             out[i, 0], out[i, 1], out[i, 2] = out7[3], out7[4], out7[5]
+            out[i, 4] = out7[6]
 
 
 # --------------------------------------------------------------------------------------------

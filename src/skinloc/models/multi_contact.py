@@ -27,10 +27,12 @@ One contact is reported by the model's own single-contact answer (``Engine.local
 so ``max_contacts=1`` is today's answer; its strength is the L2 norm of the image's positive
 part, counts. Each contact of several is then placed by that single-contact answer on the
 image less the other contacts' fitted images (a response map's ``_peel``), so that each finger
-is placed as precisely as a finger alone; it has its fitted strength (the L2 norm of its
-modelled image's positive part, counts) and an uncertainty: the spread of its candidates
-weighted by ``exp(-(R(q) - R_min) / (2 chi2_red))`` with ``chi2_red = max(R_min / (k - 4m), 1)``,
-mm. Figures on the real skin: ``docs/multitouch.md``.
+is placed as precisely as a finger alone, and has that answer's spread as its uncertainty
+(mm), like a single contact; its strength is the fitted one (the L2 norm of its modelled
+image's positive part, counts). Where that place falls within the minimum separation of
+another contact, the search's own place stays, with the spread of its candidates weighted by
+``exp(-(R(q) - R_min) / (2 chi2_red))``, ``chi2_red = max(R_min / (k - 4m), 1)``. Figures on
+the real skin: ``docs/multitouch.md``.
 """
 
 from __future__ import annotations

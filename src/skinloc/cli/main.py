@@ -18,6 +18,7 @@ from skinloc.cli import bench as cli_bench
 from skinloc.cli import collect as cli_collect
 from skinloc.cli import hardware as cli_hardware
 from skinloc.cli import live as cli_live
+from skinloc.cli import predict as cli_predict
 from skinloc.cli import recordings as cli_recordings
 from skinloc.cli import skin as cli_skin
 from skinloc.cli.common import (
@@ -373,6 +374,7 @@ def _register_groups() -> None:
     app_cli.register(app)  # skinloc app
     cli_live.register(app)  # skinloc run, export
     cli_skin.register(app)  # skinloc sensors, coverage
+    cli_predict.register(app)  # skinloc predict
 
 
 _register_groups()

@@ -28,8 +28,13 @@ from skinloc._jit import jit
 from skinloc._lazy import resolve
 from skinloc._typing import Frames, Points
 from skinloc.geometry.snap import CONSTRAINTS, Surface
+from skinloc.models.contact_search import single_into
+from skinloc.models.multi_contact import N_COLS, ContactSet, CountRule, noise_weights
 
-__all__ = ["Engine", "ModelSpec", "Prediction", "load_engine"]
+__all__ = ["ContactSet", "Engine", "ModelSpec", "Prediction", "load_engine"]
+
+#: Most contacts per frame ``Engine.contacts`` looks for.
+MAX_CONTACTS = 3
 
 _NORMS = {"none": 0, "l1": 1, "l2": 2}
 _MODEL_CLASS = "skinloc.models.localizer:ContactLocalizer"
@@ -75,6 +80,10 @@ class ModelSpec:
         Skin mesh triangles.
     meta : dict
         Free-form facts about the model (its ``arch``).
+    sensor_noise : (n_features,) float or None
+        Noise per sensor of the training skin, counts (``None``: not known).
+    contact_rule : dict or None
+        The count rule of ``Engine.contacts`` (``CountRule.as_dict``; ``None``: defaults).
     """
 
     kind: ClassVar[str] = ""
@@ -86,6 +95,8 @@ class ModelSpec:
     vertices: np.ndarray | None = None
     faces: np.ndarray | None = None
     meta: dict[str, Any] = field(default_factory=dict)
+    sensor_noise: np.ndarray | None = None
+    contact_rule: dict[str, Any] | None = None
 
     def __post_init__(self) -> None:
         if self.constraint not in CONSTRAINTS:
@@ -141,6 +152,9 @@ class Engine:
         self.constraint = self.surface.constraint
         self._x = np.zeros(self.n_features, dtype=np.float32)
         self._out = np.zeros(7, dtype=np.float64)
+        self.rule = CountRule.from_dict(spec.contact_rule)
+        self._w = noise_weights(spec.sensor_noise, self.n_features)
+        self._rows = np.zeros((MAX_CONTACTS, N_COLS))
 
     @property
     def n_members(self) -> int:
@@ -171,7 +185,39 @@ class Engine:
         """``predict_batch`` on checked, contiguous float32 rows."""
         raise NotImplementedError
 
+    def contacts_into(self, x: np.ndarray, max_contacts: int, out: np.ndarray) -> int:
+        """The contacts of ``x (n_features,)`` float32 counts into ``out (>= k, 5)``; returns k.
+
+        Rows: x, y, z (m), strength (counts), uncertainty (mm), strongest first. The
+        allocation-free call behind ``contacts``. This kind: at most one contact, its own
+        single-contact answer when a sensor reaches the rule's ``z_on`` noise levels.
+        """
+        self.localise_into(x, self._out)
+        return single_into(x, self._w, self.rule.z_on, self._out, out)
+
     # ------------------------------------------------------------------ every kind
+    def contacts(self, x: np.ndarray, max_contacts: int = MAX_CONTACTS) -> ContactSet:
+        """How many contacts one image holds and where: a ``ContactSet``, strongest first.
+
+        Parameters
+        ----------
+        x : (n_features,) float32
+            Baseline-subtracted counts of one frame.
+        max_contacts : int, default 3
+            Most contacts to report, 1..3; 1 is the single-contact answer (``predict_one``)
+            with a detection rule. A network model reports at most one.
+        """
+        if not (type(x) is np.ndarray and x.dtype == np.float32 and x.shape == self._x.shape):
+            x = np.ascontiguousarray(x, dtype=np.float32)
+            if x.shape != self._x.shape:
+                raise ValueError(
+                    f"sensor image must have shape ({self.n_features},), got {x.shape}"
+                )
+        if not 1 <= max_contacts <= MAX_CONTACTS:
+            raise ValueError(f"max_contacts must be 1..{MAX_CONTACTS}, got {max_contacts}")
+        k = self.contacts_into(x, max_contacts, self._rows)
+        return ContactSet(self._rows[:k].copy())
+
     def predict_batch(self, X: Frames) -> tuple[Points, Points, np.ndarray]:
         """``(points (n, 3) m, raw (n, 3) m, spread_mm (n,))`` for ``X (n, n_features)``."""
         X = np.asarray(X)
@@ -210,6 +256,9 @@ class Engine:
     def warm_up(self) -> Engine:
         """Compile the kernels now (numba caches them on disk) rather than on the first frame."""
         self.localise_into(self._x, self._out)
+        x = np.zeros_like(self._x)
+        x[0] = 1e4  # a touch, so that every stage of the contact search compiles
+        self.contacts(x, MAX_CONTACTS)
         self.predict_batch(np.zeros((256, self.n_features), dtype=np.float32))
         self.constrain_into(0.0, 0.0, 0.0, np.zeros(3))
         return self

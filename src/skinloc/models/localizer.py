@@ -28,6 +28,7 @@ import numpy as np
 
 from skinloc._typing import Frames, Points
 from skinloc.errors import NotFittedError
+from skinloc.models.contact_calibration import fit_contact_model, sensor_noise_from_frames
 from skinloc.models.engine import Engine, ModelSpec, Prediction
 from skinloc.models.model_file import MODEL_FORMAT_VERSION
 from skinloc.models.network_training import fit_network
@@ -297,16 +298,18 @@ class ContactLocalizer:
             raise ValueError(f"touch positions must have shape ({len(X)}, 3), got {y.shape}")
         if len(X) < 2:
             raise ValueError("need at least 2 sensor images to train")
+        frames = (X, groups)  # before averaging: the noise and the count rule's calibration
         if cfg["train_on"] == "means" and groups is not None:
             X, y = group_means(X, y, groups)
         t0 = time.perf_counter()
-        for attr in ("coefs_", "intercepts_", "map_"):  # a second fit starts afresh
+        for attr in ("coefs_", "intercepts_", "map_", "contact_rule_"):  # a new fit: afresh
             self.__dict__.pop(attr, None)
         self.n_features_in_ = X.shape[1]
         self.config_ = cfg
         self._set_surface(mesh, surface_points)
+        self.sensor_noise_ = sensor_noise_from_frames(*frames)
         if cfg["kind"] == "map":
-            self._fit_map(X, y)
+            self._fit_map(X, y, *frames)
         else:
             F = self._features(X, cfg)
             self.feature_mean_ = F.mean(axis=0)
@@ -318,7 +321,7 @@ class ContactLocalizer:
         log.info("trained %s in %.2f s", cfg["arch"], self.fit_time_s_)
         return self
 
-    def _fit_map(self, X: np.ndarray, y: Points) -> None:
+    def _fit_map(self, X: np.ndarray, y: Points, frames: Any, groups: Any) -> None:
         from skinloc.models.response_map import ResponseMap, shape_features
 
         if self.surface_points_ is None:
@@ -327,8 +330,14 @@ class ContactLocalizer:
                 "surface_points to fit()"
             )
         F = shape_features(X, self.config_["clip_negative"])
-        self.map_ = ResponseMap.fit(
-            y, F, self.surface_points_, length_scale_mm=self.config_["length_scale_mm"]
+        self.map_, self.contact_rule_ = fit_contact_model(
+            ResponseMap.fit(y, F, self.surface_points_, self.config_["length_scale_mm"]),
+            X,
+            y,
+            frames if groups is not None else None,
+            groups,
+            self.sensor_noise_,
+            self.random_state,
         )
 
     def recalibrate(
@@ -410,11 +419,14 @@ class ContactLocalizer:
             vertices=self.mesh_vertices_,
             faces=self.mesh_faces_,
             meta={"arch": cfg.get("arch", "?")},
+            sensor_noise=getattr(self, "sensor_noise_", None),
+            contact_rule=getattr(self, "contact_rule_", None),
         )
         if cfg["kind"] == "map":
             from skinloc.models.map_engine import MapSpec
 
             coarse, cells = self.map_.search_cells()
+            amp = self.map_.amplitude
             return MapSpec(
                 **common,
                 surface_points=self.map_.candidates,
@@ -422,6 +434,7 @@ class ContactLocalizer:
                 coarse=coarse,
                 cells=cells,
                 noise=float(self.map_.noise),
+                unit_table=None if amp is None else amp.evaluate(self.map_.candidates)[0],
             )
         from skinloc.models.network_engine import NetworkSpec
 

@@ -31,6 +31,7 @@ import numpy as np
 
 from skinloc._jit import jit, prange
 from skinloc._typing import Points
+from skinloc.models.contact_search import SearchTables, search_into, single_into
 from skinloc.models.engine import Engine, ModelSpec, clip_and_norm
 
 __all__ = ["MapEngine", "MapSpec"]
@@ -60,6 +61,9 @@ class MapSpec(ModelSpec):
         Residual feature variance of the map (per feature).
     n_cells : int
         Coarse cells searched in full.
+    unit_table : (P, k) float32 or None
+        The amplitude map's unit image at every candidate (counts per count of strength), for
+        ``Engine.contacts``; ``None`` (maps saved before it): the shape table stands in.
     """
 
     kind: ClassVar[str] = "map"
@@ -69,6 +73,7 @@ class MapSpec(ModelSpec):
     cells: np.ndarray
     noise: float
     n_cells: int = 8
+    unit_table: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -76,6 +81,8 @@ class MapSpec(ModelSpec):
             raise ValueError("a MapSpec needs one surface point (candidate) per table row")
         if self.cells.ndim != 2 or len(self.cells) != len(self.coarse):
             raise ValueError("a MapSpec needs one cell row per coarse candidate")
+        if self.unit_table is not None and np.shape(self.unit_table) != np.shape(self.table):
+            raise ValueError("a MapSpec's unit table must have the shape of its table")
 
     def engine(self, constraint: str | None = None) -> MapEngine:
         """The compiled engine of this map."""
@@ -280,6 +287,69 @@ def _match_many(
             _fine(F[r], ff[r], best_c, fine, out[r0 + r])
 
 
+@jit()
+def _contact_one(
+    x: np.ndarray,
+    clip: int,
+    ct: np.ndarray,
+    csq: np.ndarray,
+    fine: tuple,
+    scratch: tuple,
+    out7: np.ndarray,
+    w: np.ndarray,
+    z_on: float,
+    out: np.ndarray,
+) -> int:  # pragma: no cover - compiled
+    """``_match_one`` and the detection rule in one call: the single contact (0 or 1)."""
+    _match_one(x, clip, ct, csq, fine, scratch, out7)
+    return single_into(x, w, z_on, out7, out)
+
+
+@jit()
+def _peel(
+    x: np.ndarray,
+    n: int,
+    rows: np.ndarray,
+    arrays: tuple,
+    min2: float,
+    clip: int,
+    ct: np.ndarray,
+    csq: np.ndarray,
+    fine: tuple,
+    scratch: tuple,
+    out7: np.ndarray,
+    z: np.ndarray,
+    out: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """Each of ``n`` contacts placed by this map's single-contact match on its own image.
+
+    Contact ``i``'s image is ``x`` less the others' fitted images (strength times the unit
+    image at their rows ``rows``); the single-contact match is the map's best-tuned answer, so
+    each finger is placed as precisely as a finger alone, with that answer's spread (mm) as
+    its uncertainty. A place within the minimum separation of another contact keeps the
+    search's own place and spread.
+    """
+    w, Ft = arrays[0], arrays[6]
+    for i in range(n):
+        for j in range(x.shape[0]):
+            v = float(x[j])
+            for o in range(n):
+                if o != i:
+                    v -= out[o, 3] * Ft[int(rows[o]), j] / w[j]
+            z[j] = v
+        _match_one(z, clip, ct, csq, fine, scratch, out7)
+        ok = True
+        for o in range(n):
+            d = 0.0
+            for t in range(3):
+                d += (out7[3 + t] - out[o, t]) ** 2
+            if o != i and d < min2:
+                ok = False
+        if ok:  # the single-contact answer's place and spread, as for a finger alone
+            out[i, 0], out[i, 1], out[i, 2] = out7[3], out7[4], out7[5]
+            out[i, 4] = out7[6]
+
+
 # --------------------------------------------------------------------------------------------
 # the engine
 
@@ -325,10 +395,63 @@ class MapEngine(Engine):
             np.zeros(self._n_best),
             np.zeros(self._n_best, dtype=np.int64),
         )
+        self._tables: SearchTables | None = None
+        self._z_on = float(self.rule.z_on)
+        self._z = np.zeros(self.n_features, dtype=np.float32)
 
     def localise_into(self, x: np.ndarray, out: np.ndarray) -> None:
         """One image ``x (n_features,)`` float32 counts into ``out (7,)`` (see ``Engine``)."""
         _match_one(x, self._clip, self._ct, self._csq, self._fine, self._scratch, out)
+
+    def contacts_into(self, x: np.ndarray, max_contacts: int, out: np.ndarray) -> int:
+        """Up to ``max_contacts`` contacts of ``x`` into ``out`` (see ``Engine.contacts_into``).
+
+        The multi-contact search (``skinloc.models.multi_contact``) on the amplitude map; one
+        contact is this map's own single-contact answer.
+        """
+        if max_contacts > 1:
+            t = self._tables if self._tables is not None else self.search_tables()
+            n = search_into(x, max_contacts, t.arrays, t.prm, t.scratch, False, out)
+            if n > 1:
+                _peel(
+                    x,
+                    n,
+                    t.scratch[-1][8:],
+                    t.arrays,
+                    t.prm[1],
+                    self._clip,
+                    self._ct,
+                    self._csq,
+                    self._fine,
+                    self._scratch,
+                    self._out,
+                    self._z,
+                    out,
+                )
+            if n != 1:
+                return n
+        return _contact_one(
+            x,
+            self._clip,
+            self._ct,
+            self._csq,
+            self._fine,
+            self._scratch,
+            self._out,
+            self._w,
+            self._z_on,
+            out,
+        )
+
+    def search_tables(self) -> SearchTables:
+        """The multi-contact search's arrays (built on first use)."""
+        if self._tables is None:
+            s = self.spec
+            unit = s.table if s.unit_table is None else s.unit_table
+            self._tables = SearchTables(
+                np.asarray(unit), s.surface_points, s.coarse, s.cells, s.sensor_noise, self.rule
+            )
+        return self._tables
 
     def _predict_rows(self, X: np.ndarray) -> tuple[Points, Points, np.ndarray]:
         out = np.empty((len(X), 7))

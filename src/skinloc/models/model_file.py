@@ -4,7 +4,10 @@ Format version 2 (written since response maps): attributes ``format`` ("skinloc-
 ``format_version``, ``config`` and ``meta`` (JSON), ``n_features_in``, ``description``; a
 ``map`` group (the response map's mean, candidates and GP layers) or ``preprocessing`` and
 ``network`` groups (the ensemble's arrays); a ``surface`` group (mesh and snap points).
-Version 1 files (networks only) still load.
+Version 1 files (networks only) still load. Since multi-contact localisation, optional: a
+``map/amplitude`` group (the amplitude map: ``mean``, ``points_mm``, ``alpha``, its length scale
+and noise) and a ``contacts`` group (``sensor_noise`` counts, the count rule as JSON in
+``rule``); files without them load, and their engines use the defaults (``models.multi_contact``).
 """
 
 from __future__ import annotations
@@ -59,6 +62,7 @@ def write_model(model: Any, path: Path, extra_meta: dict[str, Any] | None = None
                 )
             if model.surface_points_ is not None:
                 f["surface/points"] = model.surface_points_
+            _write_contacts(model, f)
 
     atomic_write(path, write)
 
@@ -76,6 +80,28 @@ def _write_map(model: Any, f: Any) -> None:
         lg = g.create_group(f"layer{i}")
         lg["points_mm"], lg["alpha"] = layer.points_mm, layer.alpha
         lg.attrs["length_scale_mm"], lg.attrs["noise"] = layer.length_scale_mm, layer.noise
+    amp = model.map_.amplitude
+    if amp is not None:
+        ag = g.create_group("amplitude")
+        ag["mean"], ag["points_mm"], ag["alpha"] = amp.mean, amp.layer.points_mm, amp.layer.alpha
+        ag.attrs["length_scale_mm"], ag.attrs["noise"] = amp.layer.length_scale_mm, amp.layer.noise
+
+
+def _write_contacts(model: Any, f: Any) -> None:
+    noise = getattr(model, "sensor_noise_", None)
+    rule = getattr(model, "contact_rule_", None)
+    if noise is None and rule is None:
+        return
+    g = f.create_group("contacts")
+    if noise is not None:
+        g["sensor_noise"] = np.asarray(noise, dtype=np.float64)
+    g.attrs["rule"] = json.dumps(rule, default=float)
+
+
+def _read_contacts(model: Any, f: Any) -> None:
+    g = f.get("contacts")
+    model.sensor_noise_ = g["sensor_noise"][()] if g is not None and "sensor_noise" in g else None
+    model.contact_rule_ = json.loads(g.attrs.get("rule", "null")) if g is not None else None
 
 
 def _write_network(model: Any, f: Any) -> None:
@@ -94,7 +120,7 @@ def _write_network(model: Any, f: Any) -> None:
 
 
 def _read_map(model: Any, g: Any) -> None:
-    from skinloc.models.response_map import MapLayer, ResponseMap
+    from skinloc.models.response_map import AmplitudeMap, MapLayer, ResponseMap
 
     layers = [
         MapLayer(
@@ -105,7 +131,19 @@ def _read_map(model: Any, g: Any) -> None:
         )
         for i in range(sum(1 for k in g if k.startswith("layer")))
     ]
-    model.map_ = ResponseMap(g["mean"][()], layers, g["candidates"][()])
+    amp = None
+    if "amplitude" in g:
+        a = g["amplitude"]
+        amp = AmplitudeMap(
+            a["mean"][()],
+            MapLayer(
+                a["points_mm"][()],
+                a["alpha"][()],
+                float(a.attrs["length_scale_mm"]),
+                float(a.attrs["noise"]),
+            ),
+        )
+    model.map_ = ResponseMap(g["mean"][()], layers, g["candidates"][()], amp)
 
 
 def _read_network(model: Any, f: Any) -> None:
@@ -155,6 +193,7 @@ def read_model(cls: type, path: Path) -> Any:
             model.mesh_vertices_ = surf["vertices"][()] if surf and "vertices" in surf else None
             model.mesh_faces_ = surf["faces"][()] if surf and "faces" in surf else None
             model.surface_points_ = surf["points"][()] if surf and "points" in surf else None
+            _read_contacts(model, f)
     except ModelFileError:
         raise
     except (OSError, KeyError, ValueError, TypeError) as exc:

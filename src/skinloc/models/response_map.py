@@ -25,7 +25,7 @@ import numpy as np
 
 from skinloc._typing import Points
 
-__all__ = ["MapLayer", "ResponseMap", "shape_features"]
+__all__ = ["AmplitudeMap", "MapLayer", "ResponseMap", "shape_features", "unit_images"]
 
 
 def shape_features(X: np.ndarray, clip_negative: bool = True) -> np.ndarray:
@@ -39,6 +39,18 @@ def shape_features(X: np.ndarray, clip_negative: bool = True) -> np.ndarray:
     if clip_negative:
         Z = np.maximum(Z, 0.0)
     return Z / np.maximum(np.linalg.norm(Z, axis=1, keepdims=True), 1.0)
+
+
+def unit_images(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Touch images divided by their strength, and the strengths.
+
+    The strength of an image is the L2 norm of its positive part, counts (floored at one);
+    the unit image keeps the negative deltas, so that the images of two fingers add up.
+    Returns ``(U (n, k), strength (n,) counts)``.
+    """
+    Z = np.asarray(X, dtype=np.float64)
+    a = np.maximum(np.linalg.norm(np.maximum(Z, 0.0), axis=1), 1.0)
+    return Z / a[:, None], a
 
 
 def _rbf(A_mm: np.ndarray, B_mm: np.ndarray, length_scale_mm: float) -> np.ndarray:
@@ -111,6 +123,48 @@ def _fit_layer(
     return MapLayer(points_mm.copy(), alpha, ls, white)
 
 
+@dataclass(frozen=True)
+class AmplitudeMap:
+    """The un-normalised response on the surface: unit image and typical strength per point.
+
+    A touch of strength ``s`` counts at ``p`` gives about ``s * unit(p)``, negative deltas
+    included; several fingers give the sum of their images (what multi-contact localisation,
+    ``skinloc.models.multi_contact``, searches for). One GP posterior mean with the shape map's
+    hyperparameters predicts ``[unit image, log strength]`` jointly.
+
+    Attributes
+    ----------
+    mean : (k + 1,) float
+        Mean of ``[unit image, log strength]`` over the calibration touches.
+    layer : MapLayer
+        GP layer on the residuals.
+    """
+
+    mean: np.ndarray
+    layer: MapLayer
+
+    @classmethod
+    def fit(
+        cls, positions: Points, X: np.ndarray, length_scale_mm: float, noise: float
+    ) -> AmplitudeMap:
+        """Fit to touch positions ``(n, 3)`` m and baseline-subtracted means ``X (n, k)``."""
+        U, a = unit_images(X)
+        T = np.concatenate([U, np.log(a)[:, None]], axis=1)
+        mean = T.mean(axis=0)
+        q = 1e3 * np.asarray(positions, dtype=np.float64)
+        layer = _fit_layer(q, T - mean, length_scale_mm, (2.0, 300.0), max(noise, 1e-6))
+        return cls(mean, layer)
+
+    def evaluate(self, points: Points) -> tuple[np.ndarray, np.ndarray]:
+        """``(unit (m, k), strength (m,) counts)`` at ``points (m, 3)`` m."""
+        out = []
+        for i in range(0, len(points), 4096):
+            q = 1e3 * np.asarray(points[i : i + 4096], dtype=np.float64)
+            out.append(self.mean + self.layer(q))
+        T = np.concatenate(out) if out else np.zeros((0, len(self.mean)))
+        return T[:, :-1], np.exp(T[:, -1])
+
+
 @dataclass
 class ResponseMap:
     """Feature mean plus a stack of GP layers, evaluated on a set of candidate surface points.
@@ -123,11 +177,14 @@ class ResponseMap:
         The base map, then one correction layer per recalibration.
     candidates : (P, 3) float
         Surface points the matcher chooses among, m.
+    amplitude : AmplitudeMap or None
+        The un-normalised response (maps saved before multi-contact have none).
     """
 
     mean: np.ndarray
     layers: list[MapLayer]
     candidates: Points
+    amplitude: AmplitudeMap | None = None
     _table: np.ndarray | None = field(default=None, repr=False)
     _sq: np.ndarray | None = field(default=None, repr=False)
     _coarse: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
@@ -146,6 +203,16 @@ class ResponseMap:
         layer = _fit_layer(1e3 * positions, F - mean, length_scale_mm, bounds_mm, None)
         return cls(mean, [layer], np.asarray(candidates, dtype=np.float64))
 
+    def with_amplitude(self, positions: Points, X: np.ndarray) -> ResponseMap:
+        """A copy with an amplitude map fitted to the touch means ``X (n, k)`` counts.
+
+        The amplitude map takes the base layer's length scale and noise (fitted on the shapes)
+        rather than its own: the same touches, the same smoothness.
+        """
+        base = self.layers[0]
+        amp = AmplitudeMap.fit(positions, X, base.length_scale_mm, base.noise)
+        return ResponseMap(self.mean, self.layers, self.candidates, amp)
+
     def refined(self, positions: Points, F: np.ndarray) -> ResponseMap:
         """A copy corrected by new touches (e.g. a new session), keeping what still holds.
 
@@ -157,7 +224,10 @@ class ResponseMap:
         R = F - self.evaluate_mm(q)
         base = self.layers[0]
         layer = _fit_layer(q, R, base.length_scale_mm, (2.0, 300.0), base.noise)
-        return ResponseMap(self.mean.copy(), [*self.layers, layer], self.candidates.copy())
+        # the amplitude map keeps the first session's response: the count rule needs its scale
+        return ResponseMap(
+            self.mean.copy(), [*self.layers, layer], self.candidates.copy(), self.amplitude
+        )
 
     @property
     def noise(self) -> float:

@@ -46,9 +46,9 @@ def frame_contacts(
 ) -> FrameContacts:
     """The contacts of one baseline-subtracted frame, strongest first (0..``max_contacts``).
 
-    Uses ``engine.contacts(delta, max_contacts=K)`` (a ``ContactSet``) when the engine has it;
-    otherwise one contact from ``engine.localise_into`` (strength unknown: nan). This is the one
-    adapter to replace when multi-contact localisation lands in ``skinloc.models``.
+    ``max_contacts`` 1 is the single-contact path of before multi-touch (``localise_into``:
+    the pipeline has already decided that something touches; strength unknown: nan); more
+    asks the model's multi-contact search (``Engine.contacts``), which may also find none.
 
     Parameters
     ----------
@@ -61,9 +61,8 @@ def frame_contacts(
     out : (7,) float64
         Scratch for ``localise_into``.
     """
-    contacts = getattr(engine, "contacts", None)
-    if contacts is not None:
-        cs = contacts(delta, max_contacts=max_contacts)
+    if max_contacts > 1:
+        cs = engine.contacts(delta, max_contacts=max_contacts)
         pos = np.asarray(cs.positions_m, dtype=np.float64).reshape(-1, 3)
         return pos, pos, np.asarray(cs.strength, float), np.asarray(cs.uncertainty_mm, float)
     engine.localise_into(delta, out)

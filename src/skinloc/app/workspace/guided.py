@@ -49,7 +49,9 @@ class GuidedCapture:
     def _calibration_session(a: ActiveSession, device: DeviceLink) -> CalibrationSession:
         """The calibration stored in the session folder, resumed, or a new one (no baseline)."""
         if a.folder.calibration.is_file():
-            return CalibrationSession.resume(device.source, a.folder.calibration)
+            sess = CalibrationSession.resume(device.source, a.folder.calibration)
+            sess.skipped = np.asarray(app_meta(sess.recording).get("skipped", [])).reshape(-1, 3)
+            return sess
         fields = SessionConfig.__dataclass_fields__
         cfg = SessionConfig(**{k: v for k, v in a.info["config"].items() if k in fields})
         return CalibrationSession(
@@ -222,9 +224,11 @@ class GuidedCapture:
                 raise ValueError("no target left to skip")
             target = sess.targets[n]
             app_meta(rec).setdefault("skipped", []).append(target.tolist())
+            sess.skipped = np.concatenate([np.reshape(sess.skipped, (-1, 3)), target[None]])
             rec.planned_targets = np.delete(sess.targets, n, axis=0)
             sess.targets = rec.planned_targets
             write_recording(rec, sess.path)
+            self._choose_next(sess)
             if self.capture is not None:
                 self.capture.restart(touched_now=True)
             self._stop_capture_finger()
@@ -307,8 +311,9 @@ class GuidedCapture:
     def _choose_next(self, sess: CalibrationSession) -> None:
         """In an ``active`` session, choose the next target from the touches recorded so far.
 
-        Runs once after each stored touch and on resuming (not after an undo, a retake or a
-        skip: the target they put next stays). The plan in the recording shows the choice.
+        Runs after each stored touch, after a skip (the skipped target is never chosen again)
+        and on resuming; not after an undo or a retake: the target they put back is asked
+        next. The plan in the recording shows the choice.
         Takes about a second (a map refit), under the lock: the next touch waits for it anyway.
         """
         rec = sess.recording

@@ -21,6 +21,7 @@ import numpy as np
 from skinloc.app.capture import TouchCapture
 from skinloc.app.device import DeviceLink
 from skinloc.app.hub import Hub
+from skinloc.app.live_io import TabSink
 from skinloc.app.store import SessionStore
 from skinloc.app.workspace.finger import FingerActions
 from skinloc.app.workspace.guided import GuidedCapture
@@ -77,6 +78,7 @@ class Workspace(
         self._live_base: np.ndarray | None = None
         self.training: dict[str, Any] | None = None
         self.message = ""
+        self.live_sink = TabSink(hub)
 
     def require(self, client: str | None) -> None:
         """Give ``client`` control if nobody has it; raise ``BusyError`` if another tab has."""
@@ -102,6 +104,12 @@ class Workspace(
             if self.lease == client and client not in self.hub.client_ids:
                 self.lease = None
                 self._publish_state()
+
+    def _stop_using_frames(self) -> None:
+        """Stop what the frames are used for: guided capture (the finger lifted), live view."""
+        self._stop_capture_finger()
+        self.capture = None
+        self._stop_live()
 
     def _set_lease(self, client: str) -> None:
         if self.lease != client:

@@ -78,7 +78,7 @@ class GuidedCapture:
         The mode is ``BASELINE`` meanwhile; a failure is reported and ends in ``IDLE``.
         """
         device = self._need_device()
-        self._stop_capture()
+        self._stop_using_frames()
         self.mode = Mode.BASELINE
         self.message = "keep the skin untouched: capturing the baseline"
         self._publish_state()
@@ -105,7 +105,7 @@ class GuidedCapture:
     def _begin(self, mode: Mode, sess: CalibrationSession) -> None:
         rec = sess.recording
         assert rec is not None and sess.detector is not None
-        self._stop_capture()
+        self._stop_using_frames()
         self.detector = sess.detector
         cfg = sess.config
         self.capture = TouchCapture(
@@ -137,7 +137,7 @@ class GuidedCapture:
 
     def _finish(self, mode: Mode) -> None:
         self.mode = Mode.IDLE
-        self._stop_capture()
+        self._stop_using_frames()
         what = "calibration" if mode is Mode.CALIBRATE else "validation"
         self.message = f"{what} complete"
         if mode is Mode.VALIDATE:
@@ -146,14 +146,10 @@ class GuidedCapture:
     def stop(self) -> None:
         """Pause guided capture or live view (everything recorded is saved)."""
         with self._lock:
-            self._stop_capture()
+            self._stop_using_frames()
             self.mode = Mode.IDLE
             self.message = "paused"
             self._publish_state()
-
-    def _stop_capture(self) -> None:
-        self._stop_capture_finger()
-        self.capture = None
 
     def capture_now(self) -> None:
         """Start capturing now, touch detected or not (the key fallback)."""

@@ -46,7 +46,7 @@ class LinkActions:
         """Forget the device (its reader keeps running until ``_stop_device``)."""
         device, self.device = self.device, None
         if device is not None:
-            self._stop_capture()
+            self._stop_using_frames()
             self.mode = Mode.IDLE
             device.detached = True
         return device
@@ -103,13 +103,12 @@ class LinkActions:
             if not ok:
                 return  # a detached device's last frames
             now = time.monotonic()
-            values = frame.values
             mode = self.mode
             event = None
             if mode in (Mode.CALIBRATE, Mode.VALIDATE) and self.capture is not None:
                 event = self._guided_frame(frame, now)
             elif mode is Mode.LIVE:
-                self._live_frame(values)
+                self._live_frame(frame)
             if now - self._last_push >= 1.0 / self.config.frame_push_hz or event:
                 self._last_push = now
                 self._push_frame(frame)

@@ -164,7 +164,7 @@ class SessionActions:
             self._publish_state()
 
     def _close_session(self) -> None:
-        self._stop_capture()
+        self._stop_using_frames()
         self.mode = Mode.IDLE
         if self.active is not None:
             SessionFolder.unlock(self.active.lock_fd)

@@ -84,14 +84,17 @@ class Workspace(
         """Give ``client`` control if nobody has it; raise ``BusyError`` if another tab has."""
         client = client or "anonymous"
         with self._lock:
-            if self.lease is None or self.lease not in self.hub.client_ids + [client]:
-                # Free, or held by a tab that is gone: take it.
+            if self._lease_free(client):
                 self._set_lease(client)
             elif self.lease != client:
                 raise BusyError(
                     "busy: this skin and session are in use in another tab; "
                     "close that tab or take over here"
                 )
+
+    def _lease_free(self, client: str) -> bool:
+        """Whether control is free for ``client``: nobody holds it, or a tab that is gone."""
+        return self.lease is None or self.lease not in self.hub.client_ids + [client]
 
     def take_over(self, client: str) -> None:
         """Give ``client`` control, whoever had it (the other tab is told)."""

@@ -121,19 +121,22 @@ class LinkActions:
         with self._locked_for(device) as ok:
             if not ok:
                 return
-            if not up:
-                if self.capture is not None and self.capture.phase is CapturePhase.CAPTURING:
-                    # Frames from before and after a gap are not one steady touch.
-                    self.capture.restart(touched_now=True)
-                self._stop_capture_finger()
-                self._setup_finger()
+            if up:
+                self.message = f"link back: {device.name} is streaming again"
+            else:
+                self._drop_capture_in_progress()
                 self.message = (
                     f"link lost: no frame from {device.name}; waiting for it to come back "
                     "(everything recorded is kept)"
                 )
-            else:
-                self.message = f"link back: {device.name} is streaming again"
             self._publish_state()
+
+    def _drop_capture_in_progress(self) -> None:
+        """Restart a capture cut by a gap (frames on both sides are not one steady touch)."""
+        if self.capture is not None and self.capture.phase is CapturePhase.CAPTURING:
+            self.capture.restart(touched_now=True)
+        self._stop_capture_finger()
+        self._setup_finger()
 
     def link_status(self) -> dict[str, Any]:
         """The heartbeat the server sends each tab when nothing else goes to it (no lock)."""

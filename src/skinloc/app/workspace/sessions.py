@@ -67,12 +67,7 @@ class SessionActions:
             targets = self._parse_targets(targets_csv or "", mesh)
             cfg.n_points = len(targets)
         else:
-            from skinloc.geometry.mesh import sample_targets
-
-            # An active session starts from an even plan and replaces all but its first
-            # targets, one after each touch (``_choose_next``).
-            plan = "even" if cfg.mode == "active" else SamplingMode(cfg.mode).value
-            targets = sample_targets(mesh, cfg.n_points, plan, random_state=cfg.random_state)
+            targets = self._plan_targets(mesh, cfg)
         info = {
             "config": asdict(cfg),
             "sampling": mode,
@@ -87,6 +82,18 @@ class SessionActions:
     def mesh_dir(self) -> Path:
         """Where uploaded meshes are kept."""
         return self.store.root / "meshes"
+
+    @staticmethod
+    def _plan_targets(mesh: trimesh.Trimesh, cfg: SessionConfig) -> np.ndarray:
+        """The targets a sampling mode plans, ``(n, 3)`` m.
+
+        An active session starts from an even plan and replaces all but its first targets,
+        one after each touch (``_choose_next``).
+        """
+        from skinloc.geometry.mesh import sample_targets
+
+        plan = "even" if cfg.mode == "active" else SamplingMode(cfg.mode).value
+        return sample_targets(mesh, cfg.n_points, plan, random_state=cfg.random_state)
 
     @staticmethod
     def _parse_targets(text: str, mesh: trimesh.Trimesh) -> np.ndarray:
@@ -142,20 +149,20 @@ class SessionActions:
                 raise
             self.active = active
             self.message = f"opened session {active.info.get('name', folder.id)}"
-            device = self.device
-            if (
-                device is not None
-                and device.spec.is_sim
-                and not same_mesh(device.mesh, active.mesh)
-            ):
-                # The simulated skin takes the session's shape.
-                spec = device.spec
-                self._stop_device(self._detach_device())
-                link = DeviceLink(spec, self.on_frame, mesh=active.mesh, on_link=self.on_link)
-                link.start()
-                self.device = link
+            self._shape_simulated_skin(active.mesh)
             self._update_session_snr()
             self._publish_state()
+
+    def _shape_simulated_skin(self, mesh: trimesh.Trimesh) -> None:
+        """Give the simulated skin, if that is what is connected, the shape ``mesh``."""
+        device = self.device
+        if device is None or not device.spec.is_sim or same_mesh(device.mesh, mesh):
+            return
+        spec = device.spec
+        self._stop_device(self._detach_device())
+        link = DeviceLink(spec, self.on_frame, mesh=mesh, on_link=self.on_link)
+        link.start()
+        self.device = link
 
     def close_session(self) -> None:
         """Close the open session (everything is already saved)."""

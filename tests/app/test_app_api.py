@@ -151,13 +151,23 @@ def test_full_session_calibrate_train_validate_live(tmp_path):
             assert r.status_code == 200
             for _ in range(2000):
                 msg = ws.receive_json()
-                if msg["type"] == "live" and msg["touched"]:
+                if msg["type"] == "live" and msg["contacts"]:
                     break
             else:
-                pytest.fail("no live point while touching")
-            point = np.asarray(msg["point"])
+                pytest.fail("no live contact while touching")
+            # The live pipeline's contacts, as every sink gets them.
+            contact = msg["contacts"][0]
+            assert contact["state"] in ("start", "move") and contact["skin"] == "skin"
+            point = np.asarray(contact["position_m"])
             assert point.shape == (3,) and np.all(np.isfinite(point))
+            assert np.linalg.norm(point - target) < 0.05
             client.post("/api/sim/touch", json={"point": None}, headers=A)
+            for _ in range(2000):
+                msg = ws.receive_json()
+                if msg["type"] == "live" and any(c["state"] == "end" for c in msg["contacts"]):
+                    break
+            else:
+                pytest.fail("no end of the touch after lifting")
 
 
 def test_undo_skip_retake_keep_everything(tmp_path):

@@ -9,6 +9,7 @@ Playwright or a Chromium (Debian's ``chromium``, which ``make test`` installs) i
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import socket
@@ -16,6 +17,7 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed")
@@ -174,6 +176,8 @@ def test_full_session_in_the_browser(chromium, server, tmp_path):
         vpanel.locator(".finger").click()  # off: the box was the last thing clicked
         wait_state("!s.finger")
         assert page.evaluate("document.activeElement.tagName") != "INPUT"
+        # Keys do nothing while the link is lost (a loaded machine may be late with a frame).
+        page.wait_for_function("() => !document.body.classList.contains('link-lost')")
         page.keyboard.press("z")  # undo the last touch
         wait_state("s.session && s.session.validation && s.session.validation.retaken === 1")
         vpanel.locator(".finger").click()  # on again, to the end
@@ -197,7 +201,7 @@ def test_full_session_in_the_browser(chromium, server, tmp_path):
         vpanel.locator(".coverage").click()  # off
         page.wait_for_function("() => !window.skinloc.viewer.groups.coverage.visible")
 
-        # Live: press on the skin with the mouse, see the predicted point and its trail.
+        # Live: press on the skin with the mouse, see the live pipeline's contact and its trail.
         page.click("#nav button[data-page=live]")
         page.click("#live-start")
         wait_state("s.mode === 'live'")
@@ -206,19 +210,53 @@ def test_full_session_in_the_browser(chromium, server, tmp_path):
         page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
         page.mouse.down()
         page.wait_for_function(
-            "() => document.querySelector('#live-state').textContent === 'touched'"
+            "() => document.querySelector('#live-state').textContent === '1 contact'"
         )
         for k in range(6):  # move a little, so the trail has a shape
             page.mouse.move(box["x"] + box["width"] / 2 + 4 * k, box["y"] + box["height"] / 2)
             page.wait_for_timeout(100)
-        # Live points arrive over the WebSocket: wait for them (a loaded machine is slow).
-        page.wait_for_function("() => document.querySelector('#live-point').textContent !== '-'")
+        # Contacts arrive over the WebSocket: wait for them (a loaded machine is slow).
+        expect(page.locator("#live-tracks tbody tr")).to_have_count(1)
         page.wait_for_function(
-            "() => !['', '0px'].includes(document.querySelector('#live-conf').style.width)"
+            "() => !['', '0%'].includes("
+            "document.querySelector('#live-tracks tbody .progress div').style.width)"
         )
-        page.wait_for_function("() => window.skinloc.viewer.trailLine.geometry.drawRange.count > 1")
+        page.wait_for_function(
+            "() => window.skinloc.viewer.marks.some((m) => m.line.geometry.drawRange.count > 1)"
+        )
         shot("06-live")
         page.mouse.up()
+        page.wait_for_function(
+            "() => document.querySelector('#live-state').textContent === 'not touched'"
+        )
+        page.uncheck("#mouse-touch")
+        # Two fingers and gestures, as the live pipeline delivers them (Sink.emit_contacts,
+        # Sink.emit_gesture): each track in its own colour with its trail, the gestures listed.
+        # Around the point in the middle of the view, where the mouse touched.
+        centre = page.evaluate(
+            "() => { const v = window.skinloc.viewer; v.raycaster.setFromCamera({ x: 0, y: 0 },"
+            " v.camera); const p = v.raycaster.intersectObject(v.skin)[0].point;"
+            " return [p.x / 1000, p.y / 1000, p.z / 1000]; }"
+        )
+        with two_tracks_and_gestures(app.state.workspace, centre):
+            page.wait_for_function(
+                "() => document.querySelector('#live-state').textContent === '2 contacts'"
+            )
+            expect(page.locator("#live-gestures li")).to_have_count(3)
+            page.wait_for_function(
+                "() => window.skinloc.viewer.marks"
+                ".filter((m) => m.live && m.line.geometry.drawRange.count > 20).length === 2"
+            )
+            colours = page.evaluate(
+                "() => window.skinloc.viewer.marks.filter((m) => m.live)"
+                ".map((m) => m.line.material.color.getHexString())"
+            )
+            assert len(set(colours)) == 2, colours
+            first = page.locator("#live-gestures li").first.inner_text()
+            assert "two finger tap" in first and "tracks 7, 8" in first
+            assert "swipe ↑ up" in page.locator("#live-gestures li").nth(2).inner_text()
+            page.wait_for_timeout(300)  # the last points drawn
+            shot("06b-live-tracks")
         page.wait_for_function(
             "() => document.querySelector('#live-state').textContent === 'not touched'"
         )
@@ -284,6 +322,109 @@ def test_full_session_in_the_browser(chromium, server, tmp_path):
     assert not errors, f"the page logged errors: {errors}"
     ws = app.state.workspace
     assert ws.active is not None and ws.active.model is not None
+
+
+@contextlib.contextmanager
+def two_tracks_and_gestures(workspace, centre_m):
+    """Two fingers swiping apart around ``centre_m`` (a point on the skin, m), then held, and
+    three gestures, through the app's live sink exactly as the live pipeline delivers them; the
+    tracks end on leaving."""
+    from skinloc.geometry.mesh import nearest_on_surface
+    from skinloc.live.contact import Contact
+
+    sink, mesh = workspace.live_sink, workspace.active.mesh
+    centre, _, face = nearest_on_surface(mesh, np.asarray(centre_m)[None])
+    normal = mesh.face_normals[face[0]]
+    across = np.cross(normal, [0.0, 0.0, 1.0])
+    across /= np.linalg.norm(across)
+    along = np.cross(normal, across)  # the skin's "up" here, roughly
+    steps = np.linspace(0.0, 1.0, 40)[:, None]
+    paths = []
+    for side in (1.0, -1.0):  # one finger up and right, the other down and left
+        start = centre[0] + side * (0.012 * across + 0.006 * along)
+        paths.append(nearest_on_surface(mesh, start + side * steps * 0.03 * along)[0])
+    stop = threading.Event()
+    t0 = time.monotonic()
+
+    def contacts(k: int, state: str) -> list[Contact]:
+        t = time.monotonic() - t0
+        out = []
+        for slot, path in enumerate(paths):
+            p = tuple(float(v) for v in path[min(k, len(path) - 1)])
+            out.append(
+                Contact(
+                    "skin",
+                    t,
+                    k,
+                    state,
+                    p,
+                    p,
+                    0.8 - 0.2 * slot,
+                    30.0,
+                    4.0 + 2 * slot,
+                    60.0,
+                    5 + slot,
+                    5 + slot,
+                    slot,
+                    180.0 - 60 * slot,
+                )
+            )
+        return out
+
+    def feed() -> None:
+        k = 0
+        while not stop.is_set():
+            sink.emit_contacts(
+                "skin", time.monotonic() - t0, contacts(k, "start" if k == 0 else "move")
+            )
+            if k == 40:
+                for g in GESTURES:
+                    sink.emit_gesture("skin", time.monotonic() - t0, g)
+            k += 1
+            stop.wait(0.02)
+        sink.emit_contacts("skin", time.monotonic() - t0, contacts(k, "end"))
+
+    thread = threading.Thread(target=feed, daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join(10)
+
+
+#: The gesture events of ``two_tracks_and_gestures``, oldest first (the shared format).
+GESTURES = [
+    {
+        "event": "gesture",
+        "kind": "swipe",
+        "direction": "up",
+        "start_s": 0.2,
+        "end_s": 0.5,
+        "timestamp_s": 0.55,
+        "track_ids": [6],
+        "path_m": [[0.0, 0.0, 0.0]],
+        "speed_m_s": 0.12,
+    },
+    {
+        "event": "gesture",
+        "kind": "double_tap",
+        "direction": None,
+        "start_s": 1.1,
+        "end_s": 1.4,
+        "timestamp_s": 1.7,
+        "track_ids": [4],
+    },
+    {
+        "event": "gesture",
+        "kind": "two_finger_tap",
+        "direction": None,
+        "start_s": 2.0,
+        "end_s": 2.15,
+        "timestamp_s": 2.5,
+        "track_ids": [7, 8],
+    },
+]
 
 
 def watch(page, errors: list[str]) -> None:

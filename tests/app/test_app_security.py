@@ -24,7 +24,7 @@ with warnings.catch_warnings():  # starlette's note that it prefers httpx2 to ht
     from fastapi.testclient import TestClient  # noqa: E402
     from starlette.websockets import WebSocketDisconnect  # noqa: E402
 
-from skinloc.app import server  # noqa: E402
+from skinloc.app.routes import meshes as mesh_routes  # noqa: E402
 from skinloc.app.server import create_app, own_origins  # noqa: E402
 from skinloc.app.workspace import AppConfig  # noqa: E402
 from skinloc.geometry.mesh import cone_skin  # noqa: E402
@@ -207,7 +207,7 @@ def test_connect_refuses_urls_and_files(page, tmp_path):
 
 
 def test_upload_limit_is_enforced_while_streaming(page, tmp_path, monkeypatch):
-    monkeypatch.setattr(server, "MAX_UPLOAD_BYTES", 10_000)
+    monkeypatch.setattr(mesh_routes, "MAX_UPLOAD_BYTES", 10_000)
     sent = []
 
     def body():

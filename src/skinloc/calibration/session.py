@@ -219,6 +219,8 @@ class CalibrationSession:
         # because an incremental session's recording holds its header only).
         self._done_targets: list[np.ndarray] = []
         self._done_images: list[np.ndarray] = []
+        #: Targets the person skipped, ``(s, 3)`` m: an active session never asks them again.
+        self.skipped: Points = np.zeros((0, 3))
         if targets is None:
             # An active session plans an even spread; all but its first targets are replaced
             # as the touches come in (``target_for``).
@@ -352,8 +354,10 @@ class CalibrationSession:
             target = done[again[index - n_points]]
         else:
             pool = self.active_pool()
-            # A target already touched is not asked again (the repeats come at the end).
-            dist = np.linalg.norm(pool[:, None, :] - done[None, :, :], axis=2).min(axis=1)
+            # A target already touched (the repeats come at the end) or skipped is not asked
+            # again.
+            asked = np.concatenate([done, np.reshape(self.skipped, (-1, 3))])
+            dist = np.linalg.norm(pool[:, None, :] - asked[None, :, :], axis=2).min(axis=1)
             left = pool[dist > 1e-6]
             assert self.recording is not None
             cands = self.recording.surface_points

@@ -1,5 +1,6 @@
 // The skinloc app in the browser: pages, the live stream, and the actions.
 import { Viewer } from "/static/viewer.js";
+import { LivePage } from "/static/live.js";
 import { drawHeat } from "/static/heatmap.js";
 
 const $ = (sel, root = document) => root.querySelector(sel);
@@ -34,6 +35,7 @@ const app = {
   sensors: null,
   frame: null,
   viewer: null,
+  live: null, // the live page's tracks and gestures (live.js)
 };
 window.skinloc = app; // for the end-to-end test and for debugging
 
@@ -127,12 +129,8 @@ const handlers = {
     renderTraining(msg);
     if (app.coverageOn && msg && !msg.running && msg.result) toggleCoverage(true); // a new model
   },
-  live(msg) {
-    // Every point joins the trail; the page is drawn once per display frame.
-    app.lastLiveMsg = msg;
-    if (msg.touched) app.viewer.addTrail(msg.point);
-    later("live", () => renderLive(app.lastLiveMsg));
-  },
+  live(msg) { app.live.contacts(msg); },
+  gesture(msg) { app.live.gesture(msg); },
 };
 
 // Every message shows that the app is there; frames (and heartbeats saying so) that the skin is.
@@ -618,27 +616,11 @@ function resultHtml(h) {
 }
 
 // ------------------------------------------------------------------ live page
-$("#live-start").addEventListener("click", () => { app.viewer.clearLive(); api("/api/live/start"); });
+$("#live-start").addEventListener("click", () => {
+  app.live.clear(true);
+  api("/api/live/start");
+});
 $("#live-stop").addEventListener("click", () => api("/api/capture/stop"));
-function renderLive(msg) {
-  const el = $("#live-state");
-  if (msg.touched) {
-    el.textContent = "touched";
-    el.className = "big-state touch";
-    $("#live-point").textContent = mm(msg.point);
-    $("#live-unc").textContent = msg.uncertainty_mm != null ? `± ${msg.uncertainty_mm.toFixed(1)} mm` : "-";
-    $("#live-conf").style.width = msg.confidence != null ? `${Math.round(100 * msg.confidence)}%` : "0";
-    app.viewer.setLive(msg.point, msg.uncertainty_mm);
-  } else {
-    el.textContent = "not touched";
-    el.className = "big-state idle";
-    // No stale numbers from the last touch.
-    $("#live-point").textContent = "-";
-    $("#live-unc").textContent = "-";
-    $("#live-conf").style.width = "0";
-    app.viewer.setLive(null);
-  }
-}
 
 // ------------------------------------------------------------------ rendering the state
 function renderState(prev) {
@@ -672,7 +654,7 @@ function renderState(prev) {
     app.targetKey = key;
     app.viewer.setTarget(wanted, true);
   }
-  if (st.mode !== "live" && prev?.mode === "live") app.viewer.clearLive();
+  if (st.mode !== "live" && prev?.mode === "live") app.live.clear();
   $("#live-rate").textContent = d && !link.lost ? `${d.rate_hz.toFixed(1)} Hz` : "-";
 }
 
@@ -719,7 +701,9 @@ function renderFrame(msg) {
     const c = msg.capture;
     $(".bar-capture", el).style.width = c ? `${c.phase === "capturing" ? (100 * c.n) / c.of : c.phase === "wait_touch" ? 0 : 100}%` : "0";
     app.viewer.setTargetState(c?.phase === "capturing" ? "capturing" : msg.touched ? "touched" : "waiting");
-    if (c && ["calibrate", "validate"].includes(app.state?.mode)) {
+    // A frame drawn after the link was lost (drawn late, at the next display frame) must not
+    // bring the touch prompt back.
+    if (c && ["calibrate", "validate"].includes(app.state?.mode) && !link.lost) {
       const [text, cls] = PHASE_TEXT[c.phase] || ["-", "idle"];
       const state = $(".big-state", el);
       state.textContent = c.phase === "capturing" ? `${text} ${c.n}/${c.of}` : msg.touched && c.phase === "wait_touch" ? "Touch detected: hold still" : text;
@@ -738,6 +722,7 @@ function renderFrame(msg) {
 
 // ------------------------------------------------------------------ start
 app.viewer = new Viewer($("#viewer"));
+app.live = new LivePage(app.viewer, { $, esc, mm, later });
 app.viewer.onTouch = (p) => api("/api/sim/touch", { point: p }).catch(() => {});
 $("#mouse-touch").addEventListener("change", (ev) => {
   app.viewer.touchMode = ev.target.checked;

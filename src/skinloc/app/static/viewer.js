@@ -1,4 +1,4 @@
-// The skin in 3D: mesh, targets, touches, the live point and the validation error map.
+// The skin in 3D: mesh, targets, touches, the live tracks and the validation error map.
 // Coordinates arrive in metres and are shown in millimetres.
 import * as THREE from "/static/vendor/three.bundle.min.js";
 
@@ -11,7 +11,80 @@ export function errorColor(mm) {
   return new THREE.Color().setHSL((1 - t) * 0.33, 0.8, 0.45);
 }
 
-const TRAIL = 40;
+const TRAIL = 60; // points of a track's trail
+const TRAIL_STEP_MM = 0.5; // a point joins the trail once the track has moved this far
+const TRACK_MARKS = 6; // tracks drawn at once
+export const TRACK_COLOURS = ["#2f6fde", "#e8590c", "#2b8a3e", "#ae3ec9", "#c2255c", "#0c8599"];
+
+class TrackMark {
+  // One track's dot, halo and trail; the trail is one fixed buffer drawn up to its length.
+  constructor(group, dotGeometry, haloGeometry) {
+    this.dot = new THREE.Mesh(dotGeometry, new THREE.MeshStandardMaterial({ color: 0x2f6fde }));
+    this.halo = new THREE.Mesh(haloGeometry,
+      new THREE.MeshBasicMaterial({ color: 0x2f6fde, transparent: true, opacity: 0.18, depthWrite: false }));
+    this.buf = new Float32Array(TRAIL * 3);
+    const geo = new THREE.BufferGeometry();
+    this.pos = new THREE.BufferAttribute(this.buf, 3);
+    this.pos.setUsage(THREE.DynamicDrawUsage);
+    geo.setAttribute("position", this.pos);
+    geo.setDrawRange(0, 0);
+    // Predictions lie a little inside or outside the surface: the trail is drawn over the skin.
+    this.line = new THREE.Line(geo, new THREE.LineBasicMaterial({ color: 0x2f6fde, depthTest: false, transparent: true }));
+    this.line.frustumCulled = false;
+    this.line.renderOrder = 5;
+    group.add(this.dot, this.halo, this.line);
+    this.clear();
+  }
+
+  begin(key, colour) {
+    this.key = key;
+    this.live = true;
+    this.startedAt = performance.now();
+    this.n = 0;
+    this.line.geometry.setDrawRange(0, 0);
+    for (const m of [this.dot.material, this.halo.material, this.line.material]) m.color.set(colour);
+    this.dot.material.emissive.set(colour).multiplyScalar(0.3);
+    this.line.material.opacity = 1;
+  }
+
+  add(x, y, z, uncertaintyMm) {
+    this.dot.position.set(x, y, z);
+    this.dot.visible = true;
+    const r = Number.isFinite(uncertaintyMm) ? Math.max(4, uncertaintyMm) : 0;
+    this.halo.visible = r > 0;
+    this.halo.position.set(x, y, z);
+    this.halo.scale.setScalar(r || 1);
+    const j = 3 * (this.n - 1);
+    if (this.n && Math.hypot(x - this.buf[j], y - this.buf[j + 1], z - this.buf[j + 2]) < TRAIL_STEP_MM) {
+      return; // a finger held still keeps the trail of where it came from
+    }
+    if (this.n === TRAIL) {
+      this.buf.copyWithin(0, 3); // the oldest point goes
+      this.n -= 1;
+    }
+    const i = 3 * this.n;
+    this.buf[i] = x;
+    this.buf[i + 1] = y;
+    this.buf[i + 2] = z;
+    this.n += 1;
+    this.pos.needsUpdate = true;
+    this.line.geometry.setDrawRange(0, this.n);
+  }
+
+  end() {
+    this.live = false;
+    this.dot.visible = this.halo.visible = false;
+    this.line.material.opacity = 0.35;
+  }
+
+  clear() {
+    this.end();
+    this.key = null;
+    this.startedAt = 0;
+    this.n = 0;
+    this.line.geometry.setDrawRange(0, 0);
+  }
+}
 const labelTextures = new Map();
 
 function labelTexture(text, colour) {
@@ -89,7 +162,7 @@ export class Viewer {
     this.center = new THREE.Vector3();
     this.radius = 100;
     this.fly = null;
-    this.trail = [];
+    this.marks = [];
     this.onTouch = null;
     this.touchMode = false;
     this.raycaster = new THREE.Raycaster();
@@ -305,58 +378,42 @@ export class Viewer {
     this.fly = { from: this.camera.position.clone(), to, t0: performance.now(), ms: 700 };
   }
 
-  setLive(point, uncertaintyMm) {
+  // Live tracks: each contact's track has a mark (dot, uncertainty halo, trail) in its own
+  // colour. The marks and their trail buffers are made once and reused: nothing is allocated
+  // per point, and a lifted track keeps its faded trail until its mark is needed again.
+  trackContact(key, colour, point, uncertaintyMm, ended) {
+    let mark = this.marks.find((m) => m.key === key);
+    if (!mark) {
+      if (ended) return;
+      mark = this._freeMark();
+      mark.begin(key, TRACK_COLOURS[colour % TRACK_COLOURS.length]);
+    }
+    if (point) mark.add(point[0] * MM, point[1] * MM, point[2] * MM, uncertaintyMm);
+    if (ended) mark.end();
     this.dirty = true;
-    if (!this.liveDot) {
-      this.liveDot = new THREE.Mesh(new THREE.SphereGeometry(3.5, 20, 14),
-        new THREE.MeshStandardMaterial({ color: 0x2f6fde, emissive: 0x10306a }));
-      this.liveHalo = new THREE.Mesh(new THREE.SphereGeometry(1, 20, 14),
-        new THREE.MeshBasicMaterial({ color: 0x2f6fde, transparent: true, opacity: 0.18, depthWrite: false }));
-      // One buffer for the whole trail, drawn up to its length (never re-sized while drawn).
-      const geo = new THREE.BufferGeometry();
-      const pos = new THREE.BufferAttribute(new Float32Array(TRAIL * 3), 3);
-      pos.setUsage(THREE.DynamicDrawUsage);
-      geo.setAttribute("position", pos);
-      geo.setDrawRange(0, 0);
-      // Predictions lie a little inside or outside the surface: the trail is drawn over the skin.
-      this.trailLine = new THREE.Line(geo, new THREE.LineBasicMaterial({ color: 0x2f6fde, depthTest: false }));
-      this.trailLine.frustumCulled = false;
-      this.trailLine.renderOrder = 5;
-      this.groups.live.add(this.liveDot, this.liveHalo, this.trailLine);
-    }
-    if (!point) {
-      this.liveDot.visible = this.liveHalo.visible = false;
-      return;
-    }
-    const p = v3(point);
-    this.liveDot.visible = true;
-    this.liveDot.position.copy(p);
-    const r = Number.isFinite(uncertaintyMm) ? Math.max(4, uncertaintyMm) : 0;
-    this.liveHalo.visible = r > 0;
-    this.liveHalo.position.copy(p);
-    this.liveHalo.scale.setScalar(r || 1);
-    this._drawTrail();
   }
 
-  _drawTrail() {
-    const geo = this.trailLine.geometry, pos = geo.attributes.position;
-    this.trail.forEach((q, i) => pos.setXYZ(i, q.x, q.y, q.z));
-    pos.needsUpdate = true;
-    geo.setDrawRange(0, this.trail.length);
+  endTrack(key) {
+    const mark = this.marks.find((m) => m.key === key && m.live);
+    if (mark) {
+      mark.end();
+      this.dirty = true;
+    }
   }
 
-  addTrail(point) {
-    this.trail.push(v3(point));
-    if (this.trail.length > TRAIL) this.trail.shift();
+  _freeMark() {
+    if (!this.marks.length) {
+      const dot = new THREE.SphereGeometry(3.5, 20, 14), halo = new THREE.SphereGeometry(1, 20, 14);
+      for (let i = 0; i < TRACK_MARKS; i++) this.marks.push(new TrackMark(this.groups.live, dot, halo));
+    }
+    // An unused mark, else the longest-lifted one, else (more fingers than marks) the oldest.
+    const byAge = [...this.marks].sort((a, b) => a.startedAt - b.startedAt);
+    return byAge.find((m) => m.key === null) || byAge.find((m) => !m.live) || byAge[0];
   }
 
   clearLive() {
     this.dirty = true;
-    this.trail = [];
-    if (this.liveDot) {
-      this.liveDot.visible = this.liveHalo.visible = false;
-      this._drawTrail();
-    }
+    for (const m of this.marks) m.clear();
   }
 
   setCoverage(points, errorsMm) {

@@ -1,0 +1,6 @@
+"""The app's HTTP routes and its WebSocket, one module per concern.
+
+Each module has an ``add_routes(app, workspace, ...)`` that ``skinloc.app.server.create_app``
+calls. Every action that changes something names its tab in ``X-Skinloc-Client`` and first
+takes control (``Workspace.require``: 409 when another tab has it).
+"""

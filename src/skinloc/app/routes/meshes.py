@@ -1,0 +1,92 @@
+"""Meshes: the uploaded skins, listed and received (counted as they arrive, at most 64 MB)."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from fastapi import FastAPI, HTTPException, Query, Request
+
+from skinloc.app.routes.common import ClientHeader
+from skinloc.app.workspace import Workspace
+from skinloc.errors import SkinlocError
+
+MAX_UPLOAD_BYTES = 64 * 1024 * 1024
+MESH_SUFFIXES = (".obj", ".stl", ".ply")
+
+
+def add_routes(app: FastAPI, workspace: Workspace) -> None:
+    """``GET /api/meshes`` and ``POST /api/meshes?filename=`` (the file is the body)."""
+
+    @app.get("/api/meshes")
+    def meshes() -> list[dict[str, Any]]:
+        return _list_meshes(workspace.mesh_dir)
+
+    @app.post("/api/meshes")
+    async def upload_mesh(
+        request: Request,
+        filename: str = Query(..., max_length=255),
+        client: str | None = ClientHeader,
+    ) -> dict[str, Any]:
+        await asyncio.to_thread(workspace.require, client)
+        name = _mesh_name(filename)
+        declared = request.headers.get("content-length", "")
+        if declared.isdigit() and int(declared) > MAX_UPLOAD_BYTES:
+            raise HTTPException(413, f"mesh file too large ({int(declared)} bytes; at most 64 MB)")
+        folder = workspace.mesh_dir
+        folder.mkdir(parents=True, exist_ok=True)
+        # Into a hidden file beside the meshes, counted as it comes: a file over the limit
+        # stops there, and a stored mesh of that name is replaced only by one that loads.
+        fd, tmp = tempfile.mkstemp(prefix=".upload-", suffix=Path(name).suffix, dir=folder)
+        try:
+            size = 0
+            with os.fdopen(fd, "wb") as fh:
+                async for chunk in request.stream():
+                    size += len(chunk)
+                    if size > MAX_UPLOAD_BYTES:
+                        raise HTTPException(413, "mesh file too large (more than 64 MB)")
+                    fh.write(chunk)
+            if size == 0:
+                raise ValueError(f"{name} is empty: upload an OBJ, STL or PLY mesh")
+            return await asyncio.to_thread(_install_mesh, Path(tmp), folder / name)
+        finally:
+            Path(tmp).unlink(missing_ok=True)
+
+
+def _mesh_name(filename: str) -> str:
+    """The stored name of an uploaded mesh (no folders, a mesh suffix, not hidden)."""
+    name = Path(filename.replace("\\", "/")).name
+    if Path(name).suffix.lower() not in MESH_SUFFIXES or name.startswith("."):
+        raise ValueError(f"upload an OBJ, STL or PLY mesh, not {name[:80]!r}")
+    return name
+
+
+def _list_meshes(folder: Path) -> list[dict[str, Any]]:
+    """The uploaded meshes, by name."""
+    if not folder.is_dir():
+        return []
+    return [
+        {"name": p.name, "bytes": p.stat().st_size}
+        for p in sorted(folder.iterdir())
+        if p.suffix.lower() in MESH_SUFFIXES and not p.name.startswith(".") and p.is_file()
+    ]
+
+
+def _install_mesh(tmp: Path, path: Path) -> dict[str, Any]:
+    """Load the uploaded ``tmp``; only if it is a mesh does it replace ``path`` (atomically)."""
+    from skinloc.geometry.mesh import load_mesh
+
+    try:
+        mesh = load_mesh(tmp)
+    except (SkinlocError, ValueError) as exc:
+        # Name the file as the person did, not the hidden file it was received into.
+        raise ValueError(str(exc).replace(str(tmp), path.name)) from None
+    os.replace(tmp, path)
+    return {
+        "name": path.name,
+        "n_faces": len(mesh.faces),
+        "extents_mm": [round(float(e) * 1e3, 1) for e in mesh.extents],
+    }

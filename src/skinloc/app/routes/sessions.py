@@ -1,0 +1,80 @@
+"""Sessions: listing, creating, opening, closing, importing a recording, the printable targets."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import FastAPI, Query
+from fastapi.responses import Response
+
+from skinloc.app.routes.bodies import SessionBody
+from skinloc.app.routes.common import OK, ClientHeader, json_response
+from skinloc.app.workspace import Workspace
+
+
+def add_routes(app: FastAPI, workspace: Workspace) -> None:
+    """Add the session routes.
+
+    ``/api/sessions``, ``/api/sessions/{id}/open``, ``/api/session/close``,
+    ``/api/recordings/import``, ``/api/sessions/{id}/targets.{svg,pdf}``.
+    """
+
+    @app.get("/api/sessions")
+    def sessions() -> Response:
+        return json_response(workspace.sessions())
+
+    @app.post("/api/sessions")
+    def create_session(body: SessionBody, client: str | None = ClientHeader) -> dict[str, Any]:
+        workspace.require(client)
+        return {"id": workspace.create_session(**body.model_dump())}
+
+    @app.post("/api/sessions/{session_id}/open")
+    def open_session(session_id: str, client: str | None = ClientHeader) -> dict[str, Any]:
+        workspace.require(client)
+        workspace.open_session(session_id)
+        return OK
+
+    @app.post("/api/session/close")
+    def close_session(client: str | None = ClientHeader) -> dict[str, Any]:
+        workspace.require(client)
+        workspace.close_session()
+        return OK
+
+    @app.post("/api/recordings/import")
+    def import_recording(
+        path: str = Query(...), client: str | None = ClientHeader
+    ) -> dict[str, Any]:
+        workspace.require(client)
+        return {"id": workspace.import_recording(path)}
+
+    @app.get("/api/sessions/{session_id}/targets.{fmt}")
+    def targets_sheet(session_id: str, fmt: str) -> Response:
+        from skinloc.app.sheet import layout_sheet, render_pdf, render_svg
+
+        if fmt not in ("svg", "pdf"):
+            raise ValueError(f"targets sheets come as svg or pdf, not {fmt!r}")
+        mesh, targets, done, name = _sheet_input(workspace, session_id)
+        sheet = layout_sheet(mesh, targets, title=f"skinloc targets: {name}", done=done)
+        filename = f"targets-{session_id}.{fmt}"
+        headers = {"Content-Disposition": f'inline; filename="{filename}"'}
+        if fmt == "svg":
+            return Response(render_svg(sheet), media_type="image/svg+xml", headers=headers)
+        return Response(render_pdf(sheet), media_type="application/pdf", headers=headers)
+
+
+def _sheet_input(workspace: Workspace, session_id: str):
+    """Mesh, planned targets, which are done, and the name of a session."""
+    import numpy as np
+
+    from skinloc.data.recording import read_recording
+    from skinloc.geometry.mesh import mesh_from_arrays
+
+    folder = workspace.store.get(session_id)
+    vertices, faces, targets = folder.read_plan()
+    done = np.zeros(len(targets), dtype=bool)
+    if folder.calibration.is_file():
+        rec = read_recording(folder.calibration)
+        if rec.planned_targets is not None:
+            targets = rec.planned_targets
+            done = np.arange(len(targets)) < rec.n_point_logs
+    return mesh_from_arrays(vertices, faces), targets, done, folder.read_info().get("name", "")

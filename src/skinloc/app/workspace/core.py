@@ -1,0 +1,170 @@
+"""The app's state and actions: the device, the open session, guided capture, training, live.
+
+One ``Workspace`` serves every tab of one app process. The reader thread calls ``on_frame``;
+HTTP handlers call the actions; both hold ``_lock``. Control belongs to one tab at a time (the
+lease): another tab that tries to change anything is told the session is busy, and may take
+over explicitly. Every touch is saved before anything else happens with it.
+
+The actions live in one module per concern (``link``, ``sessions``, ``guided``, ``finger``,
+``validation``, ``training``, ``live``), each a part of ``Workspace``; this module holds the
+state they share, the lease and the state message.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import asdict
+from typing import Any
+
+import numpy as np
+
+from skinloc.app.capture import TouchCapture
+from skinloc.app.device import DeviceLink
+from skinloc.app.hub import Hub
+from skinloc.app.live_io import TabSink
+from skinloc.app.store import SessionStore
+from skinloc.app.workspace.finger import FingerActions
+from skinloc.app.workspace.guided import GuidedCapture
+from skinloc.app.workspace.link import LinkActions
+from skinloc.app.workspace.live import LiveView
+from skinloc.app.workspace.sessions import SessionActions
+from skinloc.app.workspace.state import ActiveSession, AppConfig, BusyError, Mode
+from skinloc.app.workspace.training import TrainingJobs
+from skinloc.app.workspace.validation import ValidationActions
+from skinloc.calibration.session import TouchDetector
+from skinloc.geometry.mesh import cone_skin
+
+__all__ = ["Workspace"]
+
+
+class Workspace(
+    LinkActions,
+    SessionActions,
+    GuidedCapture,
+    FingerActions,
+    ValidationActions,
+    TrainingJobs,
+    LiveView,
+):
+    """Everything one app process knows and does.
+
+    Parameters
+    ----------
+    config : AppConfig
+        Settings.
+    hub : Hub
+        Where messages to the tabs go.
+    """
+
+    def __init__(self, config: AppConfig, hub: Hub) -> None:
+        self.config = config
+        self.hub = hub
+        self.store = SessionStore(config.data_dir)
+        self.default_mesh = config.mesh if config.mesh is not None else cone_skin()
+        self._lock = threading.RLock()
+        self.device: DeviceLink | None = None
+        self.active: ActiveSession | None = None
+        self.mode = Mode.IDLE
+        self.lease: str | None = None
+        self.capture: TouchCapture | None = None
+        self.detector: TouchDetector | None = None
+        self.finger_on = False
+        self._finger: Any = None
+        self._finger_due: float | None = None
+        self._finger_down = False
+        self._quiet: list[np.ndarray] = []
+        self._last_push = 0.0
+        self._last_report = 0.0
+        self._live_base: np.ndarray | None = None
+        self.training: dict[str, Any] | None = None
+        self.message = ""
+        self.live_sink = TabSink(hub)
+
+    def require(self, client: str | None) -> None:
+        """Give ``client`` control if nobody has it; raise ``BusyError`` if another tab has."""
+        client = client or "anonymous"
+        with self._lock:
+            if self._lease_free(client):
+                self._set_lease(client)
+            elif self.lease != client:
+                raise BusyError(
+                    "busy: this skin and session are in use in another tab; "
+                    "close that tab or take over here"
+                )
+
+    def _lease_free(self, client: str) -> bool:
+        """Whether control is free for ``client``: nobody holds it, or a tab that is gone."""
+        return self.lease is None or self.lease not in self.hub.client_ids + [client]
+
+    def take_over(self, client: str) -> None:
+        """Give ``client`` control, whoever had it (the other tab is told)."""
+        with self._lock:
+            self._set_lease(client)
+
+    def release(self, client: str) -> None:
+        """A tab went away: free control if it had it and no tab of it remains."""
+        with self._lock:
+            if self.lease == client and client not in self.hub.client_ids:
+                self.lease = None
+                self._publish_state()
+
+    def _stop_using_frames(self) -> None:
+        """Stop what the frames are used for: guided capture (the finger lifted), live view."""
+        self._stop_capture_finger()
+        self.capture = None
+        self._stop_live()
+
+    def _set_lease(self, client: str) -> None:
+        if self.lease != client:
+            self.lease = client
+            self._publish_state()
+
+    def snapshot(self) -> dict[str, Any]:
+        """Everything the tabs show, except the stream."""
+        with self._lock:
+            a = self.active
+            guided = None
+            if self.mode in (Mode.CALIBRATE, Mode.VALIDATE) and a is not None:
+                sess = self._session_of(self.mode)
+                guided = {
+                    "index": sess.n_done,
+                    "total": len(sess.targets),
+                    "target": None if sess.finished else sess.targets[sess.n_done],
+                    "phase": self.capture.phase.value if self.capture else None,
+                }
+            return {
+                "type": "state",
+                "mode": self.mode.value,
+                "message": self.message,
+                "lease": self.lease,
+                "finger": self.finger_on,
+                "device": None
+                if self.device is None
+                else {**self.device.stats(), "spec": asdict(self.device.spec)},
+                "session": None
+                if a is None
+                else {
+                    "id": a.folder.id,
+                    "name": a.info.get("name"),
+                    "has_model": a.model is not None,
+                    "holdout": a.info.get("holdout"),
+                    "validation": a.info.get("validation"),
+                    "validation_previous": a.info.get("validation_previous"),
+                    "n_validation": a.info.get("n_validation", 20),
+                    "mesh": a.info.get("mesh"),
+                },
+                "guided": guided,
+                "training": self.training,
+                "data_dir": str(self.store.root),
+                "default_mesh": self.config.mesh_name,
+            }
+
+    def _publish_state(self) -> None:
+        self.hub.publish(self.snapshot())
+
+    def shutdown(self) -> None:
+        """Stop the reader and release the session (on server exit)."""
+        with self._lock:
+            old = self._detach_device()
+            self._close_session()
+        self._stop_device(old)

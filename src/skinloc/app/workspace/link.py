@@ -1,0 +1,203 @@
+"""The skin's link: connecting, the frame path from the reader thread, the link's state."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Any
+
+import numpy as np
+
+from skinloc.app.capture import CapturePhase
+from skinloc.app.device import DeviceLink, SourceSpec
+from skinloc.app.workspace.state import Mode
+from skinloc.data.recording import read_recording
+from skinloc.errors import RecordingError
+from skinloc.geometry.mesh import nearest_on_surface
+from skinloc.sources.base import Frame
+
+
+class LinkActions:
+    """Part of ``Workspace``: the device, and every frame the reader thread hands over."""
+
+    def connect(self, spec: SourceSpec) -> None:
+        """Open the skin ``spec`` names (closing the one before)."""
+        with self._lock:
+            self._stop_device(self._detach_device())
+            mesh = self.active.mesh if self.active is not None else self.default_mesh
+            link = DeviceLink(
+                spec, self.on_frame, mesh=mesh if spec.is_sim else None, on_link=self.on_link
+            )
+            link.start()
+            self.device = link
+            self._update_session_snr()
+            self.message = f"connected to {link.name}"
+            self._publish_state()
+
+    def disconnect(self) -> None:
+        """Close the skin."""
+        with self._lock:
+            old = self._detach_device()
+            self._publish_state()
+        self._stop_device(old)
+
+    def _detach_device(self) -> DeviceLink | None:
+        """Forget the device (its reader keeps running until ``_stop_device``)."""
+        device, self.device = self.device, None
+        if device is not None:
+            self._stop_using_frames()
+            self.mode = Mode.IDLE
+            device.detached = True
+        return device
+
+    def _stop_device(self, device: DeviceLink | None) -> None:
+        """Stop a detached device's reader; its frames are ignored from detaching on."""
+        if device is not None:
+            device.stop()
+
+    def _need_device(self) -> DeviceLink:
+        if self.device is None:
+            raise ValueError("no skin connected: connect the simulated skin or a port first")
+        return self.device
+
+    def rezero(self) -> None:
+        """Measure the heat map's zero level again."""
+        with self._lock:
+            self._need_device().monitor.rezero()
+
+    def sim_touch(self, point: list[float] | None) -> None:
+        """Press the simulated skin at ``point`` (m; snapped onto the skin) or lift (None)."""
+        with self._lock:
+            device = self._need_device()
+            if not device.spec.is_sim:
+                raise ValueError("touching with the mouse works on the simulated skin only")
+            skin = device.source
+            if point is None:
+                skin.release()
+                return
+            p = np.asarray(point, dtype=np.float64).reshape(-1)
+            if p.shape != (3,) or not np.all(np.isfinite(p)):
+                raise ValueError(f"point must be 3 finite coordinates in m, got {point!r}")
+            skin.press(nearest_on_surface(skin.mesh, p)[0][0])
+
+    @contextmanager
+    def _locked_for(self, device: DeviceLink | None) -> Iterator[bool]:
+        """The lock, for the reader thread of ``device``: gives up once that is detached.
+
+        Whoever detaches a device then stops it, which waits for its reader thread: a reader
+        blocked on the lock would hold that up.
+        """
+        while not self._lock.acquire(timeout=0.05):
+            if device is not None and device.detached:
+                yield False
+                return
+        try:
+            yield device is None or device is self.device
+        finally:
+            self._lock.release()
+
+    def on_frame(self, frame: Frame, device: DeviceLink | None = None) -> None:
+        """Handle one frame (reader thread): capture, live prediction, messages."""
+        with self._locked_for(device) as ok:
+            if not ok:
+                return  # a detached device's last frames
+            now = time.monotonic()
+            mode = self.mode
+            event = None
+            if mode in (Mode.CALIBRATE, Mode.VALIDATE) and self.capture is not None:
+                event = self._guided_frame(frame, now)
+            elif mode is Mode.LIVE:
+                self._live_frame(frame)
+            if now - self._last_push >= 1.0 / self.config.frame_push_hz or event:
+                self._last_push = now
+                self._push_frame(frame)
+            if now - self._last_report >= 1.0:
+                self._last_report = now
+                self._push_report()
+
+    def on_link(self, up: bool, device: DeviceLink) -> None:
+        """The link went down or came back (reader thread): tell every tab at once."""
+        with self._locked_for(device) as ok:
+            if not ok:
+                return
+            if up:
+                self.message = f"link back: {device.name} is streaming again"
+            else:
+                self._drop_capture_in_progress()
+                self.message = (
+                    f"link lost: no frame from {device.name}; waiting for it to come back "
+                    "(everything recorded is kept)"
+                )
+            self._publish_state()
+
+    def _drop_capture_in_progress(self) -> None:
+        """Restart a capture cut by a gap (frames on both sides are not one steady touch)."""
+        if self.capture is not None and self.capture.phase is CapturePhase.CAPTURING:
+            self.capture.restart(touched_now=True)
+        self._stop_capture_finger()
+        self._setup_finger()
+
+    def link_status(self) -> dict[str, Any]:
+        """The heartbeat the server sends each tab when nothing else goes to it (no lock)."""
+        device = self.device
+        if device is None:
+            return {"type": "heartbeat", "device": False, "link_up": False}
+        return {
+            "type": "heartbeat",
+            "device": True,
+            "link_up": device.link_up and device.link_now(),
+            "frame_age_s": round(device.frame_age_s, 2),
+        }
+
+    def _push_frame(self, frame: Frame) -> None:
+        device = self.device
+        if device is None:
+            return
+        if self.mode is Mode.LIVE and self._live_base is not None:
+            ref = self._live_base
+        elif self.detector is not None and self.mode in (Mode.CALIBRATE, Mode.VALIDATE):
+            ref = self.detector.baseline
+        else:
+            ref = device.monitor.zero
+        delta = None if ref is None else np.round(frame.values - ref, 1)
+        msg: dict[str, Any] = {
+            "type": "frame",
+            "index": frame.index,
+            "tx": device.source.n_tx,
+            "rx": device.source.n_rx,
+            "delta": delta,
+            "stats": device.stats(),
+        }
+        if self.detector is not None and self.mode is not Mode.IDLE:
+            msg["touched"] = self.detector.is_touched(frame.values)
+            msg["n_active"] = self.detector.n_active(frame.values)
+        if self.capture is not None:
+            msg["capture"] = {
+                "phase": self.capture.phase.value,
+                "n": self.capture.n_captured,
+                "of": self.capture.samples,
+                "settle": self.capture.run if self.capture.phase is CapturePhase.WAIT_TOUCH else 0,
+            }
+        self.hub.publish(msg)
+
+    def _push_report(self) -> None:
+        if self.device is not None and self.device.monitor.n_frames >= 5:
+            self.hub.publish({"type": "sensors", **self.device.monitor.report()})
+
+    def _update_session_snr(self) -> None:
+        if self.device is None:
+            return
+        a = self.active
+        rec = a.cal.recording if a is not None and a.cal is not None else None
+        if rec is None and a is not None and a.folder.calibration.is_file():
+            try:
+                rec = read_recording(a.folder.calibration)
+            except RecordingError:
+                rec = None
+        if rec is None or rec.n_point_logs < 15 or rec.n_sensors != self.device.source.n_sensors:
+            self.device.monitor.session_snr = None
+            return
+        from skinloc.evaluation.metrics import snr_db
+
+        self.device.monitor.session_snr = snr_db(rec.touch_means, rec.baseline_frames)

@@ -1,0 +1,93 @@
+"""The live view: the live pipeline run on the app's frames, its contacts and gestures sent on.
+
+After a fresh baseline, every frame goes to a ``skinloc.live.runner.Pipeline`` (the one
+``skinloc run`` uses: detection, localisation, tracking, filtering, gestures) through a
+``FrameQueue``; the pipeline delivers through ``TabSink`` (``skinloc.app.live_io``), so the page
+shows whatever the pipeline finds: every contact of a frame, one per track, and each gesture.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from skinloc.app.live_io import FrameQueue, TabSink
+from skinloc.app.workspace.state import Mode
+from skinloc.calibration.session import TouchDetector
+from skinloc.sources.base import Frame
+
+
+class LiveView:
+    """Part of ``Workspace``: the live view."""
+
+    _live_pipeline: Any = None
+    _live_queue: FrameQueue | None = None
+    _live_engine: tuple[Any, Any] | None = None  # (model, its engine), built once per model
+    live_sink: TabSink
+
+    def start_live(self) -> None:
+        """Capture a fresh baseline, then run the live pipeline on every frame."""
+        with self._lock:
+            a = self._need_session()
+            device = self._need_device()
+            if a.model is None:
+                raise ValueError("train a model first: the live view needs one")
+            if a.model.n_features_in_ != device.source.n_sensors:
+                raise ValueError(
+                    f"the model expects {a.model.n_features_in_} sensors but the skin has "
+                    f"{device.source.n_sensors}"
+                )
+            model, n_tx, n_rx = a.model, device.source.n_tx, device.source.n_rx
+            cfg = a.info["config"]
+        # Outside the lock: the first engine of a model may take seconds to compile.
+        queue = FrameQueue(n_tx, n_rx, name=device.name)
+        pipeline = self._make_live_pipeline(model, queue)
+        n = int(cfg.get("n_baseline_frames", 50))
+
+        def read(source) -> np.ndarray:
+            frames, _ = source.read_many(n)
+            return frames
+
+        def then(frames: np.ndarray) -> None:
+            base, noise = frames.mean(axis=0), frames.std(axis=0)
+            self._live_base = base
+            self.detector = TouchDetector(
+                base, noise, cfg.get("threshold_sigma", 5.0), cfg.get("min_active", 2)
+            )
+            pipeline.core.set_baseline(frames)
+            pipeline.start()
+            self._live_pipeline, self._live_queue = pipeline, queue
+            self.mode = Mode.LIVE
+            self.message = "live: touch the skin"
+
+        with self._lock:
+            if self.active is not a or self.device is not device:
+                pipeline.close()
+                raise ValueError("the session or the skin changed meanwhile: start again")
+            self._baseline(read, then)
+
+    def _make_live_pipeline(self, model: Any, queue: FrameQueue) -> Any:
+        """The live pipeline of ``model`` on ``queue``'s frames, delivering to ``live_sink``.
+
+        Not started; ``core.set_baseline`` and ``start`` follow, ``close`` ends it.
+        """
+        from skinloc.live.core import load_fast_localizer
+        from skinloc.live.runner import Pipeline
+
+        cached = self._live_engine
+        if cached is None or cached[0] is not model:
+            cached = self._live_engine = (model, load_fast_localizer(model))
+        return Pipeline(
+            cached[1], queue, sinks=[self.live_sink], name="skin", n_tx=queue.n_tx, n_rx=queue.n_rx
+        )
+
+    def _live_frame(self, frame: Frame) -> None:
+        if self._live_queue is not None:
+            self._live_queue.put(frame)
+
+    def _stop_live(self) -> None:
+        """End the live pipeline (its threads joined), if one runs."""
+        pipeline, self._live_pipeline, self._live_queue = self._live_pipeline, None, None
+        if pipeline is not None:
+            pipeline.close()

@@ -1,0 +1,112 @@
+"""The app's settings and the state its actions share: modes, the open session, touch metadata."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import StrEnum
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import trimesh
+
+from skinloc.app.store import SessionFolder
+from skinloc.calibration.session import CalibrationSession
+from skinloc.data.recording import Recording
+from skinloc.errors import SkinlocError
+
+__all__ = ["ActiveSession", "AppConfig", "BusyError", "Mode"]
+
+
+class BusyError(SkinlocError):
+    """Another tab (or process) has control of the skin."""
+
+
+class Mode(StrEnum):
+    """What the frames are used for."""
+
+    IDLE = "idle"
+    BASELINE = "baseline"  # a baseline capture is running
+    CALIBRATE = "calibrate"
+    VALIDATE = "validate"
+    LIVE = "live"
+
+
+@dataclass
+class AppConfig:
+    """Settings of one app process.
+
+    Attributes
+    ----------
+    data_dir : Path
+        Folder of sessions and recordings.
+    mesh : trimesh.Trimesh or None
+        Skin of new sessions; the paper's semi-cone when None.
+    mesh_name : str
+        How the UI names that mesh.
+    train_options : dict
+        Overrides passed to ``train_localizer`` (none: its defaults).
+    finger_delay_s : float
+        Pause of the scripted finger before each touch, s.
+    frame_push_hz : float
+        Heat-map updates sent to the tabs per second.
+    holdout_fraction : float
+        Share of the point logs held out to measure the error when training.
+    """
+
+    data_dir: Path = Path("skinloc-sessions")
+    mesh: Any = None
+    mesh_name: str = "paper semi-cone (built in)"
+    train_options: dict[str, Any] = field(default_factory=dict)
+    finger_delay_s: float = 0.4
+    frame_push_hz: float = 25.0
+    holdout_fraction: float = 0.2
+
+
+@dataclass
+class ActiveSession:
+    """The open session."""
+
+    folder: SessionFolder
+    lock_fd: int
+    info: dict[str, Any]
+    mesh: trimesh.Trimesh
+    targets: np.ndarray
+    cal: CalibrationSession | None = None
+    val: CalibrationSession | None = None
+    model: Any = None
+
+
+def app_meta(rec: Recording) -> dict[str, Any]:
+    """The app's own metadata in a recording (``meta["app"]``), created when missing."""
+    return rec.meta.setdefault("app", {})
+
+
+#: Per-touch lists in ``meta["app"]``, one entry per point log.
+PER_POINT = ("touch_flags", "flags", "peaks", "predicted", "uncertainty_mm", "errors_mm")
+
+
+def pop_point_log(rec: Recording, i: int) -> dict[str, Any]:
+    """Remove point log ``i`` (and its per-touch metadata); returns what was removed."""
+    keep = np.arange(rec.n_point_logs) != i
+    removed = {
+        "target": rec.targets[i].copy(),
+        "frames": rec.frames[i].copy(),
+        "times": None if rec.frame_times is None else rec.frame_times[i].copy(),
+    }
+    rec.targets, rec.frames = rec.targets[keep], rec.frames[keep]
+    if rec.frame_times is not None:
+        rec.frame_times = rec.frame_times[keep]
+    meta = app_meta(rec)
+    removed["meta"] = {}
+    for key in PER_POINT:
+        if key in meta and len(meta[key]) > i:
+            removed["meta"][key] = meta[key].pop(i)
+    return removed
+
+
+def same_mesh(a: Any, b: Any) -> bool:
+    """Whether two meshes (or None) have the same vertices."""
+    if a is None or b is None:
+        return a is b
+    return a.vertices.shape == b.vertices.shape and np.allclose(a.vertices, b.vertices)

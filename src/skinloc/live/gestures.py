@@ -74,7 +74,7 @@ class GestureConfig:
     double_tap_mm: float = 30.0
     long_press_s: float = 0.60
     swipe_min_mm: float = 30.0
-    swipe_min_speed_m_s: float = 0.08
+    swipe_min_speed_m_s: float = 0.10
     two_finger_sync_s: float = 0.15
 
     def __post_init__(self) -> None:

@@ -45,9 +45,11 @@ class Timing:
 
     Every value is drawn uniformly from its range. Chosen from the usual touch-screen
     conventions (the real recordings hold no timestamps, so no real timing could be measured),
-    with a margin to each threshold a recogniser would use: a tap is <= 200 ms, a rest
-    300-450 ms, a long press >= 800 ms; a double tap's gap < 250 ms; a swipe moves 30-60 mm at
-    50-300 mm/s (mean speed), a drag 15-30 mm at 10-25 mm/s.
+    with a margin to each threshold of the live recogniser (``live.gestures.GestureConfig``): a
+    tap is <= 200 ms, a rest 400-500 ms, a long press >= 800 ms; a double tap's gap < 250 ms; a
+    swipe moves 40-70 mm at 150-300 mm/s (mean speed), a drag 40-50 mm at 50-70 mm/s (it leaves
+    the 20 mm of a still finger within 0.6 s, so it is no long press, and is too slow for a
+    swipe).
     """
 
     tap_s: tuple[float, float] = (0.05, 0.20)
@@ -55,14 +57,14 @@ class Timing:
     double_tap_gap_s: tuple[float, float] = (0.08, 0.25)
     double_tap_offset_m: float = 0.003  # std per axis of the second tap's landing point
     long_press_s: tuple[float, float] = (0.80, 1.50)
-    swipe_speed_m_s: tuple[float, float] = (0.05, 0.30)
-    swipe_length_m: tuple[float, float] = (0.03, 0.06)
+    swipe_speed_m_s: tuple[float, float] = (0.15, 0.30)
+    swipe_length_m: tuple[float, float] = (0.04, 0.07)
     two_finger_press_s: tuple[float, float] = (0.06, 0.20)
     two_finger_separation_m: tuple[float, float] = (0.03, 0.06)
     two_finger_skew_s: tuple[float, float] = (0.0, 0.04)  # landing (and lifting) time apart
-    rest_s: tuple[float, float] = (0.30, 0.45)
-    drag_speed_m_s: tuple[float, float] = (0.010, 0.025)
-    drag_length_m: tuple[float, float] = (0.015, 0.030)
+    rest_s: tuple[float, float] = (0.40, 0.50)
+    drag_speed_m_s: tuple[float, float] = (0.050, 0.070)
+    drag_length_m: tuple[float, float] = (0.040, 0.050)
     idle_s: tuple[float, float] = (0.70, 1.50)  # nothing touches between two items
     lead_in_s: float = 2.0  # untouched at the start, for the baseline
     ramp_s: float = 0.02  # pressure rises (falls) over this at landing (lifting)

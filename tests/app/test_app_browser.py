@@ -178,6 +178,7 @@ def test_full_session_in_the_browser(chromium, server, tmp_path):
         assert page.evaluate("document.activeElement.tagName") != "INPUT"
         # Keys do nothing while the link is lost, by design; a loaded machine may be late with a
         # frame just as the key goes down. So: press, and press again only if nothing was undone.
+        said = []
         for _ in range(6):
             page.wait_for_function("() => !document.body.classList.contains('link-lost')")
             page.keyboard.press("z")  # undo the last touch
@@ -185,7 +186,13 @@ def test_full_session_in_the_browser(chromium, server, tmp_path):
                 wait_state("s.session?.validation?.retaken >= 1", 10_000)
                 break
             except sync_api.TimeoutError:
-                continue
+                said.append(page.evaluate(
+                    "() => [document.querySelector('#message')?.textContent,"
+                    " JSON.stringify(window.skinloc.state?.guided),"
+                    " document.activeElement?.tagName]"
+                ))  # fmt: skip
+        else:
+            raise AssertionError(f"z undid nothing; the page said: {said}")
         wait_state("s.session && s.session.validation && s.session.validation.retaken === 1")
         vpanel.locator(".finger").click()  # on again, to the end
         wait_state(

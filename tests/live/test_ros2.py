@@ -297,7 +297,8 @@ def test_dds_sink_is_what_make_sink_builds_and_checks_its_domain(monkeypatch):
 
 
 def test_encoders_match_the_idl_serializer():
-    from skinloc.live.sinks.ros2_msgs import PointStamped, check_encoders, msg_definition
+    from skinloc.live.sinks.ros2_cdr import check_encoders
+    from skinloc.live.sinks.ros2_msgs import PointStamped, msg_definition
 
     check_encoders()
     text = msg_definition(PointStamped)
@@ -543,11 +544,11 @@ def test_dds_sink_close_leaves_no_thread(domain):
 
 
 def test_an_encoder_mismatch_is_one_clear_error(monkeypatch):
-    from skinloc.live.sinks import ros2_msgs
+    from skinloc.live.sinks import ros2_cdr
 
-    monkeypatch.setattr(ros2_msgs, "_ENCAPSULATION", b"\x00\x00\x00\x00")  # big-endian tag
+    monkeypatch.setattr(ros2_cdr, "_ENCAPSULATION", b"\x00\x00\x00\x00")  # big-endian tag
     with pytest.raises(RuntimeError, match="PointStamped encoder disagrees"):
-        ros2_msgs.check_encoders()
+        ros2_cdr.check_encoders()
 
 
 def test_skinloc_run_publishes_to_a_subscriber_in_another_process(tmp_path, domain):

@@ -60,11 +60,14 @@ class _DdsBackend:
     """A Cyclone DDS participant with one writer per topic, ROS 2 naming and QoS."""
 
     def __init__(self, domain_id: int) -> None:
+        from cyclonedds._clayer import ddspy_write
         from cyclonedds.domain import DomainParticipant
 
+        self._ddspy_write = ddspy_write  # looked up once: it runs three times per frame
         self.domain_id = domain_id
         self.participant = DomainParticipant(domain_id)
         self.writers: dict[str, Any] = {}
+        self._refs: dict[str, Any] = {}  # the C writers, for ddspy_write
 
     def advertise(self, topic: str, cls: type, latched: bool) -> None:
         from cyclonedds.core import Policy, Qos
@@ -83,20 +86,20 @@ class _DdsBackend:
         # ROS 2 prefixes topics with "rt" ("ROS topic") on the DDS side
         dds_topic = Topic(self.participant, "rt" + topic, cls, qos=qos)
         self.writers[topic] = DataWriter(self.participant, dds_topic, qos=qos)
+        self._refs[topic] = self.writers[topic]._ref
 
     def write(self, topic: str, data: bytes) -> None:
-        from cyclonedds._clayer import ddspy_write
-
         # the bytes are already CDR (the struct encoders): hand them to the C writer as
         # DataWriter.write does after serialize(), padded to 4 bytes
         if len(data) % 4:
             data += b"\x00" * (-len(data) % 4)
-        ret = ddspy_write(self.writers[topic]._ref, data)
+        ret = self._ddspy_write(self._refs[topic], data)
         if ret < 0:
             raise OSError(f"DDS write on {topic} failed ({ret})")
 
     def close(self) -> None:
         self.writers.clear()
+        self._refs.clear()
         self.participant = None  # the participant and its entities are freed with it
 
 
@@ -141,7 +144,6 @@ class _RclpyBackend:
         self.node.destroy_node()
         if self._own_init:
             rclpy.shutdown()
-
 
 
 class Ros2Sink(Ros2Topics):
@@ -241,6 +243,10 @@ class Ros2Sink(Ros2Topics):
                     self._publish_gesture(skin, t, what)
                 else:
                     self._publish_frame(skin, t, what)
+
+    def flush(self, timeout_s: float = 10.0) -> bool:
+        """Wait until every frame queued so far is published; False on timeout."""
+        return self._pub.flush(timeout_s) if self._pub is not None else True
 
     def stats(self) -> dict[str, Any]:
         """The publisher thread's counters (frames queued, dropped, sent; batches; CPU s)."""

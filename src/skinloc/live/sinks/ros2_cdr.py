@@ -149,35 +149,35 @@ class HeaderEncoder:
     def _pad(offset: int, align: int) -> bytes:
         return b"\x00" * (-offset % align)
 
-    def point_stamped(self, stamp: Time, xyz: Sequence[float]) -> bytes:
+    def point_stamped(self, stamp: tuple[int, int], xyz: Sequence[float]) -> bytes:
         """``geometry_msgs/PointStamped`` (m)."""
         return b"".join(
             (
                 _ENCAPSULATION,
-                _STAMP.pack(stamp.sec, stamp.nanosec),
+                _STAMP.pack(*stamp),
                 self._frame,
                 self._pad(self._after_header, 8),
                 _POINT.pack(*xyz),
             )
         )
 
-    def pose_array(self, stamp: Time, positions: Sequence[Sequence[float]]) -> bytes:
+    def pose_array(self, stamp: tuple[int, int], positions: Sequence[Sequence[float]]) -> bytes:
         """``geometry_msgs/PoseArray``: one identity-oriented pose per position (m)."""
         off = self._after_header
         pad4 = self._pad(off, 4)
         off += len(pad4) + 4
-        parts = [_ENCAPSULATION, _STAMP.pack(stamp.sec, stamp.nanosec), self._frame, pad4]
+        parts = [_ENCAPSULATION, _STAMP.pack(*stamp), self._frame, pad4]
         parts.append(_U32.pack(len(positions)))
         if positions:
             parts.append(self._pad(off, 8))
             parts.extend(_POSE.pack(x, y, z, 0.0, 0.0, 0.0, 1.0) for x, y, z in positions)
         return b"".join(parts)
 
-    def sphere_markers(self, stamp: Time, spheres: Sequence[SphereMarker]) -> bytes:
+    def sphere_markers(self, stamp: tuple[int, int], spheres: Sequence[SphereMarker]) -> bytes:
         """``visualization_msgs/MarkerArray`` of spheres (see ``SphereMarker``), m."""
         out = [_ENCAPSULATION, _U32.pack(len(spheres))]
         off = 4
-        sec, nsec = stamp.sec, stamp.nanosec
+        sec, nsec = stamp
         for x, y, z, mid, action, r, g, b, a in spheres:
             if off % 4:  # the next marker starts with an int32
                 out.append(b"\x00" * (-off % 4))
@@ -187,7 +187,7 @@ class HeaderEncoder:
             off += layout.size
         return b"".join(out)
 
-    def image_32fc1(self, stamp: Time, values: Any, height: int, width: int) -> bytes:
+    def image_32fc1(self, stamp: tuple[int, int], values: Any, height: int, width: int) -> bytes:
         """``sensor_msgs/Image``, encoding ``32FC1``, little endian: ``values`` (h * w,) float."""
         data = np.ascontiguousarray(values, dtype="<f4").tobytes()
         off = self._after_header
@@ -199,7 +199,7 @@ class HeaderEncoder:
         return b"".join(
             (
                 _ENCAPSULATION,
-                _STAMP.pack(stamp.sec, stamp.nanosec),
+                _STAMP.pack(*stamp),
                 self._frame,
                 pad4,
                 struct.pack("<II", height, width),
@@ -246,25 +246,26 @@ def check_encoders() -> None:
             )
 
     stamp = Time(sec=12, nanosec=345)
+    parts = (12, 345)
     for n in range(8):
         frame = "skin/" + "x" * n
         enc = HeaderEncoder(frame)
         header = Header(stamp=stamp, frame_id=frame)
         xyz = (0.1, -0.2, 0.3)
         ref = PointStamped(header=header, point=Point(*xyz)).serialize()
-        same(enc.point_stamped(stamp, xyz), ref, "PointStamped")
+        same(enc.point_stamped(parts, xyz), ref, "PointStamped")
         for k in (0, 1, 3):
             pos = [(0.01 * i, 0.02, -0.03 * i) for i in range(k)]
             poses = [Pose(position=Point(*p)) for p in pos]
             ref = PoseArray(header=header, poses=poses).serialize()
-            same(enc.pose_array(stamp, pos), ref, "PoseArray")
+            same(enc.pose_array(parts, pos), ref, "PoseArray")
             spheres = [
                 (0.01 * i, 0.02, -0.03, 7 + i, (Marker.ADD, Marker.DELETE)[i % 2], 0.5, 0.25, 1, 1)
                 for i in range(k)
             ]
             ref = sphere_message(frame, stamp, spheres).serialize()
-            same(enc.sphere_markers(stamp, spheres), ref, "MarkerArray")
+            same(enc.sphere_markers(parts, spheres), ref, "MarkerArray")
         vals = np.arange(6, dtype=np.float32)
         data = vals.astype("<f4").tobytes()
         img = Image(header, 2, 3, "32FC1", 0, 12, list(data))
-        same(enc.image_32fc1(stamp, vals, 2, 3), img.serialize(), "Image")
+        same(enc.image_32fc1(parts, vals, 2, 3), img.serialize(), "Image")

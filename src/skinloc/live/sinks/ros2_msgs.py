@@ -48,6 +48,7 @@ __all__ = [
     "msg_definition",
     "ros_type_name",
     "stamp_of",
+    "stamp_parts",
 ]
 
 
@@ -351,9 +352,14 @@ def msg_definition(cls: type[IdlStruct]) -> str:
     return "\n".join(parts) + "\n"
 
 
-def stamp_of(t_s: float) -> Time:
-    """A ``Time`` from seconds (``t_s`` >= 0; negative times clamp to 0)."""
+def stamp_parts(t_s: float) -> tuple[int, int]:
+    """``(sec, nanosec)`` of a time in seconds (``t_s`` >= 0; negative times clamp to 0)."""
     t_s = max(float(t_s), 0.0)
     sec = int(t_s)
-    nsec = min(int(round((t_s - sec) * 1e9)), 999_999_999)
+    return sec, min(int(round((t_s - sec) * 1e9)), 999_999_999)
+
+
+def stamp_of(t_s: float) -> Time:
+    """A ``Time`` from seconds (``t_s`` >= 0; negative times clamp to 0)."""
+    sec, nsec = stamp_parts(t_s)
     return Time(sec=sec, nanosec=nsec)

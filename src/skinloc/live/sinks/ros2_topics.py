@@ -155,7 +155,6 @@ def quaternion_from_rpy(roll: float, pitch: float, yaw: float) -> tuple[float, f
     )
 
 
-
 class Ros2Topics(Sink):
     """The ROS 2 topic layout of skinloc, shared by the live sink and the bag writer.
 
@@ -175,6 +174,7 @@ class Ros2Topics(Sink):
         self._msgs: Any = None
         self._skins: dict[str, SkinInfo] = {}
         self._enc: dict[str, Any] = {}
+        self._base: dict[str, str] = {}  # topic prefix per skin
         self._offset_s: dict[str, float] = {}
         self._last_s: dict[str, float] = {}
         self._lock = threading.RLock()  # the live sink may open a skin while publishing
@@ -213,6 +213,7 @@ class Ros2Topics(Sink):
             )
         self._skins[name] = info
         self._enc[name] = HeaderEncoder(f"skin/{name}")
+        self._base[name] = base
         self._advertise(f"{base}/contact", m.PointStamped, False)
         self._advertise(f"{base}/contacts", m.PoseArray, False)
         self._advertise(f"{base}/markers", m.MarkerArray, False)
@@ -302,18 +303,16 @@ class Ros2Topics(Sink):
     def _publish_frame(self, skin: str, timestamp_s: float, contacts: Sequence[Contact]) -> None:
         self._ensure_skin(skin)
         enc = self._enc[skin]
-        stamp = self._msgs.stamp_of(self.stamp_s(skin, timestamp_s))
-        t_ns = stamp.sec * 1_000_000_000 + stamp.nanosec
-        base = topic_base(skin)
+        stamp = self._msgs.stamp_parts(self.stamp_s(skin, timestamp_s))
+        t_ns = stamp[0] * 1_000_000_000 + stamp[1]
+        base = self._base[skin]
         touching = sorted((c for c in contacts if _touching(c)), key=_slot_key)
         if touching:
             best = max(touching, key=_strength_key)
             self._write(f"{base}/contact", enc.point_stamped(stamp, best.position_m), t_ns)
         positions = [c.position_m for c in touching]
         self._write(f"{base}/contacts", enc.pose_array(stamp, positions), t_ns)
-        spheres = [
-            (*c.position_m, _marker_id(c), 0, *_colour(c.slot)) for c in touching
-        ] + [
+        spheres = [(*c.position_m, _marker_id(c), 0, *_colour(c.slot)) for c in touching] + [
             (0.0, 0.0, 0.0, _marker_id(c), 2, *_colour(c.slot))  # Marker.DELETE
             for c in contacts
             if c.state == "end"
@@ -342,9 +341,9 @@ class Ros2Topics(Sink):
         self._ensure_skin(skin)
         t = self.stamp_s(skin, timestamp_s)
         payload = json.dumps({**event, "skin": skin, "stamp": t}, separators=(",", ":"))
-        stamp = self._msgs.stamp_of(t)
+        sec, nsec = self._msgs.stamp_parts(t)
         data = self._msgs.String(payload).serialize()
-        self._write(f"{topic_base(skin)}/gestures", data, stamp.sec * 1_000_000_000 + stamp.nanosec)
+        self._write(f"{topic_base(skin)}/gestures", data, sec * 1_000_000_000 + nsec)
 
     def emit_frame(self, skin: str, values: np.ndarray, timestamp_s: float, index: int) -> None:
         """Record a raw frame as ``sensor_msgs/Image`` ``32FC1``, TX rows by RX columns.
@@ -366,7 +365,7 @@ class Ros2Topics(Sink):
             n = int(np.size(values))
             n_tx = info.n_tx or 1
             n_rx = info.n_rx or n // n_tx
-            stamp = self._msgs.stamp_of(self.stamp_s(skin, timestamp_s))
-            t_ns = stamp.sec * 1_000_000_000 + stamp.nanosec
+            stamp = self._msgs.stamp_parts(self.stamp_s(skin, timestamp_s))
+            t_ns = stamp[0] * 1_000_000_000 + stamp[1]
             data = self._enc[skin].image_32fc1(stamp, values, n_tx, n_rx)
             self._write(f"{topic_base(skin)}/frames", data, t_ns, int(index) & 0xFFFFFFFF)

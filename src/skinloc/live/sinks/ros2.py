@@ -24,34 +24,19 @@ from typing import TYPE_CHECKING, Any
 
 from skinloc.live.sinks.base import SkinInfo
 from skinloc.live.sinks.publisher import PublisherThread
-from skinloc.live.sinks.ros2_topics import (
-    Ros2Topics,
-    _require_msgs,
-    dds_available,
-    quaternion_from_rpy,
-    rclpy_available,
-    ros2_available,
-    ros_name,
-    topic_base,
-)
+from skinloc.live.sinks.ros2_topics import Ros2Topics, _require_msgs, rclpy_available
+
+# the runner, the bag source and users' code import these from here
+from skinloc.live.sinks.ros2_topics import quaternion_from_rpy as quaternion_from_rpy
+from skinloc.live.sinks.ros2_topics import ros_name as ros_name
+from skinloc.live.sinks.ros2_topics import topic_base as topic_base
 
 if TYPE_CHECKING:
     from skinloc.live.contact import Contact
 
 log = logging.getLogger(__name__)
 
-# quaternion_from_rpy, ros_name and topic_base stay importable from here (the runner, the bag
-# source and users' code import them from this module)
-__all__ = [
-    "Ros2Sink",
-    "Ros2Topics",
-    "dds_available",
-    "quaternion_from_rpy",
-    "rclpy_available",
-    "ros2_available",
-    "ros_name",
-    "topic_base",
-]
+__all__ = ["Ros2Sink"]
 
 _DEPTH = 10  # keep-last depth of the data topics (rclpy's default QoS profile)
 

@@ -10,6 +10,9 @@ node on Cyclone DDS or Fast DDS announces), so that
   ``rmw`` puts on the wire and ``rosbag2`` stores) and describes them with ``msg_definition``,
   the ``.msg`` text generated from the same fields (MCAP ``ros2msg`` schema).
 
+The per-frame messages go out through the ``struct`` encoders of
+``skinloc.live.sinks.ros2_cdr``, checked byte for byte against these classes' ``serialize()``.
+
 Needs the ``cyclonedds`` Python binding (``pip install 'skinloc[live]'``; the wheel bundles the
 Cyclone C library). Constants of ``visualization_msgs/Marker`` are plain class attributes.
 """

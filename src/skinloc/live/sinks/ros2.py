@@ -208,6 +208,12 @@ class Ros2Sink(Ros2Topics):
         self._io.write(topic, data)
 
     # ------------------------------------------------------------------ the pipeline's side
+    def emit(self, contact: Contact) -> None:
+        """Queue the one contact of a single-contact pipeline's frame (see ``Ros2Topics.emit``)."""
+        if self._pub is None:
+            self.open([])
+        self._pub.put((contact.skin, contact.timestamp_s, (contact,)))
+
     def emit_contacts(self, skin: str, timestamp_s: float, contacts: Sequence[Contact]) -> None:
         """Queue one frame of ``skin`` for the publisher thread (see ``Ros2Topics``)."""
         if self._pub is None:

@@ -174,7 +174,7 @@ class Ros2Topics(Sink):
         self._msgs: Any = None
         self._skins: dict[str, SkinInfo] = {}
         self._enc: dict[str, Any] = {}
-        self._base: dict[str, str] = {}  # topic prefix per skin
+        self._topics: dict[str, tuple[str, str, str]] = {}  # contact, contacts, markers
         self._offset_s: dict[str, float] = {}
         self._last_s: dict[str, float] = {}
         self._lock = threading.RLock()  # the live sink may open a skin while publishing
@@ -213,7 +213,7 @@ class Ros2Topics(Sink):
             )
         self._skins[name] = info
         self._enc[name] = HeaderEncoder(f"skin/{name}")
-        self._base[name] = base
+        self._topics[name] = (f"{base}/contact", f"{base}/contacts", f"{base}/markers")
         self._advertise(f"{base}/contact", m.PointStamped, False)
         self._advertise(f"{base}/contacts", m.PoseArray, False)
         self._advertise(f"{base}/markers", m.MarkerArray, False)
@@ -305,20 +305,23 @@ class Ros2Topics(Sink):
         enc = self._enc[skin]
         stamp = self._msgs.stamp_parts(self.stamp_s(skin, timestamp_s))
         t_ns = stamp[0] * 1_000_000_000 + stamp[1]
-        base = self._base[skin]
-        touching = sorted((c for c in contacts if _touching(c)), key=_slot_key)
+        contact_topic, contacts_topic, markers_topic = self._topics[skin]
+        if len(contacts) == 1:  # the common frame: no sorting
+            touching = list(contacts) if _touching(contacts[0]) else []
+        else:
+            touching = sorted((c for c in contacts if _touching(c)), key=_slot_key)
         if touching:
-            best = max(touching, key=_strength_key)
-            self._write(f"{base}/contact", enc.point_stamped(stamp, best.position_m), t_ns)
+            best = max(touching, key=_strength_key) if len(touching) > 1 else touching[0]
+            self._write(contact_topic, enc.point_stamped(stamp, best.position_m), t_ns)
         positions = [c.position_m for c in touching]
-        self._write(f"{base}/contacts", enc.pose_array(stamp, positions), t_ns)
+        self._write(contacts_topic, enc.pose_array(stamp, positions), t_ns)
         spheres = [(*c.position_m, _marker_id(c), 0, *_colour(c.slot)) for c in touching] + [
             (0.0, 0.0, 0.0, _marker_id(c), 2, *_colour(c.slot))  # Marker.DELETE
             for c in contacts
             if c.state == "end"
         ]
         if spheres:
-            self._write(f"{base}/markers", enc.sphere_markers(stamp, spheres), t_ns)
+            self._write(markers_topic, enc.sphere_markers(stamp, spheres), t_ns)
         self.n_sent += 1
 
     def emit_gesture(self, skin: str, timestamp_s: float, event: Mapping[str, Any]) -> None:

@@ -1,7 +1,9 @@
 """ROS 2 sinks: publishing cost per contact beside JSON lines, and 100 skins at 100 Hz with the
 ROS 2 sink on, against the same run without it (docs/benchmarks.md, "ROS 2 sinks").
 
-    PYTHONPATH=src python bench/ros2_sinks.py --out bench/results/ros2_sinks.json
+    PYTHONPATH=src python bench/ros2_sinks.py --repeats 3 --out bench/results/ros2_sinks.json
+
+Each repeat runs the 100 skins without sinks, then with the ROS 2 sink, back to back.
 
 DDS stays on the loopback interface (unicast) unless CYCLONEDDS_URI is set.
 """
@@ -16,7 +18,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from skinloc.live.bench import many_skins, sink_cost, train_bench_models
+from skinloc.live.bench import many_skins, train_bench_models
+from skinloc.live.bench_sinks import sink_cost
 
 
 def main() -> None:
@@ -25,6 +28,7 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--skins", type=int, default=100)
     ap.add_argument("--duration", type=float, default=30.0, help="s per 100-skin run")
+    ap.add_argument("--repeats", type=int, default=1, help="pairs of 100-skin runs")
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()
     folder = Path(tempfile.gettempdir()) / "skinloc-bench" / "online-models"
@@ -36,10 +40,18 @@ def main() -> None:
     }
     res["sink_cost"] = sink_cost(args.contacts, rounds=args.rounds)
     print(json.dumps(res["sink_cost"], indent=1), flush=True)
-    for label, sinks in (("without sinks", ()), ("ros2 sink", ("ros2",))):
-        r = many_skins(model, args.skins, 100.0, args.duration, sinks=sinks)
-        res.setdefault("many_skins", {})[label] = r
-        print(label, json.dumps(r, indent=1), flush=True)
+    for rep in range(args.repeats):
+        for label, sinks in (("without sinks", ()), ("ros2 sink", ("ros2",))):
+            r = many_skins(model, args.skins, 100.0, args.duration, sinks=sinks)
+            r["load_average_after"] = os.getloadavg()
+            res.setdefault("many_skins", {}).setdefault(label, []).append(r)
+            print(
+                f"repeat {rep + 1}, {label}: latency median {r['latency_median_us']:.0f} us, "
+                f"p99 {r['latency_p99_us']:.0f} us, loop CPU {r['loop_cpu_us_per_frame']:.1f} "
+                f"us/frame, {r['frames_processed']}/{r['frames_sent']} frames, sink drops "
+                f"{r['sink_frames_dropped']}, load {r['load_average_after'][0]:.1f}",
+                flush=True,
+            )
     res["load_average_at_end"] = os.getloadavg()
     text = json.dumps(res, indent=2)
     if args.out:

@@ -160,6 +160,11 @@ class Mk(IdlStruct, typename="visualization_msgs::msg::dds_::Marker_"):
     mesh_use_embedded_materials: bool = False
 
 
+@dataclass
+class MkA(IdlStruct, typename="visualization_msgs::msg::dds_::MarkerArray_"):
+    markers: sequence[Mk] = field(default_factory=list)
+
+
 # ----------------------------------------------------------------------------- helpers
 
 SRC = Path(__file__).resolve().parents[2] / "src"
@@ -181,6 +186,75 @@ def domain(monkeypatch):
 
 def _contact(state="move", k=0, pos=(0.01, 0.02, 0.03), t0=100.0, skin="arm"):
     return Contact(skin, t0 + 0.01 * k, k, state, pos, pos, 0.8, 20.0, math.nan, 15.0, 1)
+
+
+def _mc(state, track, slot, pos, t, strength, skin="arm"):
+    """One contact of a multi-contact frame (protocol B track id and slot)."""
+    return Contact(
+        skin, t, 0, state, pos, pos, 0.8, 20.0, math.nan, 15.0, 1,
+        track_id=track, slot=slot, strength=strength,
+    )  # fmt: skip
+
+
+A0, B0, A1 = (0.01, 0.02, 0.03), (-0.02, 0.01, 0.04), (0.012, 0.021, 0.03)
+
+
+def _two_finger_frames(sink, skin="arm"):
+    """Track 5 (slot 1) and track 7 (slot 0) land; 7 lifts; then 5 lifts. 10 ms apart."""
+    sink.emit_contacts(
+        skin,
+        100.0,
+        [_mc("start", 5, 1, A0, 100.0, 50.0, skin), _mc("start", 7, 0, B0, 100.0, 80.0, skin)],
+    )
+    sink.emit_contacts(
+        skin,
+        100.01,
+        [_mc("move", 5, 1, A1, 100.01, 90.0, skin), _mc("end", 7, 0, B0, 100.01, 0.0, skin)],
+    )
+    sink.emit_contacts(skin, 100.02, [_mc("end", 5, 1, A1, 100.02, 0.0, skin)])
+    sink.emit_gesture(skin, 100.02, GESTURE)
+
+
+GESTURE = {
+    "event": "gesture", "skin": "arm", "kind": "two_finger_tap", "direction": None,
+    "start_s": 100.0, "end_s": 100.02, "timestamp_s": 100.02, "track_ids": [5, 7],
+}  # fmt: skip
+
+
+def _check_two_finger_frames(point, poses, markers, gestures, frame_of, stamp_of):
+    """What ``_two_finger_frames`` must publish, whichever reader decoded it."""
+    # /contact: the strongest touching contact of each frame that has one
+    assert len(point) == 2
+    assert [frame_of(m) for m in point] == ["skin/arm"] * 2
+    assert (point[0].point.x, point[0].point.y, point[0].point.z) == pytest.approx(B0)
+    assert (point[1].point.x, point[1].point.y, point[1].point.z) == pytest.approx(A1)
+    # /contacts: every touching contact, by slot (track 7 in slot 0 first)
+    assert [len(m.poses) for m in poses] == [2, 1, 0]
+    p0 = [(q.position.x, q.position.y, q.position.z) for q in poses[0].poses]
+    assert p0 == [pytest.approx(B0), pytest.approx(A0)]
+    assert poses[1].poses[0].position.x == pytest.approx(A1[0])
+    assert poses[1].poses[0].orientation.w == pytest.approx(1.0)
+    stamps = [stamp_of(m) for m in poses]
+    assert stamps[1] - stamps[0] == pytest.approx(0.01, abs=2e-6)
+    assert stamps[2] - stamps[0] == pytest.approx(0.02, abs=2e-6)
+    # /markers: a sphere per track (id = track id, colour by slot), DELETE when it ends
+    assert len(markers) == 3
+    f0 = {m.id: m for m in markers[0].markers}
+    assert set(f0) == {5, 7}
+    assert all(m.type == 2 and m.action == 0 and m.ns == "skinloc/contacts" for m in f0.values())
+    assert all(frame_of(m) == "skin/arm" and m.scale.x == pytest.approx(0.01) for m in f0.values())
+    assert (f0[5].pose.position.x, f0[7].pose.position.z) == pytest.approx((A0[0], B0[2]))
+    assert (f0[5].color.r, f0[5].color.g) != (f0[7].color.r, f0[7].color.g)  # slot colours
+    assert f0[5].color.a > 0.5
+    assert stamp_of(markers[0].markers[0]) == pytest.approx(stamps[0], abs=2e-6)
+    f1 = sorted((m.id, m.action) for m in markers[1].markers)
+    assert f1 == [(5, 0), (7, 2)]
+    assert [(m.id, m.action) for m in markers[2].markers] == [(5, 2)]
+    # /gestures: the event as JSON, with the stamp of the other topics
+    (g,) = gestures
+    event = json.loads(g.data)
+    assert event["kind"] == "two_finger_tap" and event["track_ids"] == [5, 7]
+    assert event["skin"] == "arm" and event["stamp"] == pytest.approx(stamps[2], abs=2e-6)
 
 
 def _skins(**mount):
@@ -244,14 +318,18 @@ def test_dds_sink_received_by_an_independent_subscriber(domain):
         point = _Sub(dp, "/skinloc/arm/contact", PS)
         poses = _Sub(dp, "/skinloc/arm/contacts", PA)
         gest = _Sub(dp, "/skinloc/arm/gestures", Str)
-        for topic in ("/skinloc/arm/contact", "/skinloc/arm/contacts", "/skinloc/arm/gestures"):
+        marks = _Sub(dp, "/skinloc/arm/markers", MkA)
+        for topic in ("contact", "contacts", "gestures", "markers"):
+            topic = f"/skinloc/arm/{topic}"
             assert _wait(lambda t=topic: _matched(sink, t)), f"no subscriber matched {topic}"
+        # the single-contact path: one emit per frame, no track id
         sink.emit(_contact("start", 0, (0.01, 0.02, 0.03)))
         sink.emit(_contact("move", 1, (0.011, 0.021, 0.031)))
         sink.emit(_contact("end", 2, (0.011, 0.021, 0.031)))
-        sink.emit_gesture("arm", 100.05, {"type": "tap", "position_m": [0.01, 0.02, 0.03]})
+        sink.emit_gesture("arm", 100.05, {**GESTURE, "kind": "tap"})
         assert _wait(lambda: len(point.take()) >= 2 and len(poses.take()) >= 3)
         assert _wait(lambda: gest.take() and mesh.take() and tf.take())
+        assert _wait(lambda: len(marks.take()) >= 3)
     finally:
         sink.close()
     # strongest contact: only while touching
@@ -269,7 +347,14 @@ def test_dds_sink_received_by_an_independent_subscriber(domain):
     o = poses.got[1].poses[0]
     assert (o.position.x, o.orientation.w) == pytest.approx((0.011, 1.0))
     event = json.loads(gest.got[0].data)
-    assert event["type"] == "tap" and event["skin"] == "arm" and event["stamp"] > 1e9
+    assert event["kind"] == "tap" and event["skin"] == "arm" and event["stamp"] > 1e9
+    # without a track id the sphere's id is the touch number; the end deletes it
+    assert [[(m.id, m.action) for m in a.markers] for a in marks.got] == [
+        [(1, 0)],
+        [(1, 0)],
+        [(1, 2)],
+    ]
+    assert sink.stats()["dropped"] == 0 and sink.stats()["sent"] == 4
     # the skin mesh as a triangle list, in the skin frame
     m = mesh.got[-1]
     assert m.header.frame_id == "skin/arm" and m.type == 11 and m.action == 0
@@ -279,6 +364,62 @@ def test_dds_sink_received_by_an_independent_subscriber(domain):
     assert ts.header.frame_id == "fr3_link7" and ts.child_frame_id == "skin/arm"
     assert ts.transform.translation.z == pytest.approx(0.107)
     assert ts.transform.rotation.z == pytest.approx(math.sin(0.3))
+
+
+def test_dds_sink_publishes_multi_contact_frames(domain):
+    """Two fingers through ``emit_contacts``: contact, contacts, markers and gestures."""
+    from cyclonedds.domain import DomainParticipant
+
+    from skinloc.live.sinks.ros2 import Ros2Sink
+
+    sink = Ros2Sink(domain_id=domain, backend="dds")
+    sink.open(_skins())
+    dp = DomainParticipant(domain)
+    try:
+        subs = {
+            "contact": _Sub(dp, "/skinloc/arm/contact", PS),
+            "contacts": _Sub(dp, "/skinloc/arm/contacts", PA),
+            "markers": _Sub(dp, "/skinloc/arm/markers", MkA),
+            "gestures": _Sub(dp, "/skinloc/arm/gestures", Str),
+        }
+        for name in subs:
+            topic = f"/skinloc/arm/{name}"
+            assert _wait(lambda t=topic: _matched(sink, t)), f"no subscriber matched {topic}"
+        _two_finger_frames(sink)
+        want = {"contact": 2, "contacts": 3, "markers": 3, "gestures": 1}
+        assert _wait(lambda: all(len(subs[k].take()) >= n for k, n in want.items()))
+    finally:
+        sink.close()
+    _check_two_finger_frames(
+        subs["contact"].got,
+        subs["contacts"].got,
+        subs["markers"].got,
+        subs["gestures"].got,
+        frame_of=lambda m: m.header.frame_id,
+        stamp_of=lambda m: m.header.stamp.sec + m.header.stamp.nanosec * 1e-9,
+    )
+    assert abs(subs["contacts"].got[0].header.stamp.sec - time.time()) < 600  # wall clock
+
+
+def test_dds_sink_never_blocks_the_pipeline_and_counts_what_it_drops(domain):
+    """A stuck publisher: ``emit_contacts`` still returns; the queue drops its oldest frames."""
+    from skinloc.live.sinks.ros2 import Ros2Sink
+
+    sink = Ros2Sink(domain_id=domain, backend="dds", queue_frames=4)
+    sink.open([SkinInfo("arm")])
+    try:
+        with sink._lock:  # the publisher thread cannot publish while this is held
+            for k in range(100):
+                sink.emit(_contact("move", k, (0.01, 0.02, 0.03)))
+            held = sink.stats()
+        assert held["queued"] == 100 and held["dropped"] >= 100 - 4 - 64
+        assert held["pending"] <= 4
+        assert sink.flush(30.0)
+        st = sink.stats()
+        assert st["sent"] + st["dropped"] == 100 and st["errors"] == 0
+    finally:
+        sink.close()
+    assert sink.stats()["pending"] == 0
 
 
 def test_dds_sink_is_what_make_sink_builds_and_checks_its_domain(monkeypatch):
@@ -297,7 +438,8 @@ def test_dds_sink_is_what_make_sink_builds_and_checks_its_domain(monkeypatch):
 
 
 def test_encoders_match_the_idl_serializer():
-    from skinloc.live.sinks.ros2_msgs import PointStamped, check_encoders, msg_definition
+    from skinloc.live.sinks.ros2_cdr import check_encoders
+    from skinloc.live.sinks.ros2_msgs import PointStamped, msg_definition
 
     check_encoders()
     text = msg_definition(PointStamped)
@@ -365,6 +507,34 @@ def test_ros2_bag_decodes_with_mcap_ros2_support(tmp_path):
         lines = [ln.strip() for ln in text.splitlines()]
         assert lines[0] == "- history: 1" and "reliability: 1" in lines
         assert f"durability: {durability}" in lines
+
+
+def test_ros2_bag_of_multi_contact_frames_decodes(tmp_path):
+    path = tmp_path / "two.mcap"
+    sink = make_sink(f"mcap-ros2:{path}")
+    sink.open(_skins())
+    _two_finger_frames(sink)
+    sink.close()
+    bag = _read_bag(path)
+    schemas = {t: v[0][0] for t, v in bag.items()}
+    assert schemas["/skinloc/arm/markers"] == "visualization_msgs/msg/MarkerArray"
+    assert schemas["/skinloc/arm/contacts"] == "geometry_msgs/msg/PoseArray"
+
+    def decoded(topic):
+        return [d for _, _, d in bag.get(topic, [])]
+
+    _check_two_finger_frames(
+        decoded("/skinloc/arm/contact"),
+        decoded("/skinloc/arm/contacts"),
+        decoded("/skinloc/arm/markers"),
+        decoded("/skinloc/arm/gestures"),
+        frame_of=lambda m: m.header.frame_id,
+        stamp_of=lambda m: m.header.stamp.sec + m.header.stamp.nanosec * 1e-9,
+    )
+    # log time = header stamp, as rosbag2 records
+    (_, msg, d), *_ = bag["/skinloc/arm/markers"]
+    stamp = d.markers[0].header.stamp
+    assert msg.log_time == stamp.sec * 10**9 + stamp.nanosec
 
 
 def test_ros2_bag_never_overwrites(tmp_path):
@@ -543,15 +713,16 @@ def test_dds_sink_close_leaves_no_thread(domain):
 
 
 def test_an_encoder_mismatch_is_one_clear_error(monkeypatch):
-    from skinloc.live.sinks import ros2_msgs
+    from skinloc.live.sinks import ros2_cdr
 
-    monkeypatch.setattr(ros2_msgs, "_ENCAPSULATION", b"\x00\x00\x00\x00")  # big-endian tag
+    monkeypatch.setattr(ros2_cdr, "_ENCAPSULATION", b"\x00\x00\x00\x00")  # big-endian tag
     with pytest.raises(RuntimeError, match="PointStamped encoder disagrees"):
-        ros2_msgs.check_encoders()
+        ros2_cdr.check_encoders()
 
 
 def test_skinloc_run_publishes_to_a_subscriber_in_another_process(tmp_path, domain):
     """`skinloc run --config robot.toml --sink ros2` as its own process, as a ROS user runs it."""
+    import signal
     import subprocess
     import sys
 
@@ -581,9 +752,16 @@ def test_skinloc_run_publishes_to_a_subscriber_in_another_process(tmp_path, doma
     try:
         got = _wait(lambda: point.take() and tf.take() and mesh.take(), 60.0)
     finally:
-        proc.terminate()
-        _, err = proc.communicate(timeout=30)
+        proc.send_signal(signal.SIGINT)  # one Ctrl-C
+        try:
+            _, err = proc.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            raise AssertionError("skinloc run --sink ros2 did not stop on one Ctrl-C") from None
     assert got, f"nothing received from skinloc run; its stderr: {err.decode()[-2000:]}"
+    # stopped cleanly: the publisher thread drained and joined, the run's summary printed
+    assert proc.returncode == 0 and "Traceback" not in err.decode(), err.decode()[-2000:]
+    assert "frames" in err.decode()
     assert point.got[0].header.frame_id == "skin/arm"
     assert math.isfinite(point.got[0].point.x)
     assert tf.got[-1].transforms[0].header.frame_id == "fr3_link5"
@@ -592,7 +770,8 @@ def test_skinloc_run_publishes_to_a_subscriber_in_another_process(tmp_path, doma
 
 
 def test_bench_functions_with_the_ros2_sink_run_small(domain):
-    from skinloc.live.bench import many_skins, sink_cost
+    from skinloc.live.bench import many_skins
+    from skinloc.live.bench_sinks import sink_cost
     from tests._live import model_path
 
     cost = sink_cost(300, n_skins=3, rounds=1)
@@ -602,10 +781,17 @@ def test_bench_functions_with_the_ros2_sink_run_small(domain):
         "ros2 (DDS, 1 subscriber)",
         "mcap-ros2 (bag)",
     }
-    assert all(v["contacts"] == 300 and v["median_us"] > 0 for v in cost.values())
+    assert all(v["contacts"] == 300 and v["emit_median_us"] > 0 for v in cost.values())
+    assert all(v["dropped"] == 0 for v in cost.values())
+    # the ROS 2 sink's work is on its publisher thread; the others work on the caller's
+    assert cost["ros2 (DDS, no subscriber)"]["thread_cpu_us_per_contact"] > 0
+    assert cost["jsonl"]["thread_cpu_us_per_contact"] == 0
     assert cost["ros2 (DDS, 1 subscriber)"]["samples_taken_by_subscriber"] > 0
     m = many_skins(model_path("map"), n_skins=3, rate_hz=50.0, duration_s=2.0, sinks=("ros2",))
     assert m["sinks"] == ["ros2"] and m["frames_processed"] > 0
+    st = m["sink_stats"]["ros2"]
+    assert st["queued"] > 0 and st["sent"] == st["queued"] and st["pending"] == 0
+    assert m["sink_frames_dropped"] == 0
 
 
 def test_skin_names_become_valid_ros_names(tmp_path):

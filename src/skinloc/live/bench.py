@@ -15,8 +15,7 @@ Figures (docs/benchmarks.md, "Live pipeline"):
   on schedule; one ``Runner`` reads all of them; latency from the bytes' arrival to the
   contact, and end to end from the frame's scheduled write time; once more with the ROS 2
   sink on (plain DDS, loopback);
-* publishing cost per contact of the sinks, JSON lines against ROS 2 (DDS, with and without a
-  subscriber) and the ROS 2 bag, timed in the same run on the same contacts.
+* publishing cost per contact of the sinks (``skinloc.live.bench_sinks``).
 """
 
 from __future__ import annotations
@@ -32,31 +31,17 @@ from typing import Any
 
 import numpy as np
 
+from skinloc.live.bench_sinks import bench_domain
+
 log = logging.getLogger(__name__)
 
 __all__ = [
     "many_skins",
     "online_bench",
     "single_stream",
-    "sink_cost",
     "touch_stream",
     "train_bench_models",
 ]
-
-#: Cyclone DDS on the loopback interface only, unicast: benchmarks must not talk to the network
-LOOPBACK_DDS = (
-    "<CycloneDDS><Domain Id='any'><General><Interfaces><NetworkInterface name='lo'/>"
-    "</Interfaces><AllowMulticast>false</AllowMulticast></General><Discovery>"
-    "<ParticipantIndex>auto</ParticipantIndex><MaxAutoParticipantIndex>30</MaxAutoParticipantIndex>"
-    "<Peers><Peer address='127.0.0.1'/></Peers></Discovery></Domain></CycloneDDS>"
-)
-
-
-def _bench_domain() -> int:
-    """A DDS domain for a benchmark run, kept on loopback unless CYCLONEDDS_URI is set."""
-    os.environ.setdefault("CYCLONEDDS_URI", LOOPBACK_DDS)
-    return 100 + os.getpid() % 100
-
 
 Step = Callable[[str, int, int], None]
 
@@ -341,7 +326,8 @@ def many_skins(
     """``n_skins`` pipelines at ``rate_hz`` each from one process, fed through ptys.
 
     ``sinks``: sink specs every skin's contacts go to (``ros2``: plain DDS on loopback, no
-    subscriber). End-to-end times are taken after the sinks, so they include publishing.
+    subscriber). End-to-end times are taken after the sinks, so they include what the loop
+    pays for them (for ``ros2``, the enqueue; its publisher thread's CPU is in ``sink_stats``).
     """
     from skinloc.live.core import PipelineConfig
     from skinloc.live.runner import Runner, SkinSpec
@@ -382,7 +368,7 @@ def many_skins(
             if spec.startswith("ros2"):
                 from skinloc.live.sinks.ros2 import Ros2Sink
 
-                sink_objs.append(Ros2Sink(domain_id=_bench_domain(), backend="dds"))
+                sink_objs.append(Ros2Sink(domain_id=bench_domain(), backend="dds"))
             else:
                 sink_objs.append(spec)
         runner = Runner(specs, sinks=sink_objs, callback=on_contact)
@@ -402,7 +388,10 @@ def many_skins(
         for _ in range(20):
             runner._step(0.01)
         stats = runner.stats()
-        runner.close()
+        runner.close()  # the ROS 2 sink publishes what is queued and joins its thread
+        sink_stats = {
+            getattr(s, "name", str(s)): s.stats() for s in sink_objs if hasattr(s, "stats")
+        }
         parent.send("done")
     finally:
         proc.join(10)
@@ -431,118 +420,13 @@ def many_skins(
         "feeder_write_errors": report["write_errors"],
         "model": str(model_path),
         "sinks": list(sinks),
+        # the publisher threads: frames queued, dropped (queue full), sent; their CPU s
+        "sink_stats": sink_stats,
+        "sink_frames_dropped": int(sum(v["dropped"] for v in sink_stats.values())),
         "loop_thread_cpu_s": cpu_thread,
         "process_cpu_s": cpu_proc,
         "loop_cpu_us_per_frame": cpu_thread / max(sum(frames_in), 1) * 1e6,
     }
-
-
-def _contacts(n: int, n_skins: int, random_state: int) -> list[Any]:
-    from skinloc.live.core import Contact
-
-    rng = np.random.default_rng(random_state)
-    pos = rng.uniform(-0.05, 0.05, (n, 3))
-    return [
-        Contact(
-            f"skin{k % n_skins:03d}",
-            1.0 + 0.01 * k,
-            k,
-            "move",
-            tuple(p),
-            tuple(p),
-            0.8,
-            20.0,
-            float("nan"),
-            40.0,
-            1,
-        )  # fmt: skip
-        for k, p in enumerate(pos.tolist())
-    ]
-
-
-def sink_cost(n_contacts: int = 20000, n_skins: int = 10, rounds: int = 3) -> dict:
-    """Publishing cost per contact (``emit``), µs: JSON lines against the ROS 2 sinks.
-
-    Every sink gets the same ``n_contacts`` contacts (``move``, ``n_skins`` skins) in each of
-    ``rounds`` interleaved rounds, so all see the same machine load. ``jsonl`` appends to a
-    file, flushing every line; ``ros2`` is plain DDS on loopback, without and with a subscriber
-    (a DDS reader of every skin's ``contacts`` topic in this process, so delivery is included);
-    ``mcap-ros2`` writes a bag.
-    """
-    from cyclonedds.core import Policy, Qos
-    from cyclonedds.domain import DomainParticipant
-    from cyclonedds.sub import DataReader
-    from cyclonedds.topic import Topic
-
-    from skinloc.live.sinks.base import SkinInfo
-    from skinloc.live.sinks.jsonl import JsonLinesSink
-    from skinloc.live.sinks.ros2 import Ros2Sink
-    from skinloc.live.sinks.ros2_bag import Ros2BagSink
-    from skinloc.live.sinks.ros2_msgs import PoseArray
-
-    _bench_domain()  # loopback configuration before the first participant
-    contacts = _contacts(n_contacts, n_skins, 0)
-    infos = [SkinInfo(f"skin{i:03d}") for i in range(n_skins)]
-    alone = _bench_domain()
-    heard = alone + 1  # the subscriber's domain; nothing listens on ``alone``
-    times: dict[str, list[float]] = {}
-    received = 0
-    with tempfile.TemporaryDirectory(prefix="skinloc-sink-cost-") as tmp:
-        reader_dp = DomainParticipant(heard)
-        qos = Qos(Policy.Reliability.Reliable(0), Policy.History.KeepLast(10))
-        readers = [
-            DataReader(
-                reader_dp,
-                Topic(reader_dp, f"rt/skinloc/{i.name}/contacts", PoseArray, qos),
-                qos=qos,
-            )
-            for i in infos
-        ]
-        for r in range(rounds):
-            makers = {
-                "jsonl": lambda r=r: JsonLinesSink(Path(tmp) / f"c{r}.jsonl"),
-                "ros2 (DDS, no subscriber)": lambda: Ros2Sink(domain_id=alone, backend="dds"),
-                "ros2 (DDS, 1 subscriber)": lambda: Ros2Sink(domain_id=heard, backend="dds"),
-                "mcap-ros2 (bag)": lambda r=r: Ros2BagSink(Path(tmp) / f"b{r}.mcap", frames=False),
-            }
-            for label, make in makers.items():
-                sink = make()
-                sink.open(infos)
-                if "1 subscriber" in label:  # wait for discovery, bounded
-                    end = time.monotonic() + 10.0
-                    while time.monotonic() < end and not all(
-                        sink._io.writers[f"/skinloc/{i.name}/contacts"].get_matched_subscriptions()
-                        for i in infos
-                    ):
-                        time.sleep(0.01)
-                dt = np.empty(len(contacts))
-                for k, c in enumerate(contacts):
-                    t = time.perf_counter_ns()
-                    sink.emit(c)
-                    dt[k] = time.perf_counter_ns() - t
-                    if k % 500 == 0:
-                        received += sum(len(rd.take(N=100)) for rd in readers)
-                if "1 subscriber" in label:  # what is still in flight, bounded
-                    end = time.monotonic() + 2.0
-                    while time.monotonic() < end:
-                        got = sum(len(rd.take(N=100)) for rd in readers)
-                        received += got
-                        if not got:
-                            time.sleep(0.05)
-                sink.close()
-                times.setdefault(label, []).extend((dt / 1000.0).tolist())
-    out = {}
-    for label, t in times.items():
-        a = np.asarray(t)
-        out[label] = {
-            "contacts": len(a),
-            "median_us": float(np.median(a)),
-            "p99_us": float(np.percentile(a, 99)),
-            "mean_us": float(a.mean()),
-        }
-    # keep-last 10 per topic: a reader taking every 500 contacts sees at most 10 of each batch
-    out["ros2 (DDS, 1 subscriber)"]["samples_taken_by_subscriber"] = received
-    return out
 
 
 def online_bench(
@@ -556,6 +440,8 @@ def online_bench(
 ) -> dict:
     """Every figure of the live path; trains the models when none are given."""
     import platform
+
+    from skinloc.live.bench_sinks import sink_cost
 
     if not models:
         folder = (out or Path(tempfile.gettempdir()) / "skinloc-bench") / "online-models"

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from skinloc.errors import FrameTimeoutError, RecordingError
-from skinloc.sources.base import Frame, FrameSource
+from skinloc.errors import RecordingError
+from skinloc.sources.replay import ArrayReplaySource
 
 __all__ = ["McapReplaySource", "image_topics"]
 
@@ -57,7 +57,7 @@ def image_topics(path: str | Path) -> list[str]:
     )
 
 
-class McapReplaySource(FrameSource):
+class McapReplaySource(ArrayReplaySource):
     """Play back the raw frames of a ROS 2 bag.
 
     Parameters
@@ -73,7 +73,7 @@ class McapReplaySource(FrameSource):
         Start again at the end instead of timing out.
     """
 
-    is_replay = True
+    _what = "bag"
 
     def __init__(
         self,
@@ -83,8 +83,8 @@ class McapReplaySource(FrameSource):
         topic: str | None = None,
         loop: bool = False,
     ) -> None:
-        from skinloc.live.sinks.ros2 import topic_base
         from skinloc.live.sinks.ros2_msgs import Image
+        from skinloc.live.sinks.ros2_topics import topic_base
 
         self.path = Path(path)
         topics = image_topics(self.path)
@@ -147,25 +147,3 @@ class McapReplaySource(FrameSource):
     def name(self) -> str:
         """The file and topic."""
         return f"{self.path}:{self.topic}"
-
-    @property
-    def is_connected(self) -> bool:
-        """Whether ``read`` may be called."""
-        return self._connected
-
-    def _connect(self) -> None:
-        self._connected = True
-
-    def _disconnect(self) -> None:
-        self._connected = False
-
-    def _read(self, timeout_s: float) -> Frame:
-        if self._pos >= len(self._frames):
-            if not self.loop:
-                raise FrameTimeoutError(f"{self.name}: the bag has no more frames")
-            self._pos = 0
-        k = self._pos
-        self._pos += 1
-        return Frame(
-            values=self._frames[k], timestamp_s=float(self._times[k]), index=int(self._index[k])
-        )

@@ -20,7 +20,13 @@ from skinloc.sources.base import Frame, FrameSource
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ReplaySource", "read_stream", "stream_summary", "write_stream_recording"]
+__all__ = [
+    "ArrayReplaySource",
+    "ReplaySource",
+    "read_stream",
+    "stream_summary",
+    "write_stream_recording",
+]
 
 
 def write_stream_recording(
@@ -140,7 +146,52 @@ def stream_summary(path: str | Path) -> dict[str, Any] | None:
     }
 
 
-class ReplaySource(FrameSource):
+class ArrayReplaySource(FrameSource):
+    """Play back frames held in memory, in order: what every file replay shares.
+
+    Subclasses fill ``_frames (n, n_sensors) float32`` (raw counts), ``_times (n,)`` (s),
+    ``_index (n,)`` (frame counters), ``n_tx``, ``n_rx`` and ``loop`` in their ``__init__``.
+    ``read`` returns the next frame (a copy), starts again at the end when ``loop`` is set, and
+    raises ``FrameTimeoutError`` at the end otherwise (and always for an empty file).
+    """
+
+    #: a file, not a live device: the runner paces it by its timestamps (or runs it ``--fast``)
+    is_replay = True
+    #: what the frames come from, for the end-of-file message
+    _what = "recording"
+    _frames: np.ndarray
+    _times: np.ndarray
+    _index: np.ndarray
+    loop: bool = False
+    _pos: int = 0
+    _connected: bool = False
+
+    @property
+    def is_connected(self) -> bool:
+        """Whether ``read`` may be called."""
+        return self._connected
+
+    def _connect(self) -> None:
+        self._connected = True
+
+    def _disconnect(self) -> None:
+        self._connected = False
+
+    def _read(self, timeout_s: float) -> Frame:
+        if self._pos >= len(self._frames):
+            if not self.loop or not len(self._frames):
+                raise FrameTimeoutError(f"{self.name}: the {self._what} has no more frames")
+            self._pos = 0
+        k = self._pos
+        self._pos += 1
+        return Frame(
+            values=np.array(self._frames[k], dtype=np.float32),
+            timestamp_s=float(self._times[k]),
+            index=int(self._index[k]),
+        )
+
+
+class ReplaySource(ArrayReplaySource):
     """Play back the frames of a recording.
 
     Parameters
@@ -179,27 +230,3 @@ class ReplaySource(FrameSource):
     def name(self) -> str:
         """The file."""
         return str(self.path)
-
-    @property
-    def is_connected(self) -> bool:
-        """Whether ``read`` may be called."""
-        return self._connected
-
-    def _connect(self) -> None:
-        self._connected = True
-
-    def _disconnect(self) -> None:
-        self._connected = False
-
-    def _read(self, timeout_s: float) -> Frame:
-        if self._pos >= len(self._frames):
-            if not self.loop or not len(self._frames):
-                raise FrameTimeoutError(f"{self.name}: the recording has no more frames")
-            self._pos = 0
-        k = self._pos
-        self._pos += 1
-        return Frame(
-            values=self._frames[k].astype(np.float32),
-            timestamp_s=float(self._times[k]),
-            index=int(self._index[k]),
-        )

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from skinloc.live.sinks.base import SkinInfo
-from skinloc.live.sinks.ros2 import Ros2Topics
+from skinloc.live.sinks.ros2_topics import Ros2Topics
 
 __all__ = ["Ros2BagSink", "offered_qos"]
 

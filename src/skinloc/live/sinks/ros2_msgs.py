@@ -10,13 +10,15 @@ node on Cyclone DDS or Fast DDS announces), so that
   ``rmw`` puts on the wire and ``rosbag2`` stores) and describes them with ``msg_definition``,
   the ``.msg`` text generated from the same fields (MCAP ``ros2msg`` schema).
 
+The per-frame messages go out through the ``struct`` encoders of
+``skinloc.live.sinks.ros2_cdr``, checked byte for byte against these classes' ``serialize()``.
+
 Needs the ``cyclonedds`` Python binding (``pip install 'skinloc[live]'``; the wheel bundles the
 Cyclone C library). Constants of ``visualization_msgs/Marker`` are plain class attributes.
 """
 
 # No ``from __future__ import annotations``: cyclonedds reads the field types at class creation.
 
-import struct
 import typing
 from dataclasses import dataclass, field
 
@@ -25,8 +27,6 @@ from cyclonedds.idl.types import float32, float64, int32, sequence, uint8, uint3
 
 __all__ = [
     "ROS2_TYPES",
-    "HeaderEncoder",
-    "check_encoders",
     "CompressedImage",
     "ColorRGBA",
     "Duration",
@@ -51,6 +51,7 @@ __all__ = [
     "msg_definition",
     "ros_type_name",
     "stamp_of",
+    "stamp_parts",
 ]
 
 
@@ -354,129 +355,14 @@ def msg_definition(cls: type[IdlStruct]) -> str:
     return "\n".join(parts) + "\n"
 
 
-def stamp_of(t_s: float) -> Time:
-    """A ``Time`` from seconds (``t_s`` >= 0; negative times clamp to 0)."""
+def stamp_parts(t_s: float) -> tuple[int, int]:
+    """``(sec, nanosec)`` of a time in seconds (``t_s`` >= 0; negative times clamp to 0)."""
     t_s = max(float(t_s), 0.0)
     sec = int(t_s)
-    nsec = min(int(round((t_s - sec) * 1e9)), 999_999_999)
+    return sec, min(int(round((t_s - sec) * 1e9)), 999_999_999)
+
+
+def stamp_of(t_s: float) -> Time:
+    """A ``Time`` from seconds (``t_s`` >= 0; negative times clamp to 0)."""
+    sec, nsec = stamp_parts(t_s)
     return Time(sec=sec, nanosec=nsec)
-
-
-# ----------------------------------------------------------------------------- fast encoders
-#
-# ``IdlStruct.serialize`` is pure Python (about 0.1 ms for a PoseArray), too slow for every
-# contact of 100 skins at 100 Hz. The per-frame messages are therefore packed with ``struct``
-# from a per-skin prefix; ``check_encoders`` compares every encoder with ``serialize()`` of the
-# same message, so the dataclasses above stay the one definition of each layout.
-
-_ENCAPSULATION = b"\x00\x01\x00\x00"  # CDR little endian (XCDR1), options 0
-_STAMP = struct.Struct("<iI")
-_POINT = struct.Struct("<3d")
-_POSE = struct.Struct("<7d")
-_U32 = struct.Struct("<I")
-
-
-def _cdr_string(text: str) -> bytes:
-    data = text.encode() + b"\x00"
-    return _U32.pack(len(data)) + data
-
-
-class HeaderEncoder:
-    """Packs the per-frame messages of one frame id (``skin/<name>``) as CDR bytes.
-
-    Offsets count from the end of the 4-byte encapsulation header, as CDR alignment does.
-    """
-
-    def __init__(self, frame_id: str) -> None:
-        self.frame_id = frame_id
-        self._frame = _cdr_string(frame_id)
-        self._after_header = 8 + len(self._frame)  # stamp + frame id
-
-    @staticmethod
-    def _pad(offset: int, align: int) -> bytes:
-        return b"\x00" * (-offset % align)
-
-    def point_stamped(self, stamp: Time, xyz: tuple[float, float, float]) -> bytes:
-        """``geometry_msgs/PointStamped`` (m)."""
-        return b"".join(
-            (
-                _ENCAPSULATION,
-                _STAMP.pack(stamp.sec, stamp.nanosec),
-                self._frame,
-                self._pad(self._after_header, 8),
-                _POINT.pack(*xyz),
-            )
-        )
-
-    def pose_array(
-        self, stamp: Time, positions: typing.Sequence[tuple[float, float, float]]
-    ) -> bytes:
-        """``geometry_msgs/PoseArray``: one identity-oriented pose per position (m)."""
-        off = self._after_header
-        pad4 = self._pad(off, 4)
-        off += len(pad4) + 4
-        parts = [_ENCAPSULATION, _STAMP.pack(stamp.sec, stamp.nanosec), self._frame, pad4]
-        parts.append(_U32.pack(len(positions)))
-        if positions:
-            parts.append(self._pad(off, 8))
-            parts.extend(_POSE.pack(x, y, z, 0.0, 0.0, 0.0, 1.0) for x, y, z in positions)
-        return b"".join(parts)
-
-    def image_32fc1(self, stamp: Time, values: typing.Any, height: int, width: int) -> bytes:
-        """``sensor_msgs/Image``, encoding ``32FC1``, little endian: ``values`` (h * w,) float."""
-        import numpy as np
-
-        data = np.ascontiguousarray(values, dtype="<f4").tobytes()
-        off = self._after_header
-        pad4 = self._pad(off, 4)
-        off += len(pad4) + 8
-        enc = _cdr_string("32FC1")
-        off += len(enc) + 1  # is_bigendian, uint8
-        pad_step = self._pad(off, 4)
-        return b"".join(
-            (
-                _ENCAPSULATION,
-                _STAMP.pack(stamp.sec, stamp.nanosec),
-                self._frame,
-                pad4,
-                struct.pack("<II", height, width),
-                enc,
-                b"\x00",
-                pad_step,
-                struct.pack("<II", 4 * width, len(data)),
-                data,
-            )
-        )
-
-
-def check_encoders() -> None:
-    """Raise ``RuntimeError`` if a fast encoder disagrees with ``serialize()``.
-
-    Run once per process by the sinks, for frame ids of every length modulo 8.
-    """
-    import numpy as np
-
-    def same(fast: bytes, ref: bytes, what: str) -> None:
-        if fast != ref:
-            raise RuntimeError(
-                f"skinloc's {what} encoder disagrees with cyclonedds's serialiser "
-                f"({fast.hex()} != {ref.hex()}); please report this with your cyclonedds version"
-            )
-
-    stamp = Time(sec=12, nanosec=345)
-    for n in range(8):
-        frame = "skin/" + "x" * n
-        enc = HeaderEncoder(frame)
-        header = Header(stamp=stamp, frame_id=frame)
-        xyz = (0.1, -0.2, 0.3)
-        ref = PointStamped(header=header, point=Point(*xyz)).serialize()
-        same(enc.point_stamped(stamp, xyz), ref, "PointStamped")
-        for k in (0, 1, 3):
-            pos = [(0.01 * i, 0.02, -0.03 * i) for i in range(k)]
-            poses = [Pose(position=Point(*p)) for p in pos]
-            ref = PoseArray(header=header, poses=poses).serialize()
-            same(enc.pose_array(stamp, pos), ref, "PoseArray")
-        vals = np.arange(6, dtype=np.float32)
-        data = vals.astype("<f4").tobytes()
-        img = Image(header, 2, 3, "32FC1", 0, 12, list(data))
-        same(enc.image_32fc1(stamp, vals, 2, 3), img.serialize(), "Image")

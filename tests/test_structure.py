@@ -4,8 +4,8 @@ Every import counts, including those inside functions and under ``TYPE_CHECKING`
 import hides a circle from Python but not from a reader. The one harmless circle, a package
 ``__init__`` re-exporting its own children (which never import it back), is ignored.
 Registries name their backends as dotted strings (``skinloc._lazy.resolve``), so they make no
-edge here. Next step (issue 12): also assert that no module exceeds 500 lines; for now the sizes
-are only printed (``pytest -s``).
+edge here. No module may exceed 500 lines, and the subpackages must form layers (no two import
+each other, even through a third): docs/architecture.md draws them.
 """
 
 from __future__ import annotations
@@ -103,13 +103,35 @@ def test_no_import_circle_in_skinloc():
     assert circles(graph, mods) == []
 
 
-def test_module_sizes_are_reported():
+def test_no_module_over_500_lines():
     _, mods = import_graph(ROOT)
     sizes = sorted(((len(p.read_text().splitlines()), m) for m, p in mods.items()), reverse=True)
-    rows = [f"{n:5d}  {m}{'  (over 500)' if n > 500 else ''}" for n, m in sizes]
-    print("\nlines  module\n" + "\n".join(rows))  # noqa: T201 - the report (pytest -s)
-    # next step (issue 12): assert max(n for n, _ in sizes) <= 500 once the big modules are split
-    assert "skinloc.cli.common" in mods and "skinloc.live.contact" in mods
+    print("\nlines  module\n" + "\n".join(f"{n:5d}  {m}" for n, m in sizes))  # noqa: T201
+    assert [(n, m) for n, m in sizes if n > 500] == []
+
+
+def package_graph(graph: dict[str, set[str]]) -> dict[str, set[str]]:
+    """Edges between the subpackages (and top-level modules) of skinloc."""
+
+    def room(mod: str) -> str:
+        parts = mod.split(".")
+        return parts[1] if len(parts) > 1 else parts[0]
+
+    out: dict[str, set[str]] = {}
+    for a, targets in graph.items():
+        for b in targets:
+            if room(a) != room(b) and room(b) != "skinloc":
+                out.setdefault(room(a), set()).add(room(b))
+    return out
+
+
+def test_subpackages_import_only_the_ones_below_them():
+    """The layers of docs/architecture.md: no two subpackages import each other, even indirectly."""
+    graph, _ = import_graph(ROOT)
+    pg = package_graph(graph)
+    rooms = {r: Path(r) for r in set(pg) | {b for bs in pg.values() for b in bs}}
+    full = {r: pg.get(r, set()) for r in rooms}
+    assert circles(full, {r: Path(f"{r}.py") for r in rooms}) == []
 
 
 def _write(root: Path, files: dict[str, str]) -> Path:

@@ -1,7 +1,7 @@
 """ROS 2 for real: the DDS sink read by an independent DDS subscriber, the bag by mcap-ros2-support.
 
 The subscriber's message types are written here again, from the ROS 2 ``.msg`` files, not
-imported from skinloc: a layout or naming mistake in ``skinloc.live.sinks.ros2_msgs`` shows up as
+imported from skinloc: a layout or naming mistake in ``skinloc.data.ros2_msgs`` shows up as
 missing or wrong messages. Cyclone is kept on the loopback interface, unicast, on a domain
 picked per test run, so parallel runs and the network do not interfere.
 """
@@ -438,8 +438,8 @@ def test_dds_sink_is_what_make_sink_builds_and_checks_its_domain(monkeypatch):
 
 
 def test_encoders_match_the_idl_serializer():
+    from skinloc.data.ros2_msgs import PointStamped, msg_definition
     from skinloc.live.sinks.ros2_cdr import check_encoders
-    from skinloc.live.sinks.ros2_msgs import PointStamped, msg_definition
 
     check_encoders()
     text = msg_definition(PointStamped)

@@ -87,11 +87,11 @@ def sink_cost(n_contacts: int = 20000, n_skins: int = 10, rounds: int = 3) -> di
     from cyclonedds.sub import DataReader
     from cyclonedds.topic import Topic
 
+    from skinloc.data.ros2_msgs import PoseArray
     from skinloc.live.sinks.base import SkinInfo
     from skinloc.live.sinks.jsonl import JsonLinesSink
     from skinloc.live.sinks.ros2 import Ros2Sink
     from skinloc.live.sinks.ros2_bag import Ros2BagSink
-    from skinloc.live.sinks.ros2_msgs import PoseArray
 
     alone = bench_domain()  # loopback configuration before the first participant
     heard = alone + 1  # the subscriber's domain; nothing listens on ``alone``

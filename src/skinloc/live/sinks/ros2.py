@@ -107,7 +107,7 @@ class _RclpyBackend:
 
         from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-        from skinloc.live.sinks.ros2_msgs import ros_type_name
+        from skinloc.data.ros2_msgs import ros_type_name
 
         if topic in self.pubs:
             return

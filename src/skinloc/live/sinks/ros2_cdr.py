@@ -3,7 +3,7 @@
 ``IdlStruct.serialize`` is pure Python (about 0.1 ms for a ``PoseArray``, more for a
 ``MarkerArray``), too slow for every frame of 100 skins at 100 Hz. The per-frame messages are
 therefore packed with ``struct`` from per-skin prefixes; ``check_encoders`` compares every
-encoder with ``serialize()`` of the same message (``skinloc.live.sinks.ros2_msgs``), so those
+encoder with ``serialize()`` of the same message (``skinloc.data.ros2_msgs``), so those
 dataclasses stay the one definition of each layout.
 
 CDR (XCDR1, little endian): each primitive is aligned to its size, counted from the end of the
@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from skinloc.live.sinks.ros2_msgs import (
+from skinloc.data.ros2_msgs import (
     ColorRGBA,
     Duration,
     Header,

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import json
 import math
-import re
 import threading
 import time
 from collections.abc import Mapping, Sequence
@@ -36,6 +35,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from skinloc.data.ros2_names import ros_name, topic_base
 from skinloc.live.sinks.base import Sink, SkinInfo
 
 if TYPE_CHECKING:
@@ -91,21 +91,6 @@ def _colour(slot: int) -> tuple[float, float, float, float]:
     return SLOT_COLOURS[slot % len(SLOT_COLOURS)] if slot >= 0 else _NO_SLOT
 
 
-def ros_name(skin: str) -> str:
-    """The skin's name as a ROS 2 topic name token: ``left-forearm`` -> ``left_forearm``.
-
-    ROS 2 topic names allow letters, digits and underscores, not starting with a digit; frame
-    ids keep the skin's own name (``skin/left-forearm``).
-    """
-    token = re.sub(r"[^A-Za-z0-9_]", "_", skin) or "_"
-    return f"_{token}" if token[0].isdigit() else token
-
-
-def topic_base(skin: str) -> str:
-    """``/skinloc/<ros_name(skin)>``, the prefix of a skin's topics."""
-    return f"/skinloc/{ros_name(skin)}"
-
-
 def rclpy_available() -> bool:
     """Whether ``rclpy`` imports (a sourced ROS 2 installation)."""
     try:
@@ -131,9 +116,9 @@ def ros2_available() -> bool:
 
 
 def _require_msgs() -> Any:
-    """``skinloc.live.sinks.ros2_msgs`` (needs cyclonedds), or one clear ImportError."""
+    """``skinloc.data.ros2_msgs`` (needs cyclonedds), or one clear ImportError."""
     try:
-        import skinloc.live.sinks.ros2_msgs as ros2_msgs
+        import skinloc.data.ros2_msgs as ros2_msgs
     except ImportError:
         raise ImportError(
             "the ROS 2 sinks need the cyclonedds Python binding (ROS 2 message types and CDR): "

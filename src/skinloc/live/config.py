@@ -68,7 +68,9 @@ class PipelineConfig:
     track_miss_frames : int
         Frames a track may go without a contact before it ends (0: it ends at once).
     track_confirm_frames : int
-        Consecutive frames a new finger needs, during a touch, before its track starts.
+        Consecutive frames a new finger needs, during a touch, before its track starts. 4
+        (40 ms at 100 Hz): the multi-contact search splits some single touches into two for
+        a frame or two at a time, and such a ghost must not become a finger.
     gestures : bool
         Recognise gestures (``skinloc.live.gestures``) and send them to every sink.
     """
@@ -93,7 +95,7 @@ class PipelineConfig:
     max_contacts: int = 3
     track_gate_mm: float = 30.0
     track_miss_frames: int = 1
-    track_confirm_frames: int = 2
+    track_confirm_frames: int = 4
     gestures: bool = True
 
     def __post_init__(self) -> None:

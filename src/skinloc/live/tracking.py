@@ -17,8 +17,8 @@ surface, strongest first) and:
 2. a live track with no match keeps its slot and last position for ``miss_frames`` frames (a
    contact the localiser misses for one frame does not end the finger), then ends;
 3. a contact with no match is a candidate finger; it becomes a track (``start``) when seen in
-   ``confirm_frames`` consecutive frames (one-frame ghosts never reach the sinks), except on
-   the frame a touch starts, whose contacts the touch detector has already debounced;
+   ``confirm_frames`` consecutive frames (one-frame ghosts never reach the sinks), except the
+   strongest contact of the frame a touch starts, which the touch detector has debounced;
 4. every track's position goes through its own One-Euro filter, then back onto the surface.
 
 ``frame_contacts`` is the one place that asks the model for a frame's contacts.
@@ -46,9 +46,12 @@ def frame_contacts(
 ) -> FrameContacts:
     """The contacts of one baseline-subtracted frame, strongest first (0..``max_contacts``).
 
-    ``max_contacts`` 1 is the single-contact path of before multi-touch (``localise_into``:
-    the pipeline has already decided that something touches; strength unknown: nan); more
-    asks the model's multi-contact search (``Engine.contacts``), which may also find none.
+    The pipeline has already decided that something touches, so there is at least one
+    contact. ``max_contacts`` 1 is the single-contact path of before multi-touch
+    (``localise_into``; strength unknown: nan); more asks the model's multi-contact search
+    (``Engine.contacts``) how many there are, and where. Its own detection rule, calibrated
+    on the training touches, may find none in a light touch the pipeline sees: then the
+    single-contact answer stands, so that a light touch's track is not lost.
 
     Parameters
     ----------
@@ -64,7 +67,8 @@ def frame_contacts(
     if max_contacts > 1:
         cs = engine.contacts(delta, max_contacts=max_contacts)
         pos = np.asarray(cs.positions_m, dtype=np.float64).reshape(-1, 3)
-        return pos, pos, np.asarray(cs.strength, float), np.asarray(cs.uncertainty_mm, float)
+        if len(pos):
+            return pos, pos, np.asarray(cs.strength, float), np.asarray(cs.uncertainty_mm, float)
     engine.localise_into(delta, out)
     return out[None, 3:6], out[None, 0:3], np.full(1, math.nan), out[6:7]
 
@@ -278,8 +282,11 @@ class Tracker:
                 self._measure(c, ts, positions[j], raw[j], strength[j], uncertainty_mm[j])
                 keep.append(c)
         self.candidates = []
-        for c in keep:
-            if (touch_start or c.seen >= self.confirm_frames) and None in self.slots:
+        # On a touch's first frame its strongest contact starts at once (the detector has
+        # debounced the touch); any other contact, like every later finger, must last.
+        at_once = touch_start and not live
+        for n, c in enumerate(keep):
+            if ((at_once and n == 0) or c.seen >= self.confirm_frames) and None in self.slots:
                 c.slot = self.slots.index(None)
                 c.track_id = self.next_id
                 self.next_id += 1

@@ -11,22 +11,14 @@ recording (mean error, mm). Orders are nested, so one 40-touch order gives N = 1
 
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 
 import numpy as np
+from _day import DAY, day_parser, load_day
 
 from skinloc.calibration.active import select_point_logs, subset_recordings
-from skinloc.data.recording import read_recording
 from skinloc.evaluation.scoring import evaluate, train_localizer
-
-DAY = [
-    "ConeSkinData_RND_20PL_1.mat",
-    "ConeSkinData50Points_RND_50PL_1.mat",
-    "ConeSkinData80Points_RND_80PL_1.mat",
-    "ConeSkinData30Points_RND_30PL_1.mat",
-]
 
 
 def curve(pool, test, strategy: str, seed: int, sizes: list[int]) -> list[float]:
@@ -40,15 +32,14 @@ def curve(pool, test, strategy: str, seed: int, sizes: list[int]) -> list[float]
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", type=Path, default=Path("../shared/data/hiro-cone-skin"))
+    ap = day_parser(__doc__)
     ap.add_argument("--test", nargs="*", default=[DAY[2]])
     ap.add_argument("--sizes", type=int, nargs="*", default=[10, 20, 40])
     ap.add_argument("--seeds", type=int, nargs="*", default=[0, 1, 2, 3, 4])
     ap.add_argument("--active-seeds", type=int, nargs="*", default=[0, 1, 2])
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
-    recs = {name: read_recording(args.data / name) for name in DAY}
+    recs = load_day(args.data)
     results = []
     for test_name in args.test:
         pool = [recs[n] for n in DAY if n != test_name]

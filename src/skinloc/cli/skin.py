@@ -6,6 +6,7 @@ import json
 import os
 import sys
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -63,6 +64,36 @@ def _check_out(out: Path, inputs: list[Path], names: tuple[str, ...]) -> None:
             raise ValueError(f"--out {out} would overwrite the input {p}")
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out} exists and is not a folder")
+
+
+def _report(
+    data: list[Path],
+    out: Path | None,
+    name: str,
+    build: Callable[[str, Any], tuple[dict, Callable[[Path], None]]],
+    as_json: bool,
+) -> dict | None:
+    """The steps ``sensors`` and ``coverage`` share: inputs, report folder, JSON.
+
+    Checks ``--out`` before any work (it must not overwrite an input), reads the inputs,
+    ``build(kind, obj) -> (result, plot)``, writes ``NAME.json`` atomically and
+    ``plot(NAME.png)`` into ``out``, and prints the JSON when asked. Returns the result for a
+    human summary, or None when the JSON was printed.
+    """
+    names = (f"{name}.json", f"{name}.png")
+    if out is not None:
+        _check_out(out, data, names)
+    kind, obj = load_skin_input(data)
+    result, plot = build(kind, obj)
+    result["source"] = [str(p) for p in data]
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        _write_text_atomic(out / names[0], json.dumps(result, indent=1) + "\n")
+        plot(out / names[1])
+    if as_json:
+        sys.stdout.write(json.dumps(result, indent=1) + "\n")
+        return None
+    return result
 
 
 def sensors_result(kind: str, obj: Any, n_boot: int, seed: int) -> tuple[dict, Any, Any, Any]:
@@ -133,20 +164,20 @@ def register(app: typer.Typer) -> None:
 
         Example: skinloc sensors cal.h5 --json --out sensors-report/
         """
-        if out is not None:
-            _check_out(out, data, ("sensors.json", "sensors.png"))
-        kind, obj = load_skin_input(data)
-        result, smap, mesh, truth = sensors_result(kind, obj, boot, seed)
-        result["source"] = [str(p) for p in data]
-        if out is not None:
-            from skinloc.sensors.figures import plot_sensor_map
 
-            out.mkdir(parents=True, exist_ok=True)
-            _write_text_atomic(out / "sensors.json", json.dumps(result, indent=1) + "\n")
-            if mesh is not None:
-                plot_sensor_map(mesh, smap, out / "sensors.png", truth)
-        if as_json:
-            sys.stdout.write(json.dumps(result, indent=1) + "\n")
+        def build(kind: str, obj: Any) -> tuple[dict, Any]:
+            result, smap, mesh, truth = sensors_result(kind, obj, boot, seed)
+
+            def plot(path: Path) -> None:
+                from skinloc.sensors.figures import plot_sensor_map
+
+                if mesh is not None:
+                    plot_sensor_map(mesh, smap, path, truth)
+
+            return result, plot
+
+        result = _report(data, out, "sensors", build, as_json)
+        if result is None:
             return
         _print_summary(console, result)
         if out is not None:
@@ -172,22 +203,20 @@ def register(app: typer.Typer) -> None:
 
         Example: skinloc coverage model.h5 --json --out coverage-report/
         """
-        if out is not None:
-            _check_out(out, data, ("coverage.json", "coverage.png"))
-        kind, obj = load_skin_input(data)
-        result, cov, mesh = coverage_result(kind, obj, points)
-        result["source"] = [str(p) for p in data]
-        if out is not None:
-            from skinloc.sensors.figures import plot_coverage
 
-            out.mkdir(parents=True, exist_ok=True)
-            _write_text_atomic(out / "coverage.json", json.dumps(result, indent=1) + "\n")
-            if mesh is not None:
-                plot_coverage(
-                    mesh, cov.points_m, cov.expected_mm, out / "coverage.png", cov.blind_m
-                )
-        if as_json:
-            sys.stdout.write(json.dumps(result, indent=1) + "\n")
+        def build(kind: str, obj: Any) -> tuple[dict, Any]:
+            result, cov, mesh = coverage_result(kind, obj, points)
+
+            def plot(path: Path) -> None:
+                from skinloc.sensors.figures import plot_coverage
+
+                if mesh is not None:
+                    plot_coverage(mesh, cov.points_m, cov.expected_mm, path, cov.blind_m)
+
+            return result, plot
+
+        result = _report(data, out, "coverage", build, as_json)
+        if result is None:
             return
         e = result["expected_error_mm"]
         console.print(

@@ -21,9 +21,11 @@ from skinloc.calibration.active import select_point_logs, subset_recordings
 from skinloc.evaluation.scoring import evaluate, train_localizer
 
 
-def curve(pool, test, strategy: str, seed: int, sizes: list[int]) -> list[float]:
+def curve(
+    pool, test, strategy: str, seed: int, sizes: list[int], eval_at: str = "pool"
+) -> list[float]:
     """Mean test error (mm) after the first N picks of one order, for each N in ``sizes``."""
-    picks = select_point_logs(pool, max(sizes), strategy, seed)
+    picks = select_point_logs(pool, max(sizes), strategy, seed, eval_at=eval_at)
     out = []
     for n in sizes:
         model = train_localizer(subset_recordings(pool, picks[:n]))
@@ -38,19 +40,27 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs="*", default=[0, 1, 2, 3, 4])
     ap.add_argument("--active-seeds", type=int, nargs="*", default=[0, 1, 2])
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument(
+        "--eval-at",
+        choices=("pool", "surface"),
+        default="pool",
+        help="active: average the expected error over the pool's targets or the surface",
+    )
     args = ap.parse_args()
     recs = load_day(args.data)
     results = []
     for test_name in args.test:
         pool = [recs[n] for n in DAY if n != test_name]
         test = recs[test_name]
-        row: dict = {"test": test_name, "sizes": args.sizes}
+        row: dict = {"test": test_name, "sizes": args.sizes, "eval_at": args.eval_at}
         for strategy, seeds in (
             ("random", args.seeds),
             ("even", args.seeds),
             ("active", args.active_seeds),
         ):
-            errs = np.array([curve(pool, test, strategy, s, args.sizes) for s in seeds])
+            errs = np.array(
+                [curve(pool, test, strategy, s, args.sizes, args.eval_at) for s in seeds]
+            )
             row[strategy] = {
                 "seeds": seeds,
                 "mean_mm": errs.mean(axis=0).round(2).tolist(),

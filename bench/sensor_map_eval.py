@@ -120,6 +120,7 @@ def real(data: Path, boot: int) -> dict:
         "pairs": pairs,
         "median_of_pair_medians_mm": float(np.median([p["median_mm"] for p in pairs])),
         "flagged": {name: flagged(m) for name, m in maps.items()},
+        "method": {name: m.method for name, m in maps.items()},
         "uncertainty_median_mm": {
             name: float(np.nanmedian(m.uncertainty_mm)) for name, m in maps.items()
         },

@@ -180,11 +180,14 @@ def test_select_strategies(sim_path):
         select_point_logs(pool, 5, "greedy")
     with pytest.raises(ValueError, match="between 1 and 80"):
         select_point_logs(pool, 81, "even")
+    with pytest.raises(ValueError, match="eval_at"):
+        select_point_logs(pool, 7, "active", eval_at="everywhere")
 
 
-def test_active_never_reads_the_images_it_has_not_chosen(sim_path):
+@pytest.mark.parametrize("eval_at", ["pool", "surface"])
+def test_active_never_reads_the_images_it_has_not_chosen(sim_path, eval_at):
     rec = read_recording(sim_path)
-    first = select_point_logs([rec], 7, "active", random_state=0)
+    first = select_point_logs([rec], 7, "active", random_state=0, eval_at=eval_at)
     # Garble every image except the first six chosen: the seventh choice must not change.
     garbled = rec.subset(slice(None))
     keep = {i for _, i in first[:6]}
@@ -192,7 +195,7 @@ def test_active_never_reads_the_images_it_has_not_chosen(sim_path):
     for i in range(garbled.n_point_logs):
         if i not in keep:
             garbled.frames[i] = rng.uniform(0, 60000, garbled.frames[i].shape)
-    assert select_point_logs([garbled], 7, "active", random_state=0) == first
+    assert select_point_logs([garbled], 7, "active", random_state=0, eval_at=eval_at) == first
 
 
 def test_train_select_cli(sim_path, tmp_path):

@@ -22,7 +22,7 @@ from skinloc.evaluation.scoring import evaluate, train_localizer
 
 
 def curve(
-    pool, test, strategy: str, seed: int, sizes: list[int], eval_at: str = "pool"
+    pool, test, strategy: str, seed: int, sizes: list[int], eval_at: str = "surface"
 ) -> list[float]:
     """Mean test error (mm) after the first N picks of one order, for each N in ``sizes``."""
     picks = select_point_logs(pool, max(sizes), strategy, seed, eval_at=eval_at)
@@ -43,7 +43,7 @@ def main() -> None:
     ap.add_argument(
         "--eval-at",
         choices=("pool", "surface"),
-        default="pool",
+        default="surface",
         help="active: average the expected error over the pool's targets or the surface",
     )
     args = ap.parse_args()

@@ -139,6 +139,14 @@ def sensors_result(kind: str, obj: Any, n_boot: int, seed: int) -> tuple[dict, A
     return result, smap, mesh, truth
 
 
+#: Options both commands take.
+_JsonFlag = Annotated[bool, typer.Option("--json", help="Print one JSON object.")]
+_ReportDir = Annotated[
+    Path | None,
+    typer.Option(help="Report folder: <command>.json and <command>.png (the skin)."),
+]
+
+
 def register(app: typer.Typer) -> None:
     """Add ``sensors`` and ``coverage`` to the main ``skinloc`` app."""
     from skinloc.cli.common import console, friendly_errors
@@ -150,11 +158,8 @@ def register(app: typer.Typer) -> None:
             list[Path],
             typer.Argument(help="Calibration recordings of one skin, or one model file."),
         ],
-        as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
-        out: Annotated[
-            Path | None,
-            typer.Option(help="Report folder: sensors.json and sensors.png (mesh, wires)."),
-        ] = None,
+        as_json: _JsonFlag = False,
+        out: _ReportDir = None,
         boot: Annotated[
             int, typer.Option(min=0, max=100, help="Bootstrap resamples for the uncertainty.")
         ] = 8,
@@ -190,11 +195,8 @@ def register(app: typer.Typer) -> None:
             list[Path],
             typer.Argument(help="A model file, or calibration recordings (a map is fitted)."),
         ],
-        as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
-        out: Annotated[
-            Path | None,
-            typer.Option(help="Report folder: coverage.json and coverage.png (the skin)."),
-        ] = None,
+        as_json: _JsonFlag = False,
+        out: _ReportDir = None,
         points: Annotated[
             int, typer.Option(min=20, max=3000, help="Evaluation points on the surface.")
         ] = 400,
@@ -274,6 +276,8 @@ def _print_summary(console: Any, result: dict) -> None:
     bad = [f"{ln['kind'].upper()} {ln['index']}: {ln['status']}" for ln in result["lines"]]
     bad = [b for b in bad if not b.endswith(": ok")]
     console.print("lines flagged: " + (", ".join(bad) if bad else "none"))
+    if "method" in result:
+        console.print(f"positions: {result['method']} fit (docs/sensors.md)")
     unc = [s["uncertainty_mm"] for s in result["sensors"] if s["uncertainty_mm"] is not None]
     if unc:
         unc.sort()

@@ -17,7 +17,11 @@ is the peak of its response over the surface:
 3. the wires are continuous: sensor (i, j) lies on TX wire i and on RX wire j, so each
    crossing is pulled towards the smooth curves through its lines' crossings
    (``skinloc.sensors.wires``); this mostly helps sensors on weak lines, whose own peaks are noisy;
-4. the uncertainty of each position is the spread of the whole estimate over bootstrap
+4. from there, the whole-image model (``skinloc.sensors.joint``) fits every response of every
+   touch at once: crossings, the touches' true positions, pressures, gains and one smoothly
+   varying point-spread function; it is kept when it passes its own plausibility check
+   (``SensorMap.method`` is ``joint``), else the per-crossing estimate stands;
+5. the uncertainty of each position is the spread of the whole estimate over bootstrap
    resamples of the touches (mm).
 
 Lines are flagged from the fitted gains and the no-touch noise: ``dead`` (no usable response),

@@ -45,13 +45,16 @@ class JointFit:
 
     positions_mm: np.ndarray  # (n_sensors, 3) on the surface
     touches_mm: np.ndarray  # (n_touch, 3) on the surface
-    gain: np.ndarray  # (n_sensors,) counts at the reference amplitude
+    gain: np.ndarray  # (n_sensors,) peak response at each crossing, counts
     offset: np.ndarray  # (n_sensors,) counts
     pressure: np.ndarray  # (n_touch,)
     width_mm: np.ndarray  # (n_sensors,) half-maximum-ish width w at each crossing
     gamma: float
     coupling: float
     cost: float
+    #: (n_sensors,) the crossing's own factor, with the skin-wide amplitude trend (thicker
+    #: silicone, ...) taken out: what an electrical fault changes.
+    electrical_gain: np.ndarray | None = None
 
 
 def _frames(points: np.ndarray, cands: np.ndarray, tree: Any, k: int = 24) -> np.ndarray:
@@ -294,6 +297,7 @@ def joint_fit(
         gamma=float(np.exp(glob[7])),
         coupling=float(glob[8]),
         cost=cost,
+        electrical_gain=g,
     )
 
 

@@ -356,7 +356,10 @@ def estimate_sensor_map(
             label_error_mm, init_touches_mm=moved,
         )  # fmt: skip
         if J.plausible(jf, labels_mm, w0, label_error_mm):
-            pos, width, amp = jf.positions_mm, J.half_max_mm(jf), jf.gain
+            # Gains without the skin-wide trend of the response (thicker silicone lower down
+            # weakens every line there): an RX line runs at one height, so the raw peak would
+            # confound a weak line near the top with a healthy one at the base.
+            pos, width, amp = jf.positions_mm, J.half_max_mm(jf), jf.electrical_gain
         else:
             jf = None
     rng = np.random.default_rng(random_state)

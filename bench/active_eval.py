@@ -11,27 +11,21 @@ recording (mean error, mm). Orders are nested, so one 40-touch order gives N = 1
 
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 
 import numpy as np
+from _day import DAY, day_parser, load_day
 
 from skinloc.calibration.active import select_point_logs, subset_recordings
-from skinloc.data.recording import read_recording
 from skinloc.evaluation.scoring import evaluate, train_localizer
 
-DAY = [
-    "ConeSkinData_RND_20PL_1.mat",
-    "ConeSkinData50Points_RND_50PL_1.mat",
-    "ConeSkinData80Points_RND_80PL_1.mat",
-    "ConeSkinData30Points_RND_30PL_1.mat",
-]
 
-
-def curve(pool, test, strategy: str, seed: int, sizes: list[int]) -> list[float]:
+def curve(
+    pool, test, strategy: str, seed: int, sizes: list[int], eval_at: str = "surface"
+) -> list[float]:
     """Mean test error (mm) after the first N picks of one order, for each N in ``sizes``."""
-    picks = select_point_logs(pool, max(sizes), strategy, seed)
+    picks = select_point_logs(pool, max(sizes), strategy, seed, eval_at=eval_at)
     out = []
     for n in sizes:
         model = train_localizer(subset_recordings(pool, picks[:n]))
@@ -40,26 +34,33 @@ def curve(pool, test, strategy: str, seed: int, sizes: list[int]) -> list[float]
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", type=Path, default=Path("../shared/data/hiro-cone-skin"))
+    ap = day_parser(__doc__)
     ap.add_argument("--test", nargs="*", default=[DAY[2]])
     ap.add_argument("--sizes", type=int, nargs="*", default=[10, 20, 40])
     ap.add_argument("--seeds", type=int, nargs="*", default=[0, 1, 2, 3, 4])
     ap.add_argument("--active-seeds", type=int, nargs="*", default=[0, 1, 2])
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument(
+        "--eval-at",
+        choices=("pool", "surface"),
+        default="surface",
+        help="active: average the expected error over the pool's targets or the surface",
+    )
     args = ap.parse_args()
-    recs = {name: read_recording(args.data / name) for name in DAY}
+    recs = load_day(args.data)
     results = []
     for test_name in args.test:
         pool = [recs[n] for n in DAY if n != test_name]
         test = recs[test_name]
-        row: dict = {"test": test_name, "sizes": args.sizes}
+        row: dict = {"test": test_name, "sizes": args.sizes, "eval_at": args.eval_at}
         for strategy, seeds in (
             ("random", args.seeds),
             ("even", args.seeds),
             ("active", args.active_seeds),
         ):
-            errs = np.array([curve(pool, test, strategy, s, args.sizes) for s in seeds])
+            errs = np.array(
+                [curve(pool, test, strategy, s, args.sizes, args.eval_at) for s in seeds]
+            )
             row[strategy] = {
                 "seeds": seeds,
                 "mean_mm": errs.mean(axis=0).round(2).tolist(),

@@ -10,31 +10,19 @@ error in the thirds of the test touches the map expects to be best, middle and w
 
 from __future__ import annotations
 
-import argparse
-from pathlib import Path
-
 import numpy as np
+from _day import DAY, day_parser, load_day
 from scipy.stats import spearmanr
 
-from skinloc.data.recording import read_recording
 from skinloc.evaluation.scoring import evaluate, train_localizer
 from skinloc.geometry.mesh import farthest_point_sampling
 from skinloc.models.response_map import shape_features
 from skinloc.sensors.coverage import calibrate_temperature, expected_error_mm, gp_state
 
-DAY = [
-    "ConeSkinData_RND_20PL_1.mat",
-    "ConeSkinData50Points_RND_50PL_1.mat",
-    "ConeSkinData80Points_RND_80PL_1.mat",
-    "ConeSkinData30Points_RND_30PL_1.mat",
-]
-
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", type=Path, default=Path("../shared/data/hiro-cone-skin"))
-    args = ap.parse_args()
-    recs = [read_recording(args.data / n) for n in DAY]
+    args = day_parser(__doc__).parse_args()
+    recs = list(load_day(args.data).values())
     exp_all, real_all = [], []
     for t, name in enumerate(DAY):
         train = [r for i, r in enumerate(recs) if i != t]

@@ -9,29 +9,18 @@ of the day (neither touch in training); the per-touch repeatability is RMS(d) / 
 
 from __future__ import annotations
 
-import argparse
 import itertools
-from pathlib import Path
 
 import numpy as np
+from _day import DAY, day_parser, load_day
 
-from skinloc.data.recording import read_recording
 from skinloc.evaluation.repeatability import probing_repeatability_mm, repeated_pairs
 from skinloc.evaluation.scoring import train_localizer
 
-DAY = [
-    "ConeSkinData_RND_20PL_1.mat",
-    "ConeSkinData50Points_RND_50PL_1.mat",
-    "ConeSkinData80Points_RND_80PL_1.mat",
-    "ConeSkinData30Points_RND_30PL_1.mat",
-]
-
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", type=Path, default=Path("../shared/data/hiro-cone-skin"))
-    args = ap.parse_args()
-    recs = [read_recording(args.data / n) for n in DAY]
+    args = day_parser(__doc__).parse_args()
+    recs = list(load_day(args.data).values())
     pa, pb = [], []
     for a, b in itertools.combinations(range(len(recs)), 2):
         shared = [p for p in repeated_pairs([recs[a], recs[b]]) if p[0] == 0 and p[2] == 1]

@@ -19,19 +19,12 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+from _day import DAY, DEFAULT_DATA, have_day, load_day
 
 from skinloc.calibration.session import SessionConfig, simulate_session
-from skinloc.data.recording import read_recording
 from skinloc.geometry.mesh import cone_skin
 from skinloc.sensors import positions as S
-from skinloc.sim.skin import SimulatedSkin
-
-DAY = [
-    "ConeSkinData_RND_20PL_1.mat",
-    "ConeSkinData50Points_RND_50PL_1.mat",
-    "ConeSkinData80Points_RND_80PL_1.mat",
-    "ConeSkinData30Points_RND_30PL_1.mat",
-]
+from skinloc.sim.skin import SimulatedSkin, SkinParams
 
 
 def flagged(smap: S.SensorMap) -> list[str]:
@@ -44,20 +37,32 @@ def flagged(smap: S.SensorMap) -> list[str]:
     ]
 
 
+#: Injected faults (the simulator's own options): name -> SkinParams changes. ``weak_line_gain``
+#: applies to every faulty line of a skin, so a skin has either weak or dead lines.
+FAULTS: dict[str, dict] = {
+    "none": {"weak_rx_lines": (), "weak_tx_lines": ()},
+    "weak TX 4 + RX 3": {"weak_rx_lines": (3,), "weak_tx_lines": (4,)},
+    "dead TX 2 + RX 5": {"weak_rx_lines": (5,), "weak_tx_lines": (2,), "weak_line_gain": 0.03},
+}
+
+
 def sim_seed(
     seed: int,
     points: int,
     boot: int,
     label_error_mm: float = S.LABEL_ERROR_MM,
     true_contacts: bool = False,
+    faults: dict | None = None,
 ) -> dict:
     """Simulate a skin and an even session, locate its sensors, score against the truth.
 
     ``true_contacts`` locates them from where the finger really landed instead of the labels
-    (a diagnostic: the figure without the person's probing error).
+    (a diagnostic: the figure without the person's probing error). ``faults`` replaces the
+    simulator's default faulty lines (``FAULTS``).
     """
     mesh = cone_skin()
-    skin = SimulatedSkin(mesh, random_state=seed)
+    params = dataclasses.replace(SkinParams.default(), **(faults or {}))
+    skin = SimulatedSkin(mesh, params=params, random_state=seed)
     skin.reseed(seed)
     cfg = SessionConfig(n_points=points, mode="even", samples_per_touch=50, random_state=seed)
     with tempfile.TemporaryDirectory() as tmp:
@@ -80,6 +85,7 @@ def sim_seed(
     noisy_found = set(np.flatnonzero(smap.status == "noisy").tolist())
     return {
         "seed": seed,
+        "method": smap.method,
         "median_mm": float(np.median(err[alive])),
         "p90_mm": float(np.percentile(err[alive], 90)),
         "errors_mm": err[alive].round(2).tolist(),
@@ -96,7 +102,7 @@ def sim_seed(
 
 def real(data: Path, boot: int) -> dict:
     """Crossings from each recording of 2023-12-10 alone, and their pairwise agreement."""
-    recs = {name: read_recording(data / name) for name in DAY}
+    recs = load_day(data)
     maps = {name: S.sensor_map_from_recordings([r], n_boot=boot) for name, r in recs.items()}
     pairs = []
     for a, b in itertools.combinations(DAY, 2):
@@ -114,6 +120,7 @@ def real(data: Path, boot: int) -> dict:
         "pairs": pairs,
         "median_of_pair_medians_mm": float(np.median([p["median_mm"] for p in pairs])),
         "flagged": {name: flagged(m) for name, m in maps.items()},
+        "method": {name: m.method for name, m in maps.items()},
         "uncertainty_median_mm": {
             name: float(np.nanmedian(m.uncertainty_mm)) for name, m in maps.items()
         },
@@ -131,7 +138,7 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs="*", default=[0, 1, 2])
     ap.add_argument("--points", type=int, default=80)
     ap.add_argument("--boot", type=int, default=8)
-    ap.add_argument("--data", type=Path, default=Path("../shared/data/hiro-cone-skin"))
+    ap.add_argument("--data", type=Path, default=DEFAULT_DATA)
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument(
         "--label-error-mm",
@@ -144,12 +151,32 @@ def main() -> None:
         action="store_true",
         help="simulated skins only: locate from the true contacts, not the labels",
     )
+    ap.add_argument(
+        "--fault-seeds",
+        type=int,
+        nargs="*",
+        default=[],
+        help="also simulate these seeds with each set of injected faults (FAULTS)",
+    )
     args = ap.parse_args()
+    faulty = []
+    for name, change in FAULTS.items():
+        for s in args.fault_seeds:
+            r = sim_seed(s, args.points, 0, args.label_error_mm, faults=change)
+            r.pop("errors_mm")
+            r["faults"] = name
+            faulty.append(r)
+            print(
+                f"faults '{name}', seed {s}: flagged {r['lines_flagged']}, missed"
+                f" {r['missed_lines']}, false alarms {r['line_false_alarms']};"
+                f" median {r['median_mm']:.2f} mm, p90 {r['p90_mm']:.2f} mm",
+                flush=True,
+            )
     sims = [
         sim_seed(s, args.points, args.boot, args.label_error_mm, args.true_contacts)
         for s in args.seeds
     ]
-    out: dict = {"sim": sims}
+    out: dict = {"sim": sims, "faults": faulty}
     if out["sim"]:
         all_err = np.concatenate([r["errors_mm"] for r in out["sim"]])
         out["sim_pooled"] = {
@@ -166,7 +193,7 @@ def main() -> None:
             )
         p = out["sim_pooled"]
         print(f"sim pooled: median {p['median_mm']:.2f} mm, p90 {p['p90_mm']:.2f} mm")
-    if (args.data / DAY[0]).is_file():
+    if have_day(args.data):
         out["real"] = real(args.data, args.boot)
         for pr in out["real"]["pairs"]:
             print(f"real {pr['a']} vs {pr['b']}: median {pr['median_mm']:.2f} mm")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -54,6 +55,37 @@ def _check_out(out: Path, inputs: list[Path], names: tuple[str, ...]) -> None:
         raise ValueError(f"--out {out} exists and is not a folder")
 
 
+def _report(
+    data: list[Path],
+    out: Path | None,
+    name: str,
+    build: Callable[[str, Any], tuple[dict, Callable[[Path], None]]],
+    as_json: bool,
+) -> dict | None:
+    """The steps ``sensors`` and ``coverage`` share: inputs, report folder, JSON.
+
+    Checks ``--out`` before any work (it must not overwrite an input), reads the inputs,
+    ``build(kind, obj) -> (result, plot)``, writes ``NAME.json`` atomically and
+    ``plot(NAME.png)`` into ``out``, and prints the JSON when asked. Returns the result for a
+    human summary, or None when the JSON was printed.
+    """
+    names = (f"{name}.json", f"{name}.png")
+    if out is not None:
+        _check_out(out, data, names)
+    kind, obj = load_skin_input(data)
+    result, plot = build(kind, obj)
+    result["source"] = [str(p) for p in data]
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        text = json.dumps(result, indent=1) + "\n"
+        atomic_write(out / names[0], lambda tmp: tmp.write_text(text))
+        plot(out / names[1])
+    if as_json:
+        sys.stdout.write(json.dumps(result, indent=1) + "\n")
+        return None
+    return result
+
+
 def sensors_result(kind: str, obj: Any, n_boot: int, seed: int) -> tuple[dict, Any, Any, Any]:
     """The sensor map as JSON, with a truth comparison when the recording knows its layout.
 
@@ -97,6 +129,14 @@ def sensors_result(kind: str, obj: Any, n_boot: int, seed: int) -> tuple[dict, A
     return result, smap, mesh, truth
 
 
+#: Options both commands take.
+_JsonFlag = Annotated[bool, typer.Option("--json", help="Print one JSON object.")]
+_ReportDir = Annotated[
+    Path | None,
+    typer.Option(help="Report folder: <command>.json and <command>.png (the skin)."),
+]
+
+
 def register(app: typer.Typer) -> None:
     """Add ``sensors`` and ``coverage`` to the main ``skinloc`` app."""
     from skinloc.cli.common import console, friendly_errors
@@ -108,11 +148,8 @@ def register(app: typer.Typer) -> None:
             list[Path],
             typer.Argument(help="Calibration recordings of one skin, or one model file."),
         ],
-        as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
-        out: Annotated[
-            Path | None,
-            typer.Option(help="Report folder: sensors.json and sensors.png (mesh, wires)."),
-        ] = None,
+        as_json: _JsonFlag = False,
+        out: _ReportDir = None,
         boot: Annotated[
             int, typer.Option(min=0, max=100, help="Bootstrap resamples for the uncertainty.")
         ] = 8,
@@ -122,21 +159,20 @@ def register(app: typer.Typer) -> None:
 
         Example: skinloc sensors cal.h5 --json --out sensors-report/
         """
-        if out is not None:
-            _check_out(out, data, ("sensors.json", "sensors.png"))
-        kind, obj = load_skin_input(data)
-        result, smap, mesh, truth = sensors_result(kind, obj, boot, seed)
-        result["source"] = [str(p) for p in data]
-        if out is not None:
-            from skinloc.sensors.figures import plot_sensor_map
 
-            out.mkdir(parents=True, exist_ok=True)
-            text = json.dumps(result, indent=1) + "\n"
-            atomic_write(out / "sensors.json", lambda tmp: tmp.write_text(text))
-            if mesh is not None:
-                plot_sensor_map(mesh, smap, out / "sensors.png", truth)
-        if as_json:
-            sys.stdout.write(json.dumps(result, indent=1) + "\n")
+        def build(kind: str, obj: Any) -> tuple[dict, Any]:
+            result, smap, mesh, truth = sensors_result(kind, obj, boot, seed)
+
+            def plot(path: Path) -> None:
+                from skinloc.sensors.figures import plot_sensor_map
+
+                if mesh is not None:
+                    plot_sensor_map(mesh, smap, path, truth)
+
+            return result, plot
+
+        result = _report(data, out, "sensors", build, as_json)
+        if result is None:
             return
         _print_summary(console, result)
         if out is not None:
@@ -149,11 +185,8 @@ def register(app: typer.Typer) -> None:
             list[Path],
             typer.Argument(help="A model file, or calibration recordings (a map is fitted)."),
         ],
-        as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
-        out: Annotated[
-            Path | None,
-            typer.Option(help="Report folder: coverage.json and coverage.png (the skin)."),
-        ] = None,
+        as_json: _JsonFlag = False,
+        out: _ReportDir = None,
         points: Annotated[
             int, typer.Option(min=20, max=3000, help="Evaluation points on the surface.")
         ] = 400,
@@ -162,23 +195,20 @@ def register(app: typer.Typer) -> None:
 
         Example: skinloc coverage model.h5 --json --out coverage-report/
         """
-        if out is not None:
-            _check_out(out, data, ("coverage.json", "coverage.png"))
-        kind, obj = load_skin_input(data)
-        result, cov, mesh = coverage_result(kind, obj, points)
-        result["source"] = [str(p) for p in data]
-        if out is not None:
-            from skinloc.sensors.figures import plot_coverage
 
-            out.mkdir(parents=True, exist_ok=True)
-            text = json.dumps(result, indent=1) + "\n"
-            atomic_write(out / "coverage.json", lambda tmp: tmp.write_text(text))
-            if mesh is not None:
-                plot_coverage(
-                    mesh, cov.points_m, cov.expected_mm, out / "coverage.png", cov.blind_m
-                )
-        if as_json:
-            sys.stdout.write(json.dumps(result, indent=1) + "\n")
+        def build(kind: str, obj: Any) -> tuple[dict, Any]:
+            result, cov, mesh = coverage_result(kind, obj, points)
+
+            def plot(path: Path) -> None:
+                from skinloc.sensors.figures import plot_coverage
+
+                if mesh is not None:
+                    plot_coverage(mesh, cov.points_m, cov.expected_mm, path, cov.blind_m)
+
+            return result, plot
+
+        result = _report(data, out, "coverage", build, as_json)
+        if result is None:
             return
         e = result["expected_error_mm"]
         console.print(
@@ -236,6 +266,8 @@ def _print_summary(console: Any, result: dict) -> None:
     bad = [f"{ln['kind'].upper()} {ln['index']}: {ln['status']}" for ln in result["lines"]]
     bad = [b for b in bad if not b.endswith(": ok")]
     console.print("lines flagged: " + (", ".join(bad) if bad else "none"))
+    if "method" in result:
+        console.print(f"positions: {result['method']} fit (docs/sensors.md)")
     unc = [s["uncertainty_mm"] for s in result["sensors"] if s["uncertainty_mm"] is not None]
     if unc:
         unc.sort()

@@ -17,7 +17,11 @@ is the peak of its response over the surface:
 3. the wires are continuous: sensor (i, j) lies on TX wire i and on RX wire j, so each
    crossing is pulled towards the smooth curves through its lines' crossings
    (``skinloc.sensors.wires``); this mostly helps sensors on weak lines, whose own peaks are noisy;
-4. the uncertainty of each position is the spread of the whole estimate over bootstrap
+4. from there, the whole-image model (``skinloc.sensors.joint``) fits every response of every
+   touch at once: crossings, the touches' true positions, pressures, gains and one smoothly
+   varying point-spread function; it is kept when it passes its own plausibility check
+   (``SensorMap.method`` is ``joint``), else the per-crossing estimate stands;
+5. the uncertainty of each position is the spread of the whole estimate over bootstrap
    resamples of the touches (mm).
 
 Lines are flagged from the fitted gains and the no-touch noise: ``dead`` (no usable response),
@@ -35,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from skinloc._typing import Points
+from skinloc.sensors import joint as J
 from skinloc.sensors.fit import (
     LABEL_ERROR_MM,
     WIDTHS_MM,
@@ -104,6 +109,8 @@ class SensorMap:
     rx_paths_m: list[np.ndarray]
     line_status: dict[str, list[str]]
     line_gain: dict[str, list[float]] = field(default_factory=dict)
+    #: ``joint`` (the whole-image model) or ``per-crossing`` (its fallback).
+    method: str = "per-crossing"
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready: ``{"sensors": [...], "lines": [...]}`` (positions m, sizes mm)."""
@@ -136,7 +143,13 @@ class SensorMap:
                         "path_m": np.round(path, 6).tolist(),
                     }
                 )
-        return {"n_tx": self.n_tx, "n_rx": self.n_rx, "sensors": sensors, "lines": lines}
+        return {
+            "n_tx": self.n_tx,
+            "n_rx": self.n_rx,
+            "method": self.method,
+            "sensors": sensors,
+            "lines": lines,
+        }
 
     def line_sensors(self, kind: str, index: int) -> np.ndarray:
         """Sensor indices of TX or RX line ``index``, in order along the other lines."""
@@ -286,6 +299,7 @@ def estimate_sensor_map(
     random_state: int = 0,
     structure: bool = True,
     label_error_mm: float = LABEL_ERROR_MM,
+    joint: bool = True,
 ) -> SensorMap:
     """Estimate the skin's layout from calibration touches.
 
@@ -310,6 +324,9 @@ def estimate_sensor_map(
     label_error_mm : float
         How far, per tangent axis, the touches may be from their labels (mm): each touch is
         moved to where its image says it was (step 2). 0: the labels are exact.
+    joint : bool
+        Refine with the whole-image model (step 5, ``skinloc.sensors.joint``); it is kept
+        only when it passes its own plausibility check (``SensorMap.method`` says which).
 
     Returns
     -------
@@ -329,12 +346,36 @@ def estimate_sensor_map(
     if not (np.isfinite(label_error_mm) and label_error_mm >= 0):
         raise ValueError(f"label_error_mm must be >= 0, got {label_error_mm!r}")
     fit_args = (candidates, tree, n_tx, n_rx, structure, label_error_mm)
-    pos, width, amp, _, _ = _fit_once(targets, images, *fit_args)
+    pos, width, amp, _, moved = _fit_once(targets, images, *fit_args)
+    jf = None
+    if joint:
+        labels_mm, C_mm = 1e3 * targets, 1e3 * candidates
+        w0 = float(np.median(width))
+        jf = J.joint_fit(
+            labels_mm, images, pos, C_mm, tree, n_tx, n_rx, w0, noise_counts,
+            label_error_mm, init_touches_mm=moved,
+        )  # fmt: skip
+        if J.plausible(jf, labels_mm, w0, label_error_mm):
+            # Gains without the skin-wide trend of the response (thicker silicone lower down
+            # weakens every line there): an RX line runs at one height, so the raw peak would
+            # confound a weak line near the top with a healthy one at the base.
+            pos, width, amp = jf.positions_mm, J.half_max_mm(jf), jf.electrical_gain
+        else:
+            jf = None
     rng = np.random.default_rng(random_state)
     boots = []
     for _ in range(n_boot):
         pick = rng.choice(len(targets), len(targets), replace=True)  # repeats act as weights
-        boots.append(_fit_once(targets[pick], images[pick], *fit_args)[0])
+        if jf is None:
+            boots.append(_fit_once(targets[pick], images[pick], *fit_args)[0])
+        else:
+            # From the full fit (one pass): the spread of the same estimator, quicker.
+            b = J.joint_fit(
+                labels_mm[pick], images[pick], jf.positions_mm, C_mm, tree, n_tx, n_rx,
+                float(np.median(jf.width_mm)), noise_counts, label_error_mm, passes=1,
+                init_touches_mm=jf.touches_mm[pick],
+            )  # fmt: skip
+            boots.append(b.positions_mm)
     if boots:
         B = np.stack(boots)
         # Positions are searched over the discrete surface points, so a few resamples can all
@@ -365,6 +406,7 @@ def estimate_sensor_map(
         rx_paths_m=rx_paths,
         line_status=line_status,
         line_gain=line_gain,
+        method="per-crossing" if jf is None else "joint",
     )
 
 
@@ -416,8 +458,9 @@ def sensor_map_from_model(model: Any, stride: int = 8) -> SensorMap:
     pts = rmap.candidates[::stride]
     values = rmap.evaluate_mm(1e3 * pts)
     # The map's own values sit exactly at their points: no label error to undo.
+    # The whole-image model needs touches with pressures; a map has none.
     return estimate_sensor_map(
-        pts, values, n_tx, n_rx, rmap.candidates, n_boot=0, label_error_mm=0.0
+        pts, values, n_tx, n_rx, rmap.candidates, n_boot=0, label_error_mm=0.0, joint=False
     )
 
 

@@ -28,9 +28,11 @@ answer of the search over every coarse point.
 
 from __future__ import annotations
 
+import functools
 import math
+import threading
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -116,7 +118,7 @@ def _dot(f: np.ndarray, row: np.ndarray) -> float:  # pragma: no cover - compile
 
 @jit()
 def _nearest_cells(
-    f: np.ndarray, nf: float, groups: tuple, scratch: tuple
+    f: np.ndarray, nf: float, fmu: np.ndarray, groups: tuple, scratch: tuple
 ) -> None:  # pragma: no cover - compiled
     """The ``n_cells`` coarse cells nearest ``f``, nearest first, into ``best_c``.
 
@@ -124,23 +126,20 @@ def _nearest_cells(
     (G,) its largest ``r``, gtab (C, k) float32 coarse points in group order, gsq (C,) their
     ``|t|^2``, grad (C,) their ``r``, gcell (C,) their cell, goff (G + 1,) each group's rows,
     eps the bounds' loosening).
-    ``nf`` is ``|f|``. ``scratch`` = (f, fmu (G,), lb (G,), best_v (n_cells,), best_c
-    (n_cells,), ...): ``best_v`` gets the chosen cells' distances (less ``|f|^2``), sorted, ties
-    to the lower cell (so the cells kept do not depend on the order they come in). One
-    function, no calls: this loop is the hot one, and numba's calls cost here.
+    ``nf`` is ``|f|`` and ``fmu (G,)`` float32 ``mu @ f`` (a loop, or a batch's matrix
+    product: the bounds allow for either's rounding). ``scratch`` = (f, fmu, lb (G,), best_v
+    (n_cells,), best_c (n_cells,), ...): ``best_v`` gets the chosen cells' distances (less
+    ``|f|^2``), sorted, ties to the lower cell (so the cells kept do not depend on the order
+    they come in). One function, no calls: this loop is the hot one, and numba's calls cost
+    here.
     """
     mu, gmin, gmax_r, gtab, gsq, grad, gcell, goff, eps = groups
-    fmu, lb, best_v, best_c = scratch[1], scratch[2], scratch[3], scratch[4]
+    lb, best_v, best_c = scratch[2], scratch[3], scratch[4]
     G = gmin.shape[0]
     k = f.shape[0]
     nb = best_v.shape[0]
     g0 = 0
     for g in range(G):  # each group's bound; g0 the least
-        acc = np.float32(0.0)
-        row = mu[g]
-        for i in range(k):
-            acc += f[i] * row[i]
-        fmu[g] = acc
         lb[g] = gmin[g] - 2.0 * fmu[g] - 2.0 * nf * gmax_r[g]
         if lb[g] < lb[g0]:
             g0 = g
@@ -278,7 +277,7 @@ def _new_scratch(k: int, n_groups: int, n_best: int, n_fine: int) -> tuple:  # p
     """Scratch of one row at a time: (f, fmu, lb, best_v, best_c, d)."""
     return (
         np.zeros(k, dtype=np.float32),
-        np.zeros(n_groups),
+        np.zeros(n_groups, dtype=np.float32),
         np.zeros(n_groups),
         np.zeros(n_best),
         np.zeros(n_best, dtype=np.int64),
@@ -291,9 +290,12 @@ def _match_one(
     x: np.ndarray, clip: int, groups: tuple, fine: tuple, scratch: tuple, out: np.ndarray
 ) -> None:  # pragma: no cover - compiled
     """One image ``x (k,)`` into ``out (7,)``: features, nearest cells, fine search."""
-    f = scratch[0]
+    f, fmu = scratch[0], scratch[1]
     ff = _features(x, clip, f)
-    _nearest_cells(f, math.sqrt(ff), groups, scratch)
+    mu = groups[0]
+    for g in range(mu.shape[0]):
+        fmu[g] = _dot(f, mu[g])
+    _nearest_cells(f, math.sqrt(ff), fmu, groups, scratch)
     _fine(f, ff, scratch[4], fine, scratch[5], out)
 
 
@@ -309,15 +311,32 @@ def _match_rows(
 
 @jit(parallel=True)
 def _match_many(
-    X: np.ndarray, clip: int, groups: tuple, fine: tuple, sizes: tuple, out: np.ndarray
+    X: np.ndarray,
+    clip: int,
+    groups: tuple,
+    mu_t: np.ndarray,
+    fine: tuple,
+    sizes: tuple,
+    out: np.ndarray,
 ) -> None:  # pragma: no cover - compiled
-    """``_match_one`` over the rows of ``X (n, k)`` into ``out (n, 7)``, in parallel tasks."""
+    """``_match_one`` over the rows of ``X (n, k)`` into ``out (n, 7)``, in parallel tasks.
+
+    Each task's products with the group centres are one float32 matrix product (BLAS, one
+    thread per task: see ``MapEngine._predict_rows``); ``mu_t (k, G)`` is ``mu`` transposed.
+    """
     n = X.shape[0]
     for task in prange((n + _ROWS - 1) // _ROWS):
-        r1 = min(n, (task + 1) * _ROWS)
+        r0 = task * _ROWS
+        rows = min(n, r0 + _ROWS) - r0
         scratch = _new_scratch(sizes[0], sizes[1], sizes[2], sizes[3])
-        for r in range(task * _ROWS, r1):
-            _match_one(X[r], clip, groups, fine, scratch, out[r])
+        F = np.empty((rows, X.shape[1]), dtype=np.float32)
+        ff = np.empty(rows)
+        for r in range(rows):
+            ff[r] = _features(X[r0 + r], clip, F[r])
+        FMU = np.dot(F, mu_t)  # (rows, G)
+        for r in range(rows):
+            _nearest_cells(F[r], math.sqrt(ff[r]), FMU[r], groups, scratch)
+            _fine(F[r], ff[r], scratch[4], fine, scratch[5], out[r0 + r])
 
 
 # --------------------------------------------------------------------------------------------
@@ -398,6 +417,7 @@ class MapEngine(Engine):
         perm_a = np.asarray(perm, dtype=np.int64)
         self._clip = int(spec.clip_negative)
         self._groups = _coarse_groups(table[coarse], sq[coarse])
+        self._mu_t = np.ascontiguousarray(self._groups[0].T)
         n_best = min(int(spec.n_cells), len(coarse))
         self._fine = (
             np.ascontiguousarray(table[perm_a]),  # (P', k), grouped by cell
@@ -420,6 +440,23 @@ class MapEngine(Engine):
         out = np.empty((len(X), 7))
         # a few frames (the app's, per frame) on the caller's thread; callers may be threads,
         # so every call has its own scratch
-        run = _match_rows if len(X) < _ROWS else _match_many
-        run(X, self._clip, self._groups, self._fine, self._sizes, out)
+        if len(X) < _ROWS:
+            _match_rows(X, self._clip, self._groups, self._fine, self._sizes, out)
+        else:
+            # BLAS's own threads would fight numba's for the cores (and spin after each
+            # product): each task's product runs on the thread that handles the task.
+            # The limit is process-wide: one batch at a time sets and restores it.
+            with _BLAS_LOCK, _blas_controller().limit(limits=1, user_api="blas"):
+                _match_many(X, self._clip, self._groups, self._mu_t, self._fine, self._sizes, out)
         return out[:, 3:6].copy(), out[:, :3].copy(), out[:, 6].copy()
+
+
+_BLAS_LOCK = threading.Lock()
+
+
+@functools.cache
+def _blas_controller() -> Any:
+    """The process's ``threadpoolctl`` controller (inspecting the libraries takes a while)."""
+    from threadpoolctl import ThreadpoolController
+
+    return ThreadpoolController()

@@ -357,13 +357,11 @@ def _group_coarse(ct: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         seeds.append(int(np.argmax(d2)))
         d2 = np.minimum(d2, ((X - X[seeds[-1]]) ** 2).sum(axis=1))
     centres = X[seeds]
-    for _ in range(_KMEANS_ITER):
+    for _ in range(_KMEANS_ITER + 1):  # the last pass only labels, by the final centres
         label = np.argmin((centres**2).sum(1)[None, :] - 2.0 * X @ centres.T, axis=1)
-        used = np.unique(label)
-        centres = np.stack([X[label == g].mean(axis=0) for g in used])
-    label = np.argmin((centres**2).sum(1)[None, :] - 2.0 * X @ centres.T, axis=1)
-    used, label = np.unique(label, return_inverse=True)
-    centres = np.stack([X[label == g].mean(axis=0) for g in range(len(used))])
+        used, label = np.unique(label, return_inverse=True)  # drop emptied groups
+        member = np.arange(len(used))[:, None] == label[None, :]  # (G, C)
+        centres = (member @ X) / member.sum(axis=1, keepdims=True)
     return label, centres.astype(np.float32)
 
 
@@ -416,7 +414,10 @@ class MapEngine(Engine):
             off.append(len(perm))
         perm_a = np.asarray(perm, dtype=np.int64)
         self._clip = int(spec.clip_negative)
-        self._groups = _coarse_groups(table[coarse], sq[coarse])
+        # small products: BLAS's threads would cost more to wake than the work (30 ms a
+        # product on a loaded machine)
+        with _BLAS_LOCK, _blas_controller().limit(limits=1, user_api="blas"):
+            self._groups = _coarse_groups(table[coarse], sq[coarse])
         self._mu_t = np.ascontiguousarray(self._groups[0].T)
         n_best = min(int(spec.n_cells), len(coarse))
         self._fine = (

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from skinloc.models.localizer import ContactLocalizer
-from skinloc.models.map_engine import MapEngine, MapSpec, _group_coarse
+from skinloc.models.map_engine import MapEngine, MapSpec
+from skinloc.models.map_match import _group_coarse
 from tests._live import calibration, model_path
 
 

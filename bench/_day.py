@@ -10,7 +10,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from skinloc.evaluation.paper_bench import REAL_DEC
+from skinloc.experiments.paper_bench import REAL_DEC
 
 from skinloc.data.recording import Recording, read_recording
 

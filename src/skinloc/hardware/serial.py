@@ -191,7 +191,7 @@ class SerialSource(FrameSource):
 
     Examples
     --------
-    >>> from skinloc.hardware.framing import encode_binary
+    >>> from skinloc.hardware.wire import encode_binary
     >>> with SerialSource(SerialSourceConfig("loop://", n_tx=1, n_rx=2)) as src:
     ...     src.write(encode_binary([5, 6], 1, 2, counter=0))
     ...     src.read(timeout_s=2.0).values.tolist()

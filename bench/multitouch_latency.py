@@ -31,7 +31,10 @@ def main() -> None:
     ap.add_argument("--out", type=Path)
     args = ap.parse_args()
 
-    from skinloc.hardware.wire import encode_binary
+    try:
+        from skinloc.hardware.wire import encode_binary
+    except ImportError:  # a skinloc from before the wire module (the `today` run)
+        from skinloc.hardware.framing import encode_binary
     from skinloc.live.bench import touch_stream, train_bench_models
     from skinloc.live.core import PipelineConfig, SkinCore
     from skinloc.models.engine import load_engine

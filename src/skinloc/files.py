@@ -9,10 +9,13 @@ from __future__ import annotations
 
 import os
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["atomic_write", "cannot_write", "side_path"]
+from skinloc.errors import Interrupted
+
+__all__ = ["atomic_write", "cannot_write", "side_path", "written_through_side"]
 
 
 def _umask() -> int:
@@ -77,3 +80,39 @@ def side_path(path: str | Path, tag: str) -> Path:
         if not candidate.exists():
             return candidate
     raise OSError(f"no free file name for the {tag} side file of {path}")
+
+
+@contextmanager
+def written_through_side(
+    side: Path, path: Path, kept: Callable[[], tuple[int, int]], what: str, one: str
+) -> Iterator[None]:
+    """Write into ``side``; rename it over ``path`` only when the block completes.
+
+    Ctrl-C (``KeyboardInterrupt``) keeps ``side`` with what is complete in it and raises
+    ``Interrupted`` naming it (nothing complete: ``side`` is removed); any other error removes
+    ``side``. ``path`` is never half replaced.
+
+    Parameters
+    ----------
+    side, path : Path
+        The side file the block writes, and the file it becomes.
+    kept : callable
+        ``() -> (complete items in side, items planned)``, asked on an interruption.
+    what, one : str
+        The items' name in messages, plural and singular (``"point logs"``, ``"point log"``).
+    """
+    try:
+        yield
+    except KeyboardInterrupt:
+        n, total = kept()
+        target = f"{path} is unchanged" if path.exists() else f"{path} was not written"
+        if n == 0:
+            side.unlink(missing_ok=True)
+            raise Interrupted(f"no {one} was complete; {target}") from None
+        raise Interrupted(
+            f"kept the {n} complete {what} (of {total}) in {side}; {target}"
+        ) from None
+    except BaseException:
+        side.unlink(missing_ok=True)
+        raise
+    os.replace(side, path)

@@ -8,7 +8,6 @@ every point log, so a crash loses at most the touch in progress, and ``resume`` 
 from __future__ import annotations
 
 import logging
-import os
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
@@ -20,8 +19,8 @@ import numpy as np
 from skinloc._typing import Points
 from skinloc.data.appender import RecordingAppender
 from skinloc.data.recording import Recording, read_recording, write_recording
-from skinloc.errors import FrameTimeoutError, Interrupted, RecordingError
-from skinloc.files import side_path
+from skinloc.errors import FrameTimeoutError, RecordingError
+from skinloc.files import side_path, written_through_side
 from skinloc.geometry.mesh import SamplingMode, sample_targets, surface_points
 from skinloc.sources.base import FrameSource
 
@@ -470,7 +469,11 @@ def simulate_session(
     session = CalibrationSession(
         skin, mesh, side, config, targets=targets, source_name="sim", incremental=True
     )
-    try:
+
+    def kept() -> tuple[int, int]:
+        return session.n_done, len(session.targets)
+
+    with written_through_side(side, path, kept, "point logs", "point log"):
         try:
             session.run(finger, progress)
         finally:
@@ -480,17 +483,4 @@ def simulate_session(
                 contacts = np.asarray(finger.contacts[: session.n_done]).tolist()
                 session._appender.update_meta(true_contacts=contacts, **truth_layout(skin))
             session.close()
-    except KeyboardInterrupt:
-        n, total = session.n_done, len(session.targets)
-        target = f"{path} is unchanged" if path.exists() else f"{path} was not written"
-        if n == 0:
-            side.unlink(missing_ok=True)
-            raise Interrupted(f"no point log was complete; {target}") from None
-        raise Interrupted(
-            f"kept the {n} complete point logs (of {total}) in {side}; {target}"
-        ) from None
-    except BaseException:
-        side.unlink(missing_ok=True)
-        raise
-    os.replace(side, path)
     return read_recording(path)

@@ -25,8 +25,8 @@ from typing import Any
 import numpy as np
 
 from skinloc.data.recording import Recording, write_recording
-from skinloc.errors import Interrupted, RecordingError
-from skinloc.files import side_path
+from skinloc.errors import RecordingError
+from skinloc.files import side_path, written_through_side
 from skinloc.geometry.mesh import surface_points
 from skinloc.sim.gestures import MAX_FINGERS, GestureScript, ScriptItem, Stroke
 from skinloc.sim.signal import sensor_image
@@ -219,7 +219,11 @@ def record_gestures(
                 flush()
 
     safe = 0  # frames up to the end of the last complete item
-    try:
+
+    def kept() -> tuple[int, int]:
+        return len(gestures) + len(touches), script.n_items
+
+    with written_through_side(side, path, kept, "gestures and touches", "gesture"):
         try:
             for done, item in enumerate(script.items()):
                 for s in item.strokes:
@@ -248,19 +252,6 @@ def record_gestures(
             if writer.f.id.valid:
                 writer.finish(truth)
             writer.close()
-    except KeyboardInterrupt:
-        target = f"{path} is unchanged" if path.exists() else f"{path} was not written"
-        k = len(gestures) + len(touches)
-        if k == 0:
-            side.unlink(missing_ok=True)
-            raise Interrupted(f"no gesture was complete; {target}") from None
-        raise Interrupted(
-            f"kept the {k} complete gestures and touches (of {script.n_items}) in {side}; {target}"
-        ) from None
-    except BaseException:
-        side.unlink(missing_ok=True)
-        raise
-    os.replace(side, path)
     return {**truth, "n_frames": writer.n, "seconds": writer.n / skin.rate_hz}
 
 

@@ -209,3 +209,60 @@ def test_skins_file_up_and_max_contacts(tmp_path):
     cfg.write_text(f'[[skin]]\nmodel = "{model_path("map")}"\nup = [0.0, 0.0, 0.0]\n')
     with pytest.raises(ValueError, match="up must be a direction"):
         load_skins(cfg)
+
+
+def test_skins_file_gesture_thresholds_reach_the_recogniser(tmp_path):
+    from tests._live import gesture_recording
+
+    cfg = tmp_path / "skins.toml"
+    cfg.write_text(
+        f'[defaults]\nmodel = "{model_path("map")}"\nrealtime = false\n'
+        "[defaults.gestures]\nswipe-min-mm = 250.0\n"
+        f'[[skin]]\nname = "a"\nsource = "{gesture_recording()}"\n'
+        "gestures = { long_press_s = 0.8 }\n"
+    )
+    specs, _ = load_skins(cfg)
+    assert specs[0].gestures.swipe_min_mm == 250.0 and specs[0].gestures.long_press_s == 0.8
+    sink = ListSink()
+    with Runner(specs, sinks=[sink]) as runner:
+        runner.run()
+    # The recording's swipe is shorter than 250 mm: with that threshold it is no gesture.
+    assert [(g["kind"], g["direction"]) for g in sink.gestures] == [
+        ("tap", None),
+        ("long_press", None),
+    ]
+
+
+@pytest.mark.parametrize(
+    ("gestures", "match"),
+    [
+        ("{ tap_max = 0.2 }", "unknown key.*tap_max.*known: double_tap_gap_s"),
+        ("{ tap_max_s = -1.0 }", "tap_max_s must be a number > 0"),
+        ("{ tap_max_s = 0.9 }", "long_press_s must be longer than tap_max_s"),
+        ('"fast"', "gestures must be a table"),
+    ],
+)
+def test_skins_file_gesture_errors_name_the_skin(tmp_path, gestures, match):
+    cfg = tmp_path / "skins.toml"
+    cfg.write_text(f'[[skin]]\nname = "arm"\nmodel = "m.h5"\ngestures = {gestures}\n')
+    with pytest.raises(ValueError, match=f"skin 'arm'.*{match}"):
+        load_skins(cfg)
+
+
+def test_the_skins_file_in_the_docs_loads(tmp_path):
+    import re
+    from pathlib import Path
+
+    text = (Path(__file__).parents[2] / "docs" / "live.md").read_text(encoding="utf-8")
+    block = re.search(r"### Many skins: a skins file\n\n```toml\n(.*?)```", text, re.S)
+    assert block is not None
+    for name in ("arm.h5", "right.h5"):
+        (tmp_path / name).write_bytes(b"")  # paths resolve against the file's folder
+    cfg = tmp_path / "robot.toml"
+    cfg.write_text(block.group(1))
+    specs, sinks = load_skins(cfg)
+    left, right = specs
+    assert sinks == ["jsonl", "ws://127.0.0.1:8767"]
+    assert left.gestures.long_press_s == 0.8 and left.gestures.swipe_min_mm == 30.0
+    assert right.gestures.swipe_min_mm == 40.0 and right.config.max_contacts == 2
+    assert right.parent_frame == "fr3_link7" and right.model == str(tmp_path / "right.h5")

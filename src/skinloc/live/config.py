@@ -5,9 +5,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields
 from enum import StrEnum
-from typing import Any
+from typing import Any, TypeVar
 
-__all__ = ["PipelineConfig", "TouchState"]
+_T = TypeVar("_T")
+
+__all__ = ["PipelineConfig", "TouchState", "settings_from_dict"]
 
 
 class TouchState(StrEnum):
@@ -144,12 +146,21 @@ class PipelineConfig:
     @classmethod
     def from_dict(cls, d: dict[str, Any], where: str = "pipeline settings") -> PipelineConfig:
         """Build from a dict (a config file section); unknown keys raise, naming them."""
-        known = {f.name for f in fields(cls)}
-        d = {str(k).replace("-", "_"): v for k, v in d.items()}
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise ValueError(
-                f"unknown key(s) in {where}: {', '.join(unknown)}; "
-                f"known: {', '.join(sorted(known))}"
-            )
-        return cls(**d)
+        return settings_from_dict(cls, d, where)
+
+
+def settings_from_dict(cls: type[_T], d: Any, where: str) -> _T:
+    """A settings dataclass from a config file's table; unknown keys raise, naming them.
+
+    Keys may be spelt with ``-`` for ``_``. Used for ``PipelineConfig`` and ``GestureConfig``.
+    """
+    if not isinstance(d, dict):
+        raise ValueError(f"{where} must be a table of settings, not {d!r}")
+    known = {f.name for f in fields(cls)}  # type: ignore[arg-type]
+    d = {str(k).replace("-", "_"): v for k, v in d.items()}
+    unknown = sorted(set(d) - known)
+    if unknown:
+        raise ValueError(
+            f"unknown key(s) in {where}: {', '.join(unknown)}; known: {', '.join(sorted(known))}"
+        )
+    return cls(**d)

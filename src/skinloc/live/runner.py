@@ -103,6 +103,7 @@ class Runner:
                 n_rx=spec.n_rx,
                 wire_format=spec.wire_format,
                 up=spec.up,
+                gesture_config=spec.gestures,
             )
             if spec.baseline is not None:
                 from skinloc.data.recording import read_recording

@@ -12,6 +12,9 @@ A TOML file lists the skins of a robot; each becomes a ``SkinSpec`` of one ``Run
     [defaults.pipeline]        # any PipelineConfig field
     touch_on_z = 8.0
 
+    [defaults.gestures]        # any GestureConfig field (gesture thresholds, mm and s)
+    tap_max_s = 0.25
+
     [[skin]]
     name = "left-forearm"
     source = "/dev/ttyACM0"
@@ -25,6 +28,8 @@ A TOML file lists the skins of a robot; each becomes a ``SkinSpec`` of one ``Run
     parent_frame = "fr3_link7"   # ROS 2 /tf_static: fr3_link7 -> skin/right-forearm
     translation = [0.0, 0.0, 0.107]   # m
     rpy = [0.0, 0.0, -0.785]          # rad (or rotation = [x, y, z, w])
+    up = [0.0, 0.0, 1.0]              # "up" for swipe directions, mesh frame
+    gestures = { swipe_min_mm = 40.0 }
 
 Every key is checked: an unknown one is an error naming the skin, the key and the known keys.
 """
@@ -80,8 +85,12 @@ def load_skins(path: str | Path) -> tuple[list[SkinSpec], list[str]]:
     specs = []
     for k, entry in enumerate(skins_raw):
         merged = {**defaults, **entry}
-        merged["pipeline"] = {**defaults.get("pipeline", {}), **entry.get("pipeline", {})}
         name = str(merged.get("name", f"skin{k}"))
+        for table in ("pipeline", "gestures"):
+            parts = (defaults.get(table, {}), entry.get(table, {}))
+            if not all(isinstance(p, dict) for p in parts):
+                raise ValueError(f"{path}: skin {name!r}: {table} must be a table of settings")
+            merged[table] = {**parts[0], **parts[1]}
         merged["name"] = name
         bad = sorted(set(merged) - known)
         if bad:

@@ -13,7 +13,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from skinloc.errors import SkinlocError
-from skinloc.live.config import PipelineConfig
+from skinloc.live.config import PipelineConfig, settings_from_dict
+from skinloc.live.gestures import GestureConfig
 from skinloc.live.scripted import ScriptedFinger
 from skinloc.live.sinks.base import SkinInfo
 from skinloc.sources.base import FrameSource
@@ -72,6 +73,9 @@ class SkinSpec:
     up : (3,) float or None
         The skin's "up" in its mesh frame, for swipe directions; None: the mesh's long axis
         (``skinloc.geometry.skin_frame.skin_up_axis``).
+    gestures : GestureConfig, dict or None
+        The gesture recogniser's thresholds (a dict of ``GestureConfig`` fields, as a skins
+        file's ``gestures`` table gives them); None: the documented defaults.
     """
 
     model: Any
@@ -94,9 +98,14 @@ class SkinSpec:
     rotation: Sequence[float] | None = None
     rpy: Sequence[float] | None = None
     up: Sequence[float] | None = None
+    gestures: GestureConfig | dict[str, Any] | None = None
 
     def __post_init__(self) -> None:
         self._mount = _mount_pose(self)
+        if isinstance(self.gestures, dict):
+            self.gestures = settings_from_dict(GestureConfig, self.gestures, "gestures")
+        elif self.gestures is not None and not isinstance(self.gestures, GestureConfig):
+            raise ValueError(f"gestures must be a table of thresholds, not {self.gestures!r}")
         if self.up is not None:
             u = _vector(self.up, 3, "up")
             if not any(u):

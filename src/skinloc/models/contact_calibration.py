@@ -42,6 +42,10 @@ SUB_MEANS = 4
 MAX_SETS = 200
 #: Share of held-out touches the calibrated rule may count one too many.
 FALSE_RATE = 0.02
+#: Power of the weakest contact's peak signal in the calibrated rule's statistic (chosen by
+#: cross-validation inside 80PL_1, docs/multitouch.md: 1 counted 2-3 % more held-out pairs
+#: than 0 at the same false rate, over three fold splits; 0.5 and 2 no better than 1).
+Z_POWER = 1.0
 #: Weakest-contact peak signals (noise levels) the calibration chooses among.
 Z_GRID = (8.0, 10.0, 12.0, 14.0, 16.0, 18.0, 20.0)
 
@@ -82,19 +86,20 @@ def search_statistics(
     return res
 
 
-def rule_statistics(raw: np.ndarray, misfit: float) -> np.ndarray:
+def rule_statistics(raw: np.ndarray, misfit: float, z_power: float = 0.0) -> np.ndarray:
     """The statistics the count rule thresholds, from ``search_statistics``: ``(n, 5)``.
 
     Columns: ``rho2``, ``rho3`` (``relative_gain`` of the m-th contact with the floor
-    ``misfit * |xw|^2``; ``-inf`` where no m contacts were found), ``z2``, ``z3`` and the
-    image's peak signal, noise levels.
+    ``misfit * |xw|^2``, times ``z_m ** z_power``; ``-inf`` where no m contacts were found),
+    ``z2``, ``z3`` and the image's peak signal, noise levels.
     """
     g1, g2, g3, z2, z3, xx, zmax = raw.T
     r1, r2, r3 = (np.maximum(xx - g, 1.0) for g in (g1, g2, g3))
     floor = max(misfit, 0.0) * xx
     res = np.full((len(raw), 5), -np.inf)
-    res[:, 0] = np.where(g2 > 0, (r1 - r2) / (r2 + floor), -np.inf)
-    res[:, 1] = np.where(g3 > 0, (r2 - r3) / (r3 + floor), -np.inf)
+    w2, w3 = (np.maximum(z, 0.0) ** max(z_power, 0.0) for z in (z2, z3))
+    res[:, 0] = np.where(g2 > 0, (r1 - r2) / (r2 + floor) * w2, -np.inf)
+    res[:, 1] = np.where(g3 > 0, (r2 - r3) / (r3 + floor) * w3, -np.inf)
     res[:, 2] = np.where(g2 > 0, z2, -np.inf)
     res[:, 3] = np.where(g3 > 0, z3, -np.inf)
     res[:, 4] = zmax
@@ -104,7 +109,7 @@ def rule_statistics(raw: np.ndarray, misfit: float) -> np.ndarray:
 def count_statistics(tables: SearchTables, images: np.ndarray, max_contacts: int = 3) -> np.ndarray:
     """``rule_statistics`` of ``images (n, k)`` with the tables' own rule: ``(n, 5)``."""
     raw = search_statistics(tables, images, max_contacts)
-    return rule_statistics(raw, tables.rule.misfit)
+    return rule_statistics(raw, tables.rule.misfit, tables.rule.z_power)
 
 
 def single_misfit(raw: np.ndarray, z_on: float) -> float:
@@ -165,6 +170,7 @@ def calibrate_count_rule(
     n_folds: int = 5,
     random_state: int = 0,
     misfit_floor: bool = True,
+    z_power: float = Z_POWER,
 ) -> tuple[CountRule, dict[str, Any]]:
     """The count rule calibrated by cross-validation over the training point logs.
 
@@ -187,6 +193,8 @@ def calibrate_count_rule(
     misfit_floor : bool
         Measure the rule's ``misfit`` (the median share of a held-out touch mean's energy one
         contact leaves) and count against it; ``False``: the residual alone (the rule before).
+    z_power : float
+        The rule's ``z_power`` (0: the relative reduction alone, the rule before).
 
     Returns
     -------
@@ -241,7 +249,7 @@ def calibrate_count_rule(
     raw = {k: np.concatenate(v) if v else np.zeros((0, 7)) for k, v in stats.items()}
     # the misfit of held-out touch means: what the model leaves of a touch it was not fitted to
     misfit = single_misfit(raw["mean"], rule.z_on) if misfit_floor else 0.0
-    S = {k: rule_statistics(v, misfit) for k, v in raw.items()}
+    S = {k: rule_statistics(v, misfit, z_power) for k, v in raw.items()}
     # only detected singles count (the others are no contact at all)
     singles = [S[k][S[k][:, 4] >= rule.z_on] for k in ("mean", "frame")]
     singles = [v for v in singles if len(v) >= 20]
@@ -252,7 +260,9 @@ def calibrate_count_rule(
         [v[:, [0, 2]] for v in singles], pair[:, [0, 2]], rule.z_on, FALSE_RATE
     )
     two = (pair[:, 0] >= tau2) & (pair[:, 2] >= z2)
-    z3, tau3, det3, false3 = rule.z3_min, rule.tau3, None, None
+    # too few to calibrate a third: the default threshold, at the weakest third contact allowed
+    z3, det3, false3 = rule.z3_min, None, None
+    tau3 = rule.tau3 * max(rule.z3_min, rule.z_on) ** z_power
     if two.sum() >= 20 and len(tri) >= 20:
         tri2 = tri[(tri[:, 0] >= tau2) & (tri[:, 2] >= z2)]
         z3, tau3, det3, false3 = choose_thresholds(
@@ -271,7 +281,16 @@ def calibrate_count_rule(
         "triple_counted_three_of_counted_two": det3,
     }
     return (
-        replace(rule, tau2=tau2, tau3=tau3, z2_min=z2, z3_min=z3, misfit=misfit, calibrated=True),
+        replace(
+            rule,
+            tau2=tau2,
+            tau3=tau3,
+            z2_min=z2,
+            z3_min=z3,
+            misfit=misfit,
+            z_power=z_power,
+            calibrated=True,
+        ),
         report,
     )
 

@@ -398,7 +398,8 @@ def search_into(
     st[3] = z2
     r1 = max(xx - gain1, 1.0)
     r2 = max(xx - gain2, 1.0)
-    two = relative_gain(r1, r2, floor) >= tau2 and z2 >= z2_min
+    zp = prm[8]
+    two = relative_gain(r1, r2, floor) * max(z2, 0.0) ** zp >= tau2 and z2 >= z2_min
     if not two and not calib:
         return 1
     count = 2 if two else 1
@@ -435,7 +436,8 @@ def search_into(
             st[2] = gain3
             st[4] = z3
             r3 = max(xx - gain3, 1.0)
-            if two and relative_gain(r2, r3, floor) >= tau3 and z3 >= z3_min:
+            rho3 = relative_gain(r2, r3, floor) * max(z3, 0.0) ** zp
+            if two and rho3 >= tau3 and z3 >= z3_min:
                 count = 3
                 for j in range(3):
                     keep[j] = fi[j]

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from skinloc.models.contact_calibration import (
+    calibrate_count_rule,
     count_statistics,
     rule_statistics,
     search_statistics,
@@ -15,6 +16,7 @@ from skinloc.models.contact_calibration import (
 )
 from skinloc.models.contact_search import SearchTables, relative_gain
 from skinloc.models.engine import load_engine
+from skinloc.models.localizer import ContactLocalizer
 from skinloc.models.multi_contact import CountRule
 from tests._live import calibration, model_path
 
@@ -51,7 +53,7 @@ def test_rules_saved_before_the_floor_load_with_none():
 
 def test_the_calibrated_rule_measures_the_misfit(engine):
     rule = engine.rule
-    assert rule.calibrated
+    assert rule.calibrated and rule.z_power == 1.0
     # the default model's held-out touch means leave a few to a few tens of percent
     assert 0.005 < rule.misfit < 0.5
 
@@ -66,28 +68,48 @@ def test_single_misfit_is_the_median_share_one_contact_leaves():
     assert single_misfit(raw, 8.0) == 0.0
 
 
+def _tables(engine, rule):
+    s = engine.spec
+    return SearchTables(
+        np.asarray(s.unit_table), s.surface_points, s.coarse, s.cells, s.sensor_noise, rule
+    )
+
+
 def test_the_kernel_counts_as_the_statistics_say(engine):
-    """The compiled count and the calibration's statistic agree, floor included."""
+    """The compiled count and the calibration's statistic agree, floor and factor included."""
     t = engine.search_tables()
     images = _images()
-    for misfit in (0.0, engine.rule.misfit, 0.3):
-        rule = replace(engine.rule, misfit=misfit, tau2=0.4, z2_min=10.0)
-        tables = SearchTables(
-            np.asarray(engine.spec.unit_table),
-            engine.spec.surface_points,
-            engine.spec.coarse,
-            engine.spec.cells,
-            engine.spec.sensor_noise,
-            rule,
-        )
-        s = count_statistics(tables, images, 2)
-        want = np.where(s[:, 4] < rule.z_on, 0, 1 + ((s[:, 0] >= 0.4) & (s[:, 2] >= 10.0)))
-        engine._tables = tables
+    for misfit, z_power in ((0.0, 0.0), (engine.rule.misfit, 1.0), (0.3, 1.0), (0.05, 2.0)):
+        rule = replace(engine.rule, misfit=misfit, z_power=z_power, z2_min=10.0)
+        s = count_statistics(_tables(engine, rule), images, 2)
+        # a threshold inside the statistic's range, so that both counts occur
+        tau = float(np.median(s[np.isfinite(s[:, 0]) & (s[:, 2] >= 10.0), 0]))
+        want = np.where(s[:, 4] < rule.z_on, 0, 1 + ((s[:, 0] >= tau) & (s[:, 2] >= 10.0)))
+        assert {1, 2} <= set(want.tolist())
+        engine._tables = _tables(engine, replace(rule, tau2=tau))
         try:
             got = np.array([len(engine.contacts(x, 2)) for x in images])
         finally:
             engine._tables = t
         np.testing.assert_array_equal(got, want)
+
+
+def test_calibration_without_floor_and_factor_is_the_rule_before():
+    model = ContactLocalizer.load(model_path("map"))
+    m = model.map_
+    coarse, cells = m.search_cells()
+    cal = calibration()
+    base = m.layers[0]
+    args = (cal.touch_means, cal.targets, m.candidates, coarse, cells, base.length_scale_mm)
+    old, rep_old = calibrate_count_rule(
+        *args, base.noise, model.sensor_noise_, misfit_floor=False, z_power=0.0
+    )
+    new, rep_new = calibrate_count_rule(*args, base.noise, model.sensor_noise_)
+    assert old.calibrated and new.calibrated
+    assert old.misfit == 0.0 and old.z_power == 0.0 and rep_old["misfit"] == 0.0
+    assert new.misfit > 0.0 and new.z_power == 1.0 and rep_new["misfit"] == new.misfit
+    # the same searches: only the statistic differs, so the rules' thresholds do
+    assert new.tau2 != old.tau2
 
 
 def test_a_larger_floor_never_counts_more_contacts(engine):

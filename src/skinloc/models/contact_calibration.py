@@ -43,8 +43,8 @@ MAX_SETS = 200
 #: Share of held-out touches the calibrated rule may count one too many.
 FALSE_RATE = 0.02
 #: Power of the weakest contact's peak signal in the calibrated rule's statistic (chosen by
-#: cross-validation inside 80PL_1, docs/multitouch.md: 1 counted 2-3 % more held-out pairs
-#: than 0 at the same false rate, over three fold splits; 0.5 and 2 no better than 1).
+#: cross-validation inside 80PL_1, bench/multitouch_diagnose.py: 1 counts 2-5 % more held-out
+#: pairs than 0 at the same false rate over three fold splits; 2 about the same as 1).
 Z_POWER = 1.0
 #: Weakest-contact peak signals (noise levels) the calibration chooses among.
 Z_GRID = (8.0, 10.0, 12.0, 14.0, 16.0, 18.0, 20.0)

@@ -9,7 +9,7 @@ import numpy as np
 from skinloc._jit import jit
 from skinloc.models.multi_contact import N_COLS, CountRule, noise_weights
 
-__all__ = ["SearchTables", "search_into", "single_into"]
+__all__ = ["SearchTables", "relative_gain", "search_into", "single_into"]
 
 #: Coarse cells searched around each contact (its own and the nearest others).
 N_NEIGHBOURS = 7
@@ -286,6 +286,16 @@ def _polish(
 
 
 @jit()
+def relative_gain(r_prev: float, r_next: float, floor: float) -> float:  # pragma: no cover
+    """What one more contact brings: ``(r_prev - r_next) / (r_next + floor)``.
+
+    ``floor`` (whitened counts^2) is the residual the model leaves on a touch it explains
+    (``CountRule.misfit`` times the image's energy; 0: the residual alone).
+    """
+    return (r_prev - r_next) / (r_next + floor)
+
+
+@jit()
 def _weakest_z(m: int, fi: np.ndarray, s: np.ndarray, Fpk: np.ndarray) -> float:  # pragma: no cover
     z = np.inf
     for j in range(m):
@@ -316,6 +326,8 @@ def search_into(
         zmax = max(zmax, float(v))
     st[:] = 0.0
     st[5] = xx
+    # the model's typical misfit of one touch: a reduction within it is no second finger
+    floor = prm[7] * xx
     if zmax < z_on and not calib:
         return 0
     if K <= 1:
@@ -386,7 +398,8 @@ def search_into(
     st[3] = z2
     r1 = max(xx - gain1, 1.0)
     r2 = max(xx - gain2, 1.0)
-    two = (r1 - r2) / r2 >= tau2 and z2 >= z2_min
+    zp = prm[8]
+    two = relative_gain(r1, r2, floor) * max(z2, 0.0) ** zp >= tau2 and z2 >= z2_min
     if not two and not calib:
         return 1
     count = 2 if two else 1
@@ -423,7 +436,8 @@ def search_into(
             st[2] = gain3
             st[4] = z3
             r3 = max(xx - gain3, 1.0)
-            if two and (r2 - r3) / r3 >= tau3 and z3 >= z3_min:
+            rho3 = relative_gain(r2, r3, floor) * max(z3, 0.0) ** zp
+            if two and rho3 >= tau3 and z3 >= z3_min:
                 count = 3
                 for j in range(3):
                     keep[j] = fi[j]

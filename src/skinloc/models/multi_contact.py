@@ -19,9 +19,12 @@ refined on the full candidate grid, one contact at a time with the others fixed 
 candidates of the 7 coarse cells around it), twice. A third contact is searched the same way
 from the refined pair. The count (``CountRule``): 0 if no sensor reaches ``z_on`` noise
 levels; ``m`` contacts rather than ``m - 1`` if the relative residual reduction
-``(R_{m-1} - R_m) / R_m`` reaches ``tau_m`` and the weakest of the ``m`` contacts reaches
-``z_m_min`` noise levels on its own. The thresholds are calibrated on the training recording
-only (``skinloc.models.contact_calibration``: cross-validation over its point logs).
+``rho_m = (R_{m-1} - R_m) / (R_m + misfit * |xw|^2)`` (``misfit``: the share of a touch's
+energy the model typically leaves unexplained), weighed by the weakest of the ``m`` contacts'
+peak signal ``z_m`` (noise levels), ``rho_m * z_m ** z_power``, reaches ``tau_m`` and ``z_m``
+reaches ``z_m_min``: a strong second contact needs less relative gain than a faint one. The
+thresholds are calibrated on the training recording only
+(``skinloc.models.contact_calibration``: cross-validation over its point logs).
 
 One contact is reported by the model's own single-contact answer (``Engine.localise_into``),
 so ``max_contacts=1`` is today's answer; its strength is the L2 norm of the image's positive
@@ -84,8 +87,17 @@ class CountRule:
         ``z_on``).
     n_top : int
         Seeds of the pair search.
+    misfit : float
+        The share of a single touch's (whitened) energy the model leaves unexplained, typical
+        of a touch it was not trained on (median over the calibration's held-out touches); the
+        residual reduction is measured against the residual plus this much of the image's
+        energy, so that a strong touch's own misfit does not pass for a second finger. 0 (rules
+        saved before it): against the residual alone.
     calibrated : bool
         Whether tau2 and tau3 come from cross-validation on the training recording.
+    z_power : float
+        Power of the weakest contact's peak signal that weighs the relative reduction (0, rules
+        saved before it: the reduction alone).
     """
 
     z_on: float = 8.0
@@ -96,6 +108,8 @@ class CountRule:
     z3_min: float = 8.0
     n_top: int = 12
     calibrated: bool = False
+    misfit: float = 0.0
+    z_power: float = 0.0
 
     def as_dict(self) -> dict[str, Any]:
         """The rule as plain JSON values."""
@@ -110,7 +124,10 @@ class CountRule:
         return cls(**{k: v for k, v in d.items() if k in names})
 
     def params(self) -> np.ndarray:
-        """The kernels' parameters: z_on, min separation^2 (m^2), tau2, tau3, n_top, z2, z3."""
+        """The kernels' parameters.
+
+        z_on, min separation^2 (m^2), tau2, tau3, n_top, z2_min, z3_min, misfit, z_power.
+        """
         return np.array(
             [
                 self.z_on,
@@ -120,6 +137,8 @@ class CountRule:
                 self.n_top,
                 max(self.z2_min, self.z_on),
                 max(self.z3_min, self.z_on),
+                max(self.misfit, 0.0),
+                max(self.z_power, 0.0),
             ],
             dtype=np.float64,
         )

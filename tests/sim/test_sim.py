@@ -239,6 +239,20 @@ def test_light_touches_are_weak_but_always_felt(cone: trimesh.Trimesh, params: S
         assert np.count_nonzero(skin._signal > 0.99 * felt) >= 2
 
 
+def test_a_deliberate_press_is_never_a_light_one(cone: trimesh.Trimesh, params: SkinParams) -> None:
+    # The app's mouse presses with weak=False: a light touch there would depend on how many
+    # frames the noise had drawn before, and the live view would sometimes show nothing.
+    feather = dataclasses.replace(params, weak_touch_prob=1.0, weak_touch_pressure=0.01)
+    skin = SimulatedSkin(cone, params=feather, random_state=SEED)
+    point = sample_targets(cone, 1, "random", random_state=SEED)[0]
+    peaks = {}
+    for weak in (True, False):
+        skin.press(point, weak=weak, finger_radius_m=0.008)
+        peaks[weak] = float(skin._signal.max())
+        skin.release()
+    assert peaks[False] > 20 * peaks[True]
+
+
 def test_harder_press_widens_the_contact(cone: trimesh.Trimesh, params: SkinParams) -> None:
     skin = SimulatedSkin(
         cone,

@@ -210,16 +210,18 @@ class SimulatedSkin(FrameSource):
         *,
         pressure: float | None = None,
         finger_radius_m: float | None = None,
+        weak: bool = True,
     ) -> None:
         """Put the finger down at ``point (3,)`` m until ``release``.
 
         ``pressure`` (1 is a typical touch) and ``finger_radius_m`` not given are drawn from the
-        touch-to-touch variation in ``params``.
+        touch-to-touch variation in ``params``; ``weak=False``: never one of the light touches
+        (a person pressing until the skin responds, as with the app's mouse).
         """
         point = np.asarray(point, dtype=np.float64).reshape(-1)
         if point.shape != (3,):
             raise ValueError(f"point must have shape (3,), got {point.shape}")
-        drawn_p, drawn_r = self.draw_touch()
+        drawn_p, drawn_r = self.draw_touch(weak=weak)
         pressure = drawn_p if pressure is None else float(pressure)
         radius = drawn_r if finger_radius_m is None else float(finger_radius_m)
         self._signal = sensor_image(self.layout, self.params, point, pressure, radius)

@@ -79,7 +79,9 @@ class LinkActions:
             p = np.asarray(point, dtype=np.float64).reshape(-1)
             if p.shape != (3,) or not np.all(np.isfinite(p)):
                 raise ValueError(f"point must be 3 finite coordinates in m, got {point!r}")
-            skin.press(nearest_on_surface(skin.mesh, p)[0][0])
+            # A mouse press is meant: never one of the light touches the skin may not feel
+            # (which of them comes would depend on how many frames the noise drew before).
+            skin.press(nearest_on_surface(skin.mesh, p)[0][0], weak=False)
 
     @contextmanager
     def _locked_for(self, device: DeviceLink | None) -> Iterator[bool]:

@@ -24,6 +24,11 @@ is the peak of its response over the surface:
 5. the uncertainty of each position is the spread of the whole estimate over bootstrap
    resamples of the touches (mm).
 
+Opt-in (``fields=True``): where the whole-image model is not kept, the separable line-field
+model (``skinloc.sensors.fields``, ``field_map``) replaces the per-crossing estimate when it
+predicts held-out touches better; it fits the real cone's images better but places its
+crossings less consistently, so it is off by default (docs/sensors.md).
+
 Lines are flagged from the fitted gains and the no-touch noise: ``dead`` (no usable response),
 ``weak`` (well below the other lines), ``noisy`` (no-touch noise far above the rest).
 

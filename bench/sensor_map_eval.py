@@ -32,6 +32,12 @@ from skinloc.sensors import positions as S
 from skinloc.sim.skin import SimulatedSkin, SkinParams
 
 
+def _median_or_nan(v: np.ndarray) -> float:
+    """Median of the finite values (nan when there are none: ``--boot 0``)."""
+    v = np.asarray(v, float)
+    return float(np.median(v[np.isfinite(v)])) if np.isfinite(v).any() else float("nan")
+
+
 def flagged(smap: S.SensorMap) -> list[str]:
     """Lines not ``ok``, e.g. ``["RX 3 weak"]``."""
     return [
@@ -95,7 +101,7 @@ def sim_seed(
         "median_mm": float(np.median(err[alive])),
         "p90_mm": float(np.percentile(err[alive], 90)),
         "errors_mm": err[alive].round(2).tolist(),
-        "uncertainty_median_mm": float(np.nanmedian(smap.uncertainty_mm)),
+        "uncertainty_median_mm": _median_or_nan(smap.uncertainty_mm),
         "footprint_median_mm": float(np.median(smap.footprint_mm)),
         "lines_flagged": found,
         "true_faulty_lines": true_faults,
@@ -132,7 +138,7 @@ def real(data: Path, boot: int, fields: bool = False) -> dict:
         "method": {name: m.method for name, m in maps.items()},
         "heldout": {name: m.heldout for name, m in maps.items()},
         "uncertainty_median_mm": {
-            name: float(np.nanmedian(m.uncertainty_mm)) for name, m in maps.items()
+            name: _median_or_nan(m.uncertainty_mm) for name, m in maps.items()
         },
         "rx_line_gain": {
             name: [round(g, 2) for g in m.line_gain["rx"]] for name, m in maps.items()

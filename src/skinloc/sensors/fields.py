@@ -3,15 +3,16 @@
 A touch's image is nearly rank one (a TX profile times an RX profile; 98 % of its energy on
 the real cone), so the response of crossing (i, j) to a touch at ``x`` is modelled as::
 
-    y_tij = P_t * f_i(x_t) * g_j(x_t)
+    y_tij = P_t * K_ij * f_i(x_t) * g_j(x_t)
 
-with ``P_t`` the touch's pressure, ``f_i`` the sensitivity field of TX line i and ``g_j`` that
-of RX line j over the surface. Each field is a non-negative sum of Gaussian bumps centred on
-``n_centres`` surface points spread evenly over the skin, plus a constant (the field far from
-the wire: common mode, coupling). The fields are fitted by alternating non-negative weighted
-least squares over all touches: each TX field pools the responses of its 8 crossings, so it is
-far less noisy than one crossing's own fit from the same 20-80 touches. Nothing assumes where
-the wires run or that they cross: crossing (i, j) is where ``f_i * g_j`` peaks.
+with ``P_t`` the touch's pressure, ``K_ij`` the crossing's own factor (median 1), ``f_i`` the
+sensitivity field of TX line i and ``g_j`` that of RX line j over the surface. Each field
+is a non-negative sum of Gaussian bumps centred on ``n_centres`` surface points spread evenly
+over the skin, plus a constant (the field far from the wire: common mode, coupling). The
+fields are fitted by alternating non-negative weighted least squares over all touches: each
+TX field pools the responses of its 8 crossings, so it is far less noisy than one crossing's
+own fit from the same 20-80 touches. Nothing assumes where the wires run or that they
+cross: crossing (i, j) is where ``f_i * g_j`` peaks.
 
 The touches may carry the person's miss (``label_mm`` per tangent axis): between field fits
 each touch moves to the surface point near its label that best explains its whole image under
@@ -30,8 +31,11 @@ from scipy.optimize import nnls
 __all__ = [
     "FieldModel",
     "centres",
+    "crossings",
     "fit_fields",
     "heldout_score",
+    "locate_touches",
+    "make_basis",
     "predict_images",
 ]
 
@@ -323,10 +327,10 @@ def crossings(model: FieldModel, cands_mm: np.ndarray) -> tuple[np.ndarray, np.n
     """Each crossing where ``f_i * g_j`` peaks on the surface, its peak and footprint.
 
     Returns positions ``(n_sensors, 3)`` mm (surface points), peak unit-pressure responses
-    ``(n_sensors,)`` counts above the fields' far-off floor (the constant terms' product, times
-    the crossing's own gain), and
-    footprints ``(n_sensors,)`` mm: the radius of a disc of the same area as the surface where
-    the response is above half its peak, within 40 mm of the peak.
+    ``(n_sensors,)`` counts above the fields' far-off floor (the constant terms' product),
+    times the crossing's own factor, and footprints ``(n_sensors,)`` mm: the radius of a disc
+    of the same area as the surface where the response is above half its peak, within 40 mm
+    of the peak.
     """
     F, G = model.fields(cands_mm)
     n_tx, n_rx = F.shape[1], G.shape[1]

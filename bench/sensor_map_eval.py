@@ -7,6 +7,11 @@ separately, and their pairwise agreement; the lines flagged in each.
 
     python bench/sensor_map_eval.py --seeds 0 1 2 [--data ../shared/data/hiro-cone-skin]
         [--json bench/results/sensor-map.json] [--label-error-mm 0] [--true-contacts]
+        [--fields]
+
+``--fields`` lets ``skinloc sensors`` try the separable line-field model where the
+whole-image model is not kept, and use it where it predicts held-out touches better
+(``sensors.field_map``); each result then says which method was used and the held-out scores.
 """
 
 from __future__ import annotations
@@ -25,6 +30,12 @@ from skinloc.calibration.session import SessionConfig, simulate_session
 from skinloc.geometry.mesh import cone_skin
 from skinloc.sensors import positions as S
 from skinloc.sim.skin import SimulatedSkin, SkinParams
+
+
+def _median_or_nan(v: np.ndarray) -> float:
+    """Median of the finite values (nan when there are none: ``--boot 0``)."""
+    v = np.asarray(v, float)
+    return float(np.median(v[np.isfinite(v)])) if np.isfinite(v).any() else float("nan")
 
 
 def flagged(smap: S.SensorMap) -> list[str]:
@@ -53,6 +64,7 @@ def sim_seed(
     label_error_mm: float = S.LABEL_ERROR_MM,
     true_contacts: bool = False,
     faults: dict | None = None,
+    fields: bool = False,
 ) -> dict:
     """Simulate a skin and an even session, locate its sensors, score against the truth.
 
@@ -72,7 +84,7 @@ def sim_seed(
             rec, targets=np.asarray(rec.meta["true_contacts"], float).reshape(-1, 3)
         )
     smap = S.sensor_map_from_recordings(
-        [rec], n_boot=boot, random_state=seed, label_error_mm=label_error_mm
+        [rec], n_boot=boot, random_state=seed, label_error_mm=label_error_mm, fields=fields
     )
     truth = S.truth_sensor_positions(rec.meta)
     err = S.position_errors_mm(smap.positions_m, truth)
@@ -89,7 +101,7 @@ def sim_seed(
         "median_mm": float(np.median(err[alive])),
         "p90_mm": float(np.percentile(err[alive], 90)),
         "errors_mm": err[alive].round(2).tolist(),
-        "uncertainty_median_mm": float(np.nanmedian(smap.uncertainty_mm)),
+        "uncertainty_median_mm": _median_or_nan(smap.uncertainty_mm),
         "footprint_median_mm": float(np.median(smap.footprint_mm)),
         "lines_flagged": found,
         "true_faulty_lines": true_faults,
@@ -100,10 +112,13 @@ def sim_seed(
     }
 
 
-def real(data: Path, boot: int) -> dict:
+def real(data: Path, boot: int, fields: bool = False) -> dict:
     """Crossings from each recording of 2023-12-10 alone, and their pairwise agreement."""
     recs = load_day(data)
-    maps = {name: S.sensor_map_from_recordings([r], n_boot=boot) for name, r in recs.items()}
+    maps = {
+        name: S.sensor_map_from_recordings([r], n_boot=boot, fields=fields)
+        for name, r in recs.items()
+    }
     pairs = []
     for a, b in itertools.combinations(DAY, 2):
         d = S.position_errors_mm(maps[a].positions_m, maps[b].positions_m)
@@ -121,8 +136,9 @@ def real(data: Path, boot: int) -> dict:
         "median_of_pair_medians_mm": float(np.median([p["median_mm"] for p in pairs])),
         "flagged": {name: flagged(m) for name, m in maps.items()},
         "method": {name: m.method for name, m in maps.items()},
+        "heldout": {name: m.heldout for name, m in maps.items()},
         "uncertainty_median_mm": {
-            name: float(np.nanmedian(m.uncertainty_mm)) for name, m in maps.items()
+            name: _median_or_nan(m.uncertainty_mm) for name, m in maps.items()
         },
         "rx_line_gain": {
             name: [round(g, 2) for g in m.line_gain["rx"]] for name, m in maps.items()
@@ -158,11 +174,16 @@ def main() -> None:
         default=[],
         help="also simulate these seeds with each set of injected faults (FAULTS)",
     )
+    ap.add_argument(
+        "--fields",
+        action="store_true",
+        help="try the line-field model where the whole-image model is not kept",
+    )
     args = ap.parse_args()
     faulty = []
     for name, change in FAULTS.items():
         for s in args.fault_seeds:
-            r = sim_seed(s, args.points, 0, args.label_error_mm, faults=change)
+            r = sim_seed(s, args.points, 0, args.label_error_mm, faults=change, fields=args.fields)
             r.pop("errors_mm")
             r["faults"] = name
             faulty.append(r)
@@ -173,7 +194,9 @@ def main() -> None:
                 flush=True,
             )
     sims = [
-        sim_seed(s, args.points, args.boot, args.label_error_mm, args.true_contacts)
+        sim_seed(
+            s, args.points, args.boot, args.label_error_mm, args.true_contacts, fields=args.fields
+        )
         for s in args.seeds
     ]
     out: dict = {"sim": sims, "faults": faulty}
@@ -194,7 +217,8 @@ def main() -> None:
         p = out["sim_pooled"]
         print(f"sim pooled: median {p['median_mm']:.2f} mm, p90 {p['p90_mm']:.2f} mm")
     if have_day(args.data):
-        out["real"] = real(args.data, args.boot)
+        out["real"] = real(args.data, args.boot, args.fields)
+        print("real method:", out["real"]["method"])
         for pr in out["real"]["pairs"]:
             print(f"real {pr['a']} vs {pr['b']}: median {pr['median_mm']:.2f} mm")
         print("real flagged:", out["real"]["flagged"])

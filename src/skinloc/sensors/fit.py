@@ -11,8 +11,12 @@ from typing import Any
 
 import numpy as np
 
+from skinloc._typing import Points
+from skinloc.sensors.wires import structured_crossings
+
 __all__ = [
     "LABEL_ERROR_MM",
+    "fit_per_crossing",
     "WIDTHS_MM",
     "local_fit",
     "loo_profile",
@@ -30,6 +34,11 @@ _SEARCH_MM = 22.0  # candidate positions searched around the strongest touches
 WIDTHS_MM = np.geomspace(4.0, 30.0, 14)
 _REL_NOISE, _ABS_NOISE, _PROBE_MM = 0.2, 0.05, 2.5
 _SHRINK = 0.5  # damping of the pressure estimate (log scale)
+_PRESSURE_ITERS = 1
+_SHARED_WIDTH = True
+#: Passes moving each touch from its label to where its image says the finger was (more
+#: passes measured no better on simulated skins).
+_REFINE_ITERS = 1
 
 
 def local_fit(
@@ -210,3 +219,65 @@ def touch_pressure(
     )
     p = np.exp(_SHRINK * (logp - np.median(logp)))
     return np.clip(p, 0.3, 3.0)
+
+
+def fit_per_crossing(
+    targets: Points,
+    images: np.ndarray,
+    candidates: Points,
+    tree: Any,
+    n_tx: int,
+    n_rx: int,
+    structure: bool,
+    label_mm: float = LABEL_ERROR_MM,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Steps 1-3 of ``sensors.positions``: each crossing from its own column of responses.
+
+    ``targets (n_touch, 3)`` m, ``images (n_touch, n_sensors)`` counts, ``candidates (P, 3)``
+    m with ``tree`` the cKDTree of the candidates in mm. Returns positions ``(n, 3)`` mm,
+    footprints mm, gains, residual rms and the touches ``(n_touch, 3)`` mm where the fit
+    placed them (the labels when ``label_mm`` is 0).
+    """
+    T_mm, C_mm = 1e3 * targets, 1e3 * candidates
+    T_mm0 = T_mm
+    n = images.shape[1]
+    pos, width, amp, rms = np.zeros((n, 3)), np.zeros(n), np.zeros(n), np.zeros(n)
+    offset = np.zeros(n)
+    pressure = np.ones(len(targets))
+    widths = WIDTHS_MM
+    for it in range(_PRESSURE_ITERS + 2):
+        R = images / pressure[:, None]
+        for k in range(n):
+            ci, width[k], amp[k], offset[k], rms[k] = local_fit(
+                T_mm, R[:, k], C_mm, tree, widths, stride=4 if len(widths) > 1 else 1
+            )
+            pos[k] = C_mm[ci]
+        if it == 0 and _SHARED_WIDTH:
+            # One silicone layer and one finger: every crossing has about the same footprint,
+            # and fixing it leaves each fit three free parameters instead of four. One
+            # sensor's own best width is ill-determined (its crossing is free to sit on its
+            # strongest touch, which a narrow bump then fits exactly, while a wide bump and a
+            # negative offset fit the rest), so the per-sensor widths scatter over the whole
+            # grid and their median is an arbitrary grid value. The shared width is instead
+            # the one that best predicts each touch left out of its sensor's fit, summed over
+            # the sensors that respond (judged by their strongest touches, not by the fitted
+            # amplitude, which is larger for the sensors whose own fit chose a narrow width).
+            peak = np.sort(R, axis=0)[-3:].mean(axis=0) - np.median(R, axis=0)
+            good = peak >= 0.5 * np.median(peak)
+            prof = np.array([loo_profile(T_mm, R[:, k], C_mm, tree, widths) for k in range(n)])
+            widths = np.array([shared_width(prof[good], widths)])
+        elif it <= _PRESSURE_ITERS:
+            pressure = touch_pressure(T_mm, images, pos, width, amp, offset)
+    for _ in range(_REFINE_ITERS if label_mm > 0 else 0):
+        # The labels carry the person's miss (~5 mm per axis); each touch's image says
+        # where the finger really was. Move the touches there (from their labels, with the
+        # miss as a prior) and refit the crossings on the moved touches.
+        T_mm = refine_touches(T_mm0, images, pos, width, amp, offset, rms, C_mm, tree, label_mm)
+        pressure = touch_pressure(T_mm, images, pos, width, amp, offset)
+        R = images / pressure[:, None]
+        for k in range(n):
+            ci, width[k], amp[k], offset[k], rms[k] = local_fit(T_mm, R[:, k], C_mm, tree, widths)
+            pos[k] = C_mm[ci]
+    if structure:
+        pos = structured_crossings(pos, amp / max(float(np.median(amp)), 1e-12), C_mm, n_tx, n_rx)
+    return pos, width, amp, rms, T_mm

@@ -24,6 +24,11 @@ is the peak of its response over the surface:
 5. the uncertainty of each position is the spread of the whole estimate over bootstrap
    resamples of the touches (mm).
 
+Opt-in (``fields=True``): where the whole-image model is not kept, the separable line-field
+model (``skinloc.sensors.fields``, ``field_map``) replaces the per-crossing estimate when it
+predicts held-out touches better; it fits the real cone's images better but places its
+crossings less consistently, so it is off by default (docs/sensors.md).
+
 Lines are flagged from the fitted gains and the no-touch noise: ``dead`` (no usable response),
 ``weak`` (well below the other lines), ``noisy`` (no-touch noise far above the rest).
 
@@ -40,16 +45,9 @@ import numpy as np
 
 from skinloc._typing import Points
 from skinloc.sensors import joint as J
-from skinloc.sensors.fit import (
-    LABEL_ERROR_MM,
-    WIDTHS_MM,
-    local_fit,
-    loo_profile,
-    refine_touches,
-    shared_width,
-    touch_pressure,
-)
-from skinloc.sensors.wires import line_path, structured_crossings
+from skinloc.sensors.fit import LABEL_ERROR_MM
+from skinloc.sensors.fit import fit_per_crossing as _fit_once
+from skinloc.sensors.wires import line_path
 
 __all__ = [
     "SensorMap",
@@ -64,11 +62,6 @@ WEAK_FRACTION = 0.55
 DEAD_FRACTION = 0.12
 #: A sensor (line) whose no-touch noise exceeds this multiple of the median is noisy.
 NOISY_FACTOR = 3.0
-_PRESSURE_ITERS = 1
-_SHARED_WIDTH = True
-#: Passes moving each touch from its label to where its image says the finger was (more
-#: passes measured no better on simulated skins).
-_REFINE_ITERS = 1
 
 
 @dataclass
@@ -109,8 +102,11 @@ class SensorMap:
     rx_paths_m: list[np.ndarray]
     line_status: dict[str, list[str]]
     line_gain: dict[str, list[float]] = field(default_factory=dict)
-    #: ``joint`` (the whole-image model) or ``per-crossing`` (its fallback).
+    #: ``joint`` (the whole-image model), ``fields`` (the line-field model) or
+    #: ``per-crossing`` (the fallback).
     method: str = "per-crossing"
+    #: Held-out misfit of the per-crossing fit and the line fields (when they were compared).
+    heldout: dict[str, Any] | None = None
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready: ``{"sensors": [...], "lines": [...]}`` (positions m, sizes mm)."""
@@ -147,6 +143,7 @@ class SensorMap:
             "n_tx": self.n_tx,
             "n_rx": self.n_rx,
             "method": self.method,
+            **({} if self.heldout is None else {"heldout": self.heldout}),
             "sensors": sensors,
             "lines": lines,
         }
@@ -174,66 +171,6 @@ def truth_sensor_positions(meta: dict[str, Any]) -> Points | None:
 
 
 # -------------------------------------------------------------------------------- estimation
-
-
-def _fit_once(
-    targets: Points,
-    images: np.ndarray,
-    candidates: Points,
-    tree: Any,
-    n_tx: int,
-    n_rx: int,
-    structure: bool,
-    label_mm: float = LABEL_ERROR_MM,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """One estimate: positions (n, 3) mm, footprints mm, gains, residual rms, touches.
-
-    The touches ``(n_touch, 3)`` mm are where the fit placed them (the labels when
-    ``label_mm`` is 0).
-    """
-    T_mm, C_mm = 1e3 * targets, 1e3 * candidates
-    T_mm0 = T_mm
-    n = images.shape[1]
-    pos, width, amp, rms = np.zeros((n, 3)), np.zeros(n), np.zeros(n), np.zeros(n)
-    offset = np.zeros(n)
-    pressure = np.ones(len(targets))
-    widths = WIDTHS_MM
-    for it in range(_PRESSURE_ITERS + 2):
-        R = images / pressure[:, None]
-        for k in range(n):
-            ci, width[k], amp[k], offset[k], rms[k] = local_fit(
-                T_mm, R[:, k], C_mm, tree, widths, stride=4 if len(widths) > 1 else 1
-            )
-            pos[k] = C_mm[ci]
-        if it == 0 and _SHARED_WIDTH:
-            # One silicone layer and one finger: every crossing has about the same footprint,
-            # and fixing it leaves each fit three free parameters instead of four. One
-            # sensor's own best width is ill-determined (its crossing is free to sit on its
-            # strongest touch, which a narrow bump then fits exactly, while a wide bump and a
-            # negative offset fit the rest), so the per-sensor widths scatter over the whole
-            # grid and their median is an arbitrary grid value. The shared width is instead
-            # the one that best predicts each touch left out of its sensor's fit, summed over
-            # the sensors that respond (judged by their strongest touches, not by the fitted
-            # amplitude, which is larger for the sensors whose own fit chose a narrow width).
-            peak = np.sort(R, axis=0)[-3:].mean(axis=0) - np.median(R, axis=0)
-            good = peak >= 0.5 * np.median(peak)
-            prof = np.array([loo_profile(T_mm, R[:, k], C_mm, tree, widths) for k in range(n)])
-            widths = np.array([shared_width(prof[good], widths)])
-        elif it <= _PRESSURE_ITERS:
-            pressure = touch_pressure(T_mm, images, pos, width, amp, offset)
-    for _ in range(_REFINE_ITERS if label_mm > 0 else 0):
-        # The labels carry the person's miss (~5 mm per axis); each touch's image says
-        # where the finger really was. Move the touches there (from their labels, with the
-        # miss as a prior) and refit the crossings on the moved touches.
-        T_mm = refine_touches(T_mm0, images, pos, width, amp, offset, rms, C_mm, tree, label_mm)
-        pressure = touch_pressure(T_mm, images, pos, width, amp, offset)
-        R = images / pressure[:, None]
-        for k in range(n):
-            ci, width[k], amp[k], offset[k], rms[k] = local_fit(T_mm, R[:, k], C_mm, tree, widths)
-            pos[k] = C_mm[ci]
-    if structure:
-        pos = structured_crossings(pos, amp / max(float(np.median(amp)), 1e-12), C_mm, n_tx, n_rx)
-    return pos, width, amp, rms, T_mm
 
 
 def _snap(points_m: Points, candidates: Points) -> tuple[Points, np.ndarray]:
@@ -300,6 +237,7 @@ def estimate_sensor_map(
     structure: bool = True,
     label_error_mm: float = LABEL_ERROR_MM,
     joint: bool = True,
+    fields: bool = False,
 ) -> SensorMap:
     """Estimate the skin's layout from calibration touches.
 
@@ -327,6 +265,12 @@ def estimate_sensor_map(
     joint : bool
         Refine with the whole-image model (step 5, ``skinloc.sensors.joint``); it is kept
         only when it passes its own plausibility check (``SensorMap.method`` says which).
+    fields : bool
+        When the whole-image model is not kept, also try the separable line-field model
+        (``skinloc.sensors.fields``) and use it when it predicts held-out touches better than
+        the per-crossing fit (``SensorMap.heldout`` holds the scores; ``method`` "fields").
+        Off by default: on the real cone and the simulator it fits the images better but
+        places the crossings less consistently (docs/sensors.md).
 
     Returns
     -------
@@ -362,9 +306,25 @@ def estimate_sensor_map(
             pos, width, amp = jf.positions_mm, J.half_max_mm(jf), jf.electrical_gain
         else:
             jf = None
+    heldout, fm = None, None
+    if fields and jf is None:
+        from skinloc.sensors import field_map as FMap
+
+        labels_mm, C_mm = 1e3 * targets, 1e3 * candidates
+        predictor = FMap.per_crossing_predictor(C_mm, tree, n_tx, n_rx, label_error_mm)
+        heldout = FMap.heldout_comparison(
+            labels_mm, images, n_tx, n_rx, C_mm, tree, predictor, label_error_mm,
+            random_state=random_state,
+        )  # fmt: skip
+        if heldout["fields_better"]:
+            fm = FMap.field_map(
+                labels_mm, images, n_tx, n_rx, C_mm, tree, heldout["best_centres"],
+                label_error_mm, n_boot, random_state,
+            )  # fmt: skip
+            pos, width, amp = fm.positions_mm, fm.footprint_mm, fm.peak
     rng = np.random.default_rng(random_state)
     boots = []
-    for _ in range(n_boot):
+    for _ in range(n_boot if fm is None else 0):
         pick = rng.choice(len(targets), len(targets), replace=True)  # repeats act as weights
         if jf is None:
             boots.append(_fit_once(targets[pick], images[pick], *fit_args)[0])
@@ -376,7 +336,9 @@ def estimate_sensor_map(
                 init_touches_mm=jf.touches_mm[pick],
             )  # fmt: skip
             boots.append(b.positions_mm)
-    if boots:
+    if fm is not None:
+        unc = fm.uncertainty_mm
+    elif boots:
         B = np.stack(boots)
         # Positions are searched over the discrete surface points, so a few resamples can all
         # land on the same point: add the rounding error of that grid (spacing s: s^2 / 6 on
@@ -390,7 +352,7 @@ def estimate_sensor_map(
     noise = np.full(n, np.nan) if noise_counts is None else np.asarray(noise_counts, float)
     status, line_status, line_gain = _flag(gain, noise, n_tx, n_rx)
     S = snapped.reshape(n_tx, n_rx, 3)
-    W = (1.0 / np.maximum(unc, 0.3) ** 2 if boots else np.ones(n)).reshape(n_tx, n_rx)
+    W = np.where(np.isfinite(unc), 1.0 / np.maximum(unc, 0.3) ** 2, 1.0).reshape(n_tx, n_rx)
     tx_paths = [line_path(S[i], W[i]) for i in range(n_tx)]
     rx_paths = [line_path(S[:, j], W[:, j]) for j in range(n_rx)]
     return SensorMap(
@@ -406,7 +368,8 @@ def estimate_sensor_map(
         rx_paths_m=rx_paths,
         line_status=line_status,
         line_gain=line_gain,
-        method="per-crossing" if jf is None else "joint",
+        method="joint" if jf is not None else "fields" if fm is not None else "per-crossing",
+        heldout=heldout,
     )
 
 

@@ -37,6 +37,7 @@ log = logging.getLogger(__name__)
 
 __all__ = [
     "many_skins",
+    "model_code_stamp",
     "online_bench",
     "single_stream",
     "touch_stream",
@@ -50,8 +51,36 @@ def _noop(label: str, done: int, total: int) -> None:
     pass
 
 
+#: Subpackages whose code decides what a trained benchmark model is (simulation, training,
+#: the model's arrays); the live path and its front ends do not.
+_MODEL_CODE = ("calibration", "data", "evaluation", "geometry", "models", "sensors", "sim")
+
+
+def model_code_stamp() -> str:
+    """A hash of the code that simulates and trains the benchmark models (16 hex digits).
+
+    A cached model trained by other code (before a model gained its amplitude map and
+    calibrated count rule, say) would time another search than the one users run.
+    """
+    import hashlib
+
+    import skinloc
+
+    root = Path(skinloc.__file__).parent
+    h = hashlib.sha256()
+    for sub in _MODEL_CODE:
+        for f in sorted((root / sub).rglob("*.py")):
+            h.update(f.relative_to(root).as_posix().encode())
+            h.update(f.read_bytes())
+    return h.hexdigest()[:16]
+
+
 def train_bench_models(folder: Path, archs: tuple[str, ...], step: Step = _noop) -> dict[str, Path]:
-    """Simulate a calibration (80 touches) and train each architecture; cached in ``folder``."""
+    """Simulate a calibration (80 touches) and train each architecture; cached in ``folder``.
+
+    The cache holds while the code that trains them is unchanged (``model_code_stamp``, kept
+    in ``folder / "code-stamp"``); otherwise the calibration and the models are made again.
+    """
     from skinloc.calibration.session import SessionConfig, simulate_session
     from skinloc.evaluation.scoring import train_localizer
     from skinloc.geometry.mesh import cone_skin
@@ -60,6 +89,13 @@ def train_bench_models(folder: Path, archs: tuple[str, ...], step: Step = _noop)
     folder.mkdir(parents=True, exist_ok=True)
     cal_path = folder / "cal.h5"
     paths = {a: folder / f"{a}.h5" for a in archs}
+    stamp_path = folder / "code-stamp"
+    stamp = model_code_stamp()
+    if not stamp_path.is_file() or stamp_path.read_text().strip() != stamp:
+        # made by other code: a cache only, made again (never a user's file)
+        for p in (cal_path, *(folder / f"{a}.h5" for a in ("default", "mlp", "paper", *archs))):
+            p.unlink(missing_ok=True)
+        stamp_path.write_text(stamp + "\n")
     if all(p.is_file() for p in paths.values()):
         return paths
     mesh = cone_skin()
@@ -322,12 +358,15 @@ def many_skins(
     duration_s: float = 30.0,
     random_state: int = 0,
     sinks: tuple[str, ...] = (),
+    max_contacts: int | None = None,
 ) -> dict:
     """``n_skins`` pipelines at ``rate_hz`` each from one process, fed through ptys.
 
     ``sinks``: sink specs every skin's contacts go to (``ros2``: plain DDS on loopback, no
     subscriber). End-to-end times are taken after the sinks, so they include what the loop
     pays for them (for ``ros2``, the enqueue; its publisher thread's CPU is in ``sink_stats``).
+    ``max_contacts``: contacts per frame each pipeline looks for (``PipelineConfig``'s; ``None``:
+    its default).
     """
     from skinloc.live.core import PipelineConfig
     from skinloc.live.runner import Runner, SkinSpec
@@ -343,13 +382,15 @@ def many_skins(
     try:
         names = parent.recv()
         fast = load_engine(model_path)
+        extra = {} if max_contacts is None else {"max_contacts": int(max_contacts)}
+        config = PipelineConfig(baseline_frames=50, **extra)
         specs = [
             SkinSpec(
                 model=fast,
                 source=name,
                 name=f"skin{i:03d}",
                 wire_format="binary",
-                config=PipelineConfig(baseline_frames=50),
+                config=config,
             )
             for i, name in enumerate(names)
         ]
@@ -420,6 +461,7 @@ def many_skins(
         "feeder_write_errors": report["write_errors"],
         "model": str(model_path),
         "sinks": list(sinks),
+        "max_contacts": config.max_contacts,
         # the publisher threads: frames queued, dropped (queue full), sent; their CPU s
         "sink_stats": sink_stats,
         "sink_frames_dropped": int(sum(v["dropped"] for v in sink_stats.values())),

@@ -39,9 +39,14 @@ def main() -> None:
         choices=(1, 2, 3),
         help="contacts per frame of every pipeline; several values alternate in each repeat",
     )
+    ap.add_argument(
+        "--workers", type=int, default=1, help="runner processes, the skins shared among them"
+    )
     ap.add_argument("--skip-sink-cost", action="store_true", help="only the 100-skin runs")
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()
+    if not 1 <= args.workers <= args.skins:
+        ap.error(f"--workers must be 1..{args.skins} (the skins), got {args.workers}")
     folder = Path(tempfile.gettempdir()) / "skinloc-bench" / "online-models"
     model = train_bench_models(folder, ("default",))["default"]
     res: dict = {
@@ -60,7 +65,15 @@ def main() -> None:
     ]
     for rep in range(args.repeats):
         for k, label, sinks in settings:
-            r = many_skins(model, args.skins, 100.0, args.duration, sinks=sinks, max_contacts=k)
+            r = many_skins(
+                model,
+                args.skins,
+                100.0,
+                args.duration,
+                sinks=sinks,
+                max_contacts=k,
+                workers=args.workers,
+            )
             r["load_average_after"] = os.getloadavg()
             res.setdefault("many_skins", {}).setdefault(label, []).append(r)
             print(

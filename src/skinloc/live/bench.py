@@ -11,17 +11,16 @@ Figures (docs/benchmarks.md, "Live pipeline"):
 * single-stream frames/s: the same ``feed`` back to back;
 * batched frames/s: the engine's ``predict_batch`` on 200,000 touched frames, against the same
   baseline on the same batch;
-* 100 skins at 100 Hz: a feeder process writes every skin's frames to its own pseudo-terminal
-  on schedule; one ``Runner`` reads all of them; latency from the bytes' arrival to the
-  contact, and end to end from the frame's scheduled write time; once more with the ROS 2
-  sink on (plain DDS, loopback);
+* 100 skins at 100 Hz (``skinloc.live.bench_skins``): a feeder process writes every skin's
+  frames to its own pseudo-terminal on schedule; one ``Runner`` reads all of them (or one per
+  worker process); latency from the bytes' arrival to the contact, and end to end from the
+  frame's scheduled write time; once more with the ROS 2 sink on (plain DDS, loopback);
 * publishing cost per contact of the sinks (``skinloc.live.bench_sinks``).
 """
 
 from __future__ import annotations
 
 import logging
-import multiprocessing as mp
 import os
 import tempfile
 import time
@@ -31,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from skinloc.live.bench_sinks import bench_domain
+from skinloc.live.bench_skins import many_skins
 
 log = logging.getLogger(__name__)
 
@@ -300,174 +299,6 @@ def single_stream(model_path: Path, n_frames: int = 20000, random_state: int = 0
         "batch_frames_per_s": len(batch) / batch_s,
         "baseline_batch_frames_per_s": len(batch) / plain_batch_s,
         "batch_ratio": plain_batch_s / batch_s,
-    }
-
-
-# --------------------------------------------------------------------------------------------
-# many skins
-
-
-def _feeder(conn: Any, n_skins: int, rate_hz: float, duration_s: float, frames: np.ndarray) -> None:
-    """Child process: one pty per skin, frames written on schedule (staggered phases)."""
-    import pty
-    import tty
-
-    from skinloc.hardware.wire import encode_binary
-
-    masters, names = [], []
-    for _ in range(n_skins):
-        m, s = pty.openpty()
-        tty.setraw(s)
-        names.append(os.ttyname(s))
-        os.close(s)
-        os.set_blocking(m, False)
-        masters.append(m)
-    conn.send(names)
-    t0 = conn.recv()  # the parent has opened every port
-    period = 1.0 / rate_hz
-    n_per = int(duration_s * rate_hz)
-    late = 0
-    written = np.zeros(n_skins, dtype=np.int64)
-    failed = 0
-    order = [(k, s) for k in range(n_per) for s in range(n_skins)]
-    L = len(frames)
-    for k, s in order:
-        due = t0 + k * period + s * period / n_skins
-        wait = due - time.monotonic()
-        if wait > 0:
-            time.sleep(wait)
-        elif wait < -0.002:
-            late += 1
-        data = encode_binary(frames[(k + 37 * s) % L], 8, 8, k)
-        try:
-            os.write(masters[s], data)
-            written[s] += 1
-        except OSError:
-            failed += 1
-    time.sleep(0.5)
-    conn.send({"written": written.tolist(), "late_over_2ms": late, "write_errors": failed})
-    conn.recv()
-    for m in masters:
-        os.close(m)
-
-
-def many_skins(
-    model_path: Path,
-    n_skins: int = 100,
-    rate_hz: float = 100.0,
-    duration_s: float = 30.0,
-    random_state: int = 0,
-    sinks: tuple[str, ...] = (),
-    max_contacts: int | None = None,
-) -> dict:
-    """``n_skins`` pipelines at ``rate_hz`` each from one process, fed through ptys.
-
-    ``sinks``: sink specs every skin's contacts go to (``ros2``: plain DDS on loopback, no
-    subscriber). End-to-end times are taken after the sinks, so they include what the loop
-    pays for them (for ``ros2``, the enqueue; its publisher thread's CPU is in ``sink_stats``).
-    ``max_contacts``: contacts per frame each pipeline looks for (``PipelineConfig``'s; ``None``:
-    its default).
-    """
-    from skinloc.live.core import PipelineConfig
-    from skinloc.live.runner import Runner, SkinSpec
-    from skinloc.models.engine import load_engine
-
-    frames, _ = touch_stream(3000, random_state=random_state)
-    ctx = mp.get_context("spawn")
-    parent, child = ctx.Pipe()
-    proc = ctx.Process(
-        target=_feeder, args=(child, n_skins, rate_hz, duration_s, frames), daemon=True
-    )
-    proc.start()
-    try:
-        names = parent.recv()
-        fast = load_engine(model_path)
-        extra = {} if max_contacts is None else {"max_contacts": int(max_contacts)}
-        config = PipelineConfig(baseline_frames=50, **extra)
-        specs = [
-            SkinSpec(
-                model=fast,
-                source=name,
-                name=f"skin{i:03d}",
-                wire_format="binary",
-                config=config,
-            )
-            for i, name in enumerate(names)
-        ]
-        lat: list[float] = []
-        e2e: list[float] = []
-        phase = {f"skin{i:03d}": i / (rate_hz * n_skins) for i in range(n_skins)}
-        holder: dict[str, float] = {}
-
-        def on_contact(c: Any) -> None:
-            now = time.monotonic()
-            lat.append(c.latency_us)
-            e2e.append(now - (holder["t0"] + c.index / rate_hz + phase[c.skin]))
-
-        sink_objs: list[Any] = []
-        for spec in sinks:
-            if spec.startswith("ros2"):
-                from skinloc.live.sinks.ros2 import Ros2Sink
-
-                sink_objs.append(Ros2Sink(domain_id=bench_domain(), backend="dds"))
-            else:
-                sink_objs.append(spec)
-        runner = Runner(specs, sinks=sink_objs, callback=on_contact)
-        runner.open()
-        t0 = time.monotonic() + 0.5
-        holder["t0"] = t0
-        parent.send(t0)
-        end = t0 + duration_s + 1.0
-        # CPU of the loop thread and of the whole process (Cyclone's own threads included):
-        # what the sinks cost, less sensitive than latency to other processes on the machine
-        cpu_thread0, cpu_proc0 = time.thread_time(), time.process_time()
-        while time.monotonic() < end:
-            runner._step(0.05)
-        cpu_thread = time.thread_time() - cpu_thread0
-        cpu_proc = time.process_time() - cpu_proc0
-        report = parent.recv()
-        for _ in range(20):
-            runner._step(0.01)
-        stats = runner.stats()
-        runner.close()  # the ROS 2 sink publishes what is queued and joins its thread
-        sink_stats = {
-            getattr(s, "name", str(s)): s.stats() for s in sink_objs if hasattr(s, "stats")
-        }
-        parent.send("done")
-    finally:
-        proc.join(10)
-        if proc.is_alive():
-            proc.terminate()
-    frames_in = [s["frames"] for s in stats]
-    wire = [s.get("wire", {}) for s in stats]
-    sent = report["written"]
-    return {
-        "skins": n_skins,
-        "rate_hz": rate_hz,
-        "duration_s": duration_s,
-        "frames_sent": int(sum(sent)),
-        "frames_processed": int(sum(frames_in)),
-        "frames_dropped": int(sum(sent) - sum(frames_in)),
-        "parser_dropped_or_lost": int(
-            sum(w.get("n_dropped", 0) + w.get("n_lost", 0) + w.get("n_corrupted", 0) for w in wire)
-        ),
-        "contacts": len(lat),
-        "latency_median_us": float(np.median(lat)) if lat else None,
-        "latency_p99_us": float(np.percentile(lat, 99)) if lat else None,
-        "latency_max_us": float(np.max(lat)) if lat else None,
-        "end_to_end_median_us": float(np.median(e2e)) * 1e6 if e2e else None,
-        "end_to_end_p99_us": float(np.percentile(e2e, 99)) * 1e6 if e2e else None,
-        "feeder_writes_late_over_2ms": report["late_over_2ms"],
-        "feeder_write_errors": report["write_errors"],
-        "model": str(model_path),
-        "sinks": list(sinks),
-        "max_contacts": config.max_contacts,
-        # the publisher threads: frames queued, dropped (queue full), sent; their CPU s
-        "sink_stats": sink_stats,
-        "sink_frames_dropped": int(sum(v["dropped"] for v in sink_stats.values())),
-        "loop_thread_cpu_s": cpu_thread,
-        "process_cpu_s": cpu_proc,
-        "loop_cpu_us_per_frame": cpu_thread / max(sum(frames_in), 1) * 1e6,
     }
 
 

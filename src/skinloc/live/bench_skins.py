@@ -18,6 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from skinloc.live.bench_stream import touch_stream
+
 __all__ = ["many_skins"]
 
 
@@ -188,7 +190,6 @@ def many_skins(
     its default). ``workers``: 1, one ``Runner`` in this process; more, one per worker
     process over consecutive shares of the skins (loop CPU then summed over the workers).
     """
-    from skinloc.live.bench import touch_stream
     from skinloc.live.bench_sinks import bench_domain
 
     if not 1 <= workers <= n_skins:

@@ -47,3 +47,17 @@ def test_benchmark_models_trained_by_other_code_are_made_again(tmp_path):
 def test_model_code_stamp_is_stable():
     a = model_code_stamp()
     assert a == model_code_stamp() and len(a) == 16 and int(a, 16) >= 0
+
+
+def test_many_skins_in_worker_processes_with_the_ros2_sink(monkeypatch):
+    from skinloc.live.bench_sinks import LOOPBACK_DDS
+
+    monkeypatch.setenv("CYCLONEDDS_URI", LOOPBACK_DDS)
+    m = many_skins(
+        model_path("map"), n_skins=2, rate_hz=50.0, duration_s=1.5, sinks=("ros2",), workers=2
+    )
+    # one sink per worker process, their statistics summed
+    st = m["sink_stats"]["ros2"]
+    assert m["workers"] == 2 and m["frames_processed"] > 0
+    assert st["queued"] > 0 and st["sent"] == st["queued"] and st["pending"] == 0
+    assert m["sink_frames_dropped"] == 0 and st["cpu_s"] > 0

@@ -37,6 +37,10 @@ def test_benchmark_models_trained_by_other_code_are_made_again(tmp_path):
     (tmp_path / "code-stamp").write_text("0123456789abcdef\n")
     assert train_bench_models(tmp_path, ()) == {}  # nothing asked: nothing trained
     assert not stale.exists() and not (tmp_path / "cal.h5").exists()
+    # set aside, not deleted
+    aside = tmp_path / "older-0123456789abcdef"
+    assert (aside / "default.h5").read_bytes() == b"a model trained by older code"
+    assert (aside / "cal.h5").read_bytes() == b"an older calibration"
     assert (tmp_path / "code-stamp").read_text().strip() == model_code_stamp()
     # the same code: the cache holds
     stale.write_bytes(b"current")

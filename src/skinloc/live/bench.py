@@ -79,7 +79,8 @@ def train_bench_models(folder: Path, archs: tuple[str, ...], step: Step = _noop)
     """Simulate a calibration (80 touches) and train each architecture; cached in ``folder``.
 
     The cache holds while the code that trains them is unchanged (``model_code_stamp``, kept
-    in ``folder / "code-stamp"``); otherwise the calibration and the models are made again.
+    in ``folder / "code-stamp"``); otherwise the calibration and the models are moved to
+    ``folder / "older-<stamp>"`` and made again.
     """
     from skinloc.calibration.session import SessionConfig, simulate_session
     from skinloc.evaluation.scoring import train_localizer
@@ -91,10 +92,15 @@ def train_bench_models(folder: Path, archs: tuple[str, ...], step: Step = _noop)
     paths = {a: folder / f"{a}.h5" for a in archs}
     stamp_path = folder / "code-stamp"
     stamp = model_code_stamp()
-    if not stamp_path.is_file() or stamp_path.read_text().strip() != stamp:
-        # made by other code: a cache only, made again (never a user's file)
+    old = stamp_path.read_text().strip() if stamp_path.is_file() else "unstamped"
+    if old != stamp:
+        # made by other code: set aside (never deleted: ``folder`` may be under a user's --out)
+        # and made again
+        aside = folder / f"older-{old}"
         for p in (cal_path, *(folder / f"{a}.h5" for a in ("default", "mlp", "paper", *archs))):
-            p.unlink(missing_ok=True)
+            if p.is_file():
+                aside.mkdir(exist_ok=True)
+                p.replace(aside / p.name)
         stamp_path.write_text(stamp + "\n")
     if all(p.is_file() for p in paths.values()):
         return paths

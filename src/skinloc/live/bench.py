@@ -11,17 +11,16 @@ Figures (docs/benchmarks.md, "Live pipeline"):
 * single-stream frames/s: the same ``feed`` back to back;
 * batched frames/s: the engine's ``predict_batch`` on 200,000 touched frames, against the same
   baseline on the same batch;
-* 100 skins at 100 Hz: a feeder process writes every skin's frames to its own pseudo-terminal
-  on schedule; one ``Runner`` reads all of them; latency from the bytes' arrival to the
-  contact, and end to end from the frame's scheduled write time; once more with the ROS 2
-  sink on (plain DDS, loopback);
+* 100 skins at 100 Hz (``skinloc.live.bench_skins``): a feeder process writes every skin's
+  frames to its own pseudo-terminal on schedule; one ``Runner`` reads all of them (or one per
+  worker process); latency from the bytes' arrival to the contact, and end to end from the
+  frame's scheduled write time; once more with the ROS 2 sink on (plain DDS, loopback);
 * publishing cost per contact of the sinks (``skinloc.live.bench_sinks``).
 """
 
 from __future__ import annotations
 
 import logging
-import multiprocessing as mp
 import os
 import tempfile
 import time
@@ -31,12 +30,14 @@ from typing import Any
 
 import numpy as np
 
-from skinloc.live.bench_sinks import bench_domain
+from skinloc.live.bench_skins import many_skins
+from skinloc.live.bench_stream import touch_stream
 
 log = logging.getLogger(__name__)
 
 __all__ = [
     "many_skins",
+    "model_code_stamp",
     "online_bench",
     "single_stream",
     "touch_stream",
@@ -50,8 +51,37 @@ def _noop(label: str, done: int, total: int) -> None:
     pass
 
 
+#: Subpackages whose code decides what a trained benchmark model is (simulation, training,
+#: the model's arrays); the live path and its front ends do not.
+_MODEL_CODE = ("calibration", "data", "evaluation", "geometry", "models", "sensors", "sim")
+
+
+def model_code_stamp() -> str:
+    """A hash of the code that simulates and trains the benchmark models (16 hex digits).
+
+    A cached model trained by other code (before a model gained its amplitude map and
+    calibrated count rule, say) would time another search than the one users run.
+    """
+    import hashlib
+
+    import skinloc
+
+    root = Path(skinloc.__file__).parent
+    h = hashlib.sha256()
+    for sub in _MODEL_CODE:
+        for f in sorted((root / sub).rglob("*.py")):
+            h.update(f.relative_to(root).as_posix().encode())
+            h.update(f.read_bytes())
+    return h.hexdigest()[:16]
+
+
 def train_bench_models(folder: Path, archs: tuple[str, ...], step: Step = _noop) -> dict[str, Path]:
-    """Simulate a calibration (80 touches) and train each architecture; cached in ``folder``."""
+    """Simulate a calibration (80 touches) and train each architecture; cached in ``folder``.
+
+    The cache holds while the code that trains them is unchanged (``model_code_stamp``, kept
+    in ``folder / "code-stamp"``); otherwise the calibration and the models are moved to
+    ``folder / "older-<stamp>"`` and made again.
+    """
     from skinloc.calibration.session import SessionConfig, simulate_session
     from skinloc.evaluation.scoring import train_localizer
     from skinloc.geometry.mesh import cone_skin
@@ -60,6 +90,18 @@ def train_bench_models(folder: Path, archs: tuple[str, ...], step: Step = _noop)
     folder.mkdir(parents=True, exist_ok=True)
     cal_path = folder / "cal.h5"
     paths = {a: folder / f"{a}.h5" for a in archs}
+    stamp_path = folder / "code-stamp"
+    stamp = model_code_stamp()
+    old = stamp_path.read_text().strip() if stamp_path.is_file() else "unstamped"
+    if old != stamp:
+        # made by other code: set aside (never deleted: ``folder`` may be under a user's --out)
+        # and made again
+        aside = folder / f"older-{old}"
+        for p in (cal_path, *(folder / f"{a}.h5" for a in ("default", "mlp", "paper", *archs))):
+            if p.is_file():
+                aside.mkdir(exist_ok=True)
+                p.replace(aside / p.name)
+        stamp_path.write_text(stamp + "\n")
     if all(p.is_file() for p in paths.values()):
         return paths
     mesh = cone_skin()
@@ -80,52 +122,6 @@ def train_bench_models(folder: Path, archs: tuple[str, ...], step: Step = _noop)
             step("online: training", i, len(archs))
             train_localizer([cal], arch=a, random_state=0).save(paths[a])
     return paths
-
-
-def touch_stream(
-    n_frames: int, *, random_state: int = 0, n_baseline: int = 100
-) -> tuple[np.ndarray, list[tuple[int, int, np.ndarray]]]:
-    """Raw frames ``(n, 64)`` uint16 of the simulated skin with a scripted finger.
-
-    ``n_baseline`` untouched frames, then touches of 0.6-1.5 s with pauses of 0.3-0.6 s at
-    100 Hz (about 75 % of frames touched). Returns the frames and the script
-    ``(first frame, last frame, contact (3,) m)``.
-    """
-    import dataclasses
-
-    from skinloc.geometry.mesh import sample_surface
-    from skinloc.sim.skin import SimulatedSkin, SkinParams
-
-    rng = np.random.default_rng(random_state)
-    # Firm touches only: the stream times the live path and checks its events; the light
-    # touches of a calibration (weak_touch_prob) can fall under its 8-sigma start threshold.
-    firm = dataclasses.replace(SkinParams.default(), weak_touch_prob=0.0)
-    skin = SimulatedSkin(params=firm, random_state=random_state)
-    skin.connect()
-    targets = sample_surface(skin.mesh, 512, rng)[0]
-    frames = np.empty((n_frames, skin.n_sensors), dtype=np.uint16)
-    script = []
-    k = 0
-    for k in range(min(n_baseline, n_frames)):
-        frames[k] = skin.read().values
-    k = min(n_baseline, n_frames)
-    while k < n_frames:
-        contact = skin.touch_near(targets[rng.integers(len(targets))], rng)
-        hold = int(rng.uniform(60, 150))
-        start = k
-        for _ in range(hold):
-            if k >= n_frames:
-                break
-            frames[k] = skin.read().values
-            k += 1
-        script.append((start, k - 1, contact))
-        skin.release()
-        for _ in range(int(rng.uniform(30, 60))):
-            if k >= n_frames:
-                break
-            frames[k] = skin.read().values
-            k += 1
-    return frames, script
 
 
 def _baseline_fn(model: Any) -> Callable[[np.ndarray], np.ndarray]:
@@ -264,168 +260,6 @@ def single_stream(model_path: Path, n_frames: int = 20000, random_state: int = 0
         "batch_frames_per_s": len(batch) / batch_s,
         "baseline_batch_frames_per_s": len(batch) / plain_batch_s,
         "batch_ratio": plain_batch_s / batch_s,
-    }
-
-
-# --------------------------------------------------------------------------------------------
-# many skins
-
-
-def _feeder(conn: Any, n_skins: int, rate_hz: float, duration_s: float, frames: np.ndarray) -> None:
-    """Child process: one pty per skin, frames written on schedule (staggered phases)."""
-    import pty
-    import tty
-
-    from skinloc.hardware.wire import encode_binary
-
-    masters, names = [], []
-    for _ in range(n_skins):
-        m, s = pty.openpty()
-        tty.setraw(s)
-        names.append(os.ttyname(s))
-        os.close(s)
-        os.set_blocking(m, False)
-        masters.append(m)
-    conn.send(names)
-    t0 = conn.recv()  # the parent has opened every port
-    period = 1.0 / rate_hz
-    n_per = int(duration_s * rate_hz)
-    late = 0
-    written = np.zeros(n_skins, dtype=np.int64)
-    failed = 0
-    order = [(k, s) for k in range(n_per) for s in range(n_skins)]
-    L = len(frames)
-    for k, s in order:
-        due = t0 + k * period + s * period / n_skins
-        wait = due - time.monotonic()
-        if wait > 0:
-            time.sleep(wait)
-        elif wait < -0.002:
-            late += 1
-        data = encode_binary(frames[(k + 37 * s) % L], 8, 8, k)
-        try:
-            os.write(masters[s], data)
-            written[s] += 1
-        except OSError:
-            failed += 1
-    time.sleep(0.5)
-    conn.send({"written": written.tolist(), "late_over_2ms": late, "write_errors": failed})
-    conn.recv()
-    for m in masters:
-        os.close(m)
-
-
-def many_skins(
-    model_path: Path,
-    n_skins: int = 100,
-    rate_hz: float = 100.0,
-    duration_s: float = 30.0,
-    random_state: int = 0,
-    sinks: tuple[str, ...] = (),
-) -> dict:
-    """``n_skins`` pipelines at ``rate_hz`` each from one process, fed through ptys.
-
-    ``sinks``: sink specs every skin's contacts go to (``ros2``: plain DDS on loopback, no
-    subscriber). End-to-end times are taken after the sinks, so they include what the loop
-    pays for them (for ``ros2``, the enqueue; its publisher thread's CPU is in ``sink_stats``).
-    """
-    from skinloc.live.core import PipelineConfig
-    from skinloc.live.runner import Runner, SkinSpec
-    from skinloc.models.engine import load_engine
-
-    frames, _ = touch_stream(3000, random_state=random_state)
-    ctx = mp.get_context("spawn")
-    parent, child = ctx.Pipe()
-    proc = ctx.Process(
-        target=_feeder, args=(child, n_skins, rate_hz, duration_s, frames), daemon=True
-    )
-    proc.start()
-    try:
-        names = parent.recv()
-        fast = load_engine(model_path)
-        specs = [
-            SkinSpec(
-                model=fast,
-                source=name,
-                name=f"skin{i:03d}",
-                wire_format="binary",
-                config=PipelineConfig(baseline_frames=50),
-            )
-            for i, name in enumerate(names)
-        ]
-        lat: list[float] = []
-        e2e: list[float] = []
-        phase = {f"skin{i:03d}": i / (rate_hz * n_skins) for i in range(n_skins)}
-        holder: dict[str, float] = {}
-
-        def on_contact(c: Any) -> None:
-            now = time.monotonic()
-            lat.append(c.latency_us)
-            e2e.append(now - (holder["t0"] + c.index / rate_hz + phase[c.skin]))
-
-        sink_objs: list[Any] = []
-        for spec in sinks:
-            if spec.startswith("ros2"):
-                from skinloc.live.sinks.ros2 import Ros2Sink
-
-                sink_objs.append(Ros2Sink(domain_id=bench_domain(), backend="dds"))
-            else:
-                sink_objs.append(spec)
-        runner = Runner(specs, sinks=sink_objs, callback=on_contact)
-        runner.open()
-        t0 = time.monotonic() + 0.5
-        holder["t0"] = t0
-        parent.send(t0)
-        end = t0 + duration_s + 1.0
-        # CPU of the loop thread and of the whole process (Cyclone's own threads included):
-        # what the sinks cost, less sensitive than latency to other processes on the machine
-        cpu_thread0, cpu_proc0 = time.thread_time(), time.process_time()
-        while time.monotonic() < end:
-            runner._step(0.05)
-        cpu_thread = time.thread_time() - cpu_thread0
-        cpu_proc = time.process_time() - cpu_proc0
-        report = parent.recv()
-        for _ in range(20):
-            runner._step(0.01)
-        stats = runner.stats()
-        runner.close()  # the ROS 2 sink publishes what is queued and joins its thread
-        sink_stats = {
-            getattr(s, "name", str(s)): s.stats() for s in sink_objs if hasattr(s, "stats")
-        }
-        parent.send("done")
-    finally:
-        proc.join(10)
-        if proc.is_alive():
-            proc.terminate()
-    frames_in = [s["frames"] for s in stats]
-    wire = [s.get("wire", {}) for s in stats]
-    sent = report["written"]
-    return {
-        "skins": n_skins,
-        "rate_hz": rate_hz,
-        "duration_s": duration_s,
-        "frames_sent": int(sum(sent)),
-        "frames_processed": int(sum(frames_in)),
-        "frames_dropped": int(sum(sent) - sum(frames_in)),
-        "parser_dropped_or_lost": int(
-            sum(w.get("n_dropped", 0) + w.get("n_lost", 0) + w.get("n_corrupted", 0) for w in wire)
-        ),
-        "contacts": len(lat),
-        "latency_median_us": float(np.median(lat)) if lat else None,
-        "latency_p99_us": float(np.percentile(lat, 99)) if lat else None,
-        "latency_max_us": float(np.max(lat)) if lat else None,
-        "end_to_end_median_us": float(np.median(e2e)) * 1e6 if e2e else None,
-        "end_to_end_p99_us": float(np.percentile(e2e, 99)) * 1e6 if e2e else None,
-        "feeder_writes_late_over_2ms": report["late_over_2ms"],
-        "feeder_write_errors": report["write_errors"],
-        "model": str(model_path),
-        "sinks": list(sinks),
-        # the publisher threads: frames queued, dropped (queue full), sent; their CPU s
-        "sink_stats": sink_stats,
-        "sink_frames_dropped": int(sum(v["dropped"] for v in sink_stats.values())),
-        "loop_thread_cpu_s": cpu_thread,
-        "process_cpu_s": cpu_proc,
-        "loop_cpu_us_per_frame": cpu_thread / max(sum(frames_in), 1) * 1e6,
     }
 
 

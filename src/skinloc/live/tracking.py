@@ -73,6 +73,12 @@ def frame_contacts(
     return out[None, 3:6], out[None, 0:3], np.full(1, math.nan), out[6:7]
 
 
+def _within(a: np.ndarray, b: np.ndarray, r: float) -> bool:
+    """Whether points ``a`` and ``b`` (3,) are at most ``r`` apart (m)."""
+    d0, d1, d2 = float(a[0] - b[0]), float(a[1] - b[1]), float(a[2] - b[2])
+    return d0 * d0 + d1 * d1 + d2 * d2 <= r * r
+
+
 def assign(tracks: np.ndarray, detections: np.ndarray, gate_m: float) -> list[tuple[int, int]]:
     """Pairs ``(track i, detection j)`` of least total distance, each pair within ``gate_m``.
 
@@ -180,8 +186,10 @@ class Tracker:
         confirm_frames: int,
         constrain: Callable[[float, float, float, np.ndarray], None],
         filter_params: np.ndarray | None,
+        settle_frames: int | None = None,
     ) -> None:
         self.max_contacts = int(max_contacts)
+        self.settle_frames = int(confirm_frames if settle_frames is None else settle_frames)
         self.gate_m = float(gate_mm) * 1e-3
         self.miss_frames = int(miss_frames)
         self.confirm_frames = int(confirm_frames)
@@ -236,10 +244,12 @@ class Tracker:
         events: list[tuple[Track, str]] = []
         matched: set[int] = set()
         if len(live) == 1 and k == 1 and not self.candidates:
-            # one finger, one contact (the common frame): the same finger, as in step 1's
-            # lone-pair rule; no assignment to compute
-            self._measure(live[0], ts, positions[0], raw[0], strength[0], uncertainty_mm[0])
-            return [(live[0], "move")]
+            t = live[0]
+            if t.seen < self.settle_frames or _within(t.last_m, positions[0], self.gate_m):
+                # one finger, one contact near it (the common frame), or a landing finger:
+                # the same finger, as in step 1; no assignment to compute
+                self._measure(t, ts, positions[0], raw[0], strength[0], uncertainty_mm[0])
+                return [(t, "move")]
         if live and k:
             prev = np.array([t.last_m for t in live])
             for i, j in assign(prev, positions, self.gate_m):
@@ -248,9 +258,11 @@ class Tracker:
                 matched.add(i)
             lone_t = [i for i in range(len(live)) if i not in matched]
             lone_d = [j for j in range(k) if not used[j]]
-            if len(lone_t) == 1 and len(lone_d) == 1:
-                # one finger left and one contact left: the same finger, whose position jumped
-                # (a weak or changing image), not a lift and a landing in the same frame
+            if len(lone_t) == 1 and len(lone_d) == 1 and live[lone_t[0]].seen < self.settle_frames:
+                # a landing finger (its first frames, a weak and changing image) and one contact
+                # left: the same finger, whose position jumped. Later, a contact beyond the gate
+                # is a second finger arriving (a finger cannot move that far in one frame): the
+                # track is held (missed) and the contact becomes a candidate
                 i, j = lone_t[0], lone_d[0]
                 self._measure(live[i], ts, positions[j], raw[j], strength[j], uncertainty_mm[j])
                 used[j] = True

@@ -9,11 +9,18 @@ and lift independently.
 Per frame, ``Tracker.update`` receives the contacts the localiser found (positions on the
 surface, strongest first) and:
 
+0. while a touch has one track and the localiser reports one contact, the pair prior
+   (``skinloc.live.pair_prior``, optional) may replace that contact by two: a second finger
+   the per-frame count missed, seen in the anchored two-contact fit over several frames;
 1. matches them to the live tracks by distance (the smallest total distance, each pair within
    ``gate_mm``; straight-line distance, which on a skin is the distance along the surface to
    within 2 % for the few centimetres a finger moves between frames); when one track and one
-   contact are left over, they are matched whatever their distance (the localiser jumped on a
-   weak image: a finger lifting and another landing in the same frame is far rarer);
+   contact are left over and the track is still landing (fewer than ``settle_frames`` frames:
+   its image weak, the localiser jumping), they are matched whatever their distance. A
+   settled track never follows a contact beyond the gate (a finger does not move 30 mm in one
+   frame: that is a second finger arriving, the first one lifting beside it, or a slip of a
+   weakening image): the track is held, and the contact is a candidate (step 3); if that
+   candidate becomes a track, the held one ends;
 2. a live track with no match keeps its slot and last position for ``miss_frames`` frames (a
    contact the localiser misses for one frame does not end the finger), then ends;
 3. a contact with no match is a candidate finger; it becomes a track (``start``) when seen in
@@ -30,10 +37,14 @@ import itertools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from skinloc.live.one_euro import one_euro
+
+if TYPE_CHECKING:
+    from skinloc.live.pair_prior import PairPrior
 
 __all__ = ["Track", "Tracker", "assign", "frame_contacts"]
 
@@ -145,6 +156,8 @@ class Track:
         Consecutive frames matched (candidates: towards ``confirm_frames``).
     missed : int
         Consecutive frames unmatched.
+    start_s : float
+        When the track started (its first frame as a candidate), s.
     """
 
     slot: int = -1
@@ -156,6 +169,7 @@ class Track:
     uncertainty_mm: float = math.nan
     seen: int = 0
     missed: int = 0
+    start_s: float = math.nan
     filt: np.ndarray = field(default_factory=lambda: np.zeros(8))
 
 
@@ -176,6 +190,10 @@ class Tracker:
         Puts a point back onto the surface (``Engine.constrain_into``).
     filter_params : (3,) float or None
         One-Euro ``[min_cutoff_hz, beta s/m, d_cutoff_hz]``; None: no filter.
+    settle_frames : int, optional
+        Frames a landing track may jump beyond the gate (default ``confirm_frames``).
+    pair : PairPrior, optional
+        The second-finger prior (``skinloc.live.pair_prior``); None: the localiser's count.
     """
 
     def __init__(
@@ -187,6 +205,7 @@ class Tracker:
         constrain: Callable[[float, float, float, np.ndarray], None],
         filter_params: np.ndarray | None,
         settle_frames: int | None = None,
+        pair: PairPrior | None = None,
     ) -> None:
         self.max_contacts = int(max_contacts)
         self.settle_frames = int(confirm_frames if settle_frames is None else settle_frames)
@@ -197,6 +216,7 @@ class Tracker:
         self._prm = filter_params
         self.slots: list[Track | None] = [None] * self.max_contacts
         self.candidates: list[Track] = []
+        self.pair = pair
         self.next_id = 1
         self._tmp = np.zeros(3)
 
@@ -211,6 +231,8 @@ class Tracker:
         t.raw_m[:] = raw
         t.last_m[:] = pos
         t.strength, t.uncertainty_mm = float(s), float(u)
+        if t.seen == 0:
+            t.start_s = ts
         t.seen += 1
         t.missed = 0
         if self._prm is None:
@@ -240,9 +262,22 @@ class Tracker:
         """
         live = [t for t in self.slots if t is not None]
         k = len(positions)
+        pair_second = -1
+        if self.pair is not None:
+            if k == 1 and live and new_fingers:
+                got = self.pair.step(ts, live, positions[0])
+                if got is not None:
+                    positions = raw = got
+                    strength = np.array([strength[0], math.nan])
+                    uncertainty_mm = np.array([uncertainty_mm[0], math.nan])
+                    k = 2
+                    pair_second = 1 if len(live) == 1 else -1
+            else:
+                self.pair.reset()
         used = [False] * k
         events: list[tuple[Track, str]] = []
         matched: set[int] = set()
+        held: Track | None = None
         if len(live) == 1 and k == 1 and not self.candidates:
             t = live[0]
             if t.seen < self.settle_frames or _within(t.last_m, positions[0], self.gate_m):
@@ -258,17 +293,22 @@ class Tracker:
                 matched.add(i)
             lone_t = [i for i in range(len(live)) if i not in matched]
             lone_d = [j for j in range(k) if not used[j]]
-            if len(lone_t) == 1 and len(lone_d) == 1 and live[lone_t[0]].seen < self.settle_frames:
-                # a landing finger (its first frames, a weak and changing image) and one contact
-                # left: the same finger, whose position jumped. Later, a contact beyond the gate
-                # is a second finger arriving (a finger cannot move that far in one frame): the
-                # track is held (missed) and the contact becomes a candidate
+            if len(lone_t) == 1 and len(lone_d) == 1:
                 i, j = lone_t[0], lone_d[0]
-                self._measure(live[i], ts, positions[j], raw[j], strength[j], uncertainty_mm[j])
-                used[j] = True
-                matched.add(i)
+                if live[i].seen < self.settle_frames:
+                    # a landing finger (its first frames, a weak and changing image) and one
+                    # contact left: the same finger, whose position jumped
+                    self._measure(live[i], ts, positions[j], raw[j], strength[j], uncertainty_mm[j])
+                    used[j] = True
+                    matched.add(i)
+                else:
+                    # a settled finger does not move that far in one frame: the contact is a
+                    # second finger arriving, or a slip of a weakening image. The track is
+                    # held, not missed, until the contact's candidate is confirmed (then it
+                    # ends: the other finger took over) or the contact comes back
+                    held = live[i]
         for i, t in enumerate(live):
-            if i in matched:
+            if i in matched or t is held:
                 events.append((t, "move"))
                 continue
             t.missed += 1
@@ -293,6 +333,11 @@ class Tracker:
                 c = Track()
                 self._measure(c, ts, positions[j], raw[j], strength[j], uncertainty_mm[j])
                 keep.append(c)
+        if pair_second >= 0:
+            # the anchored pair has held for its frames: that finger is confirmed
+            for c in keep:
+                if np.array_equal(c.last_m, positions[pair_second]):
+                    c.seen = max(c.seen, self.confirm_frames)
         self.candidates = []
         # On a touch's first frame its strongest contact starts at once (the detector has
         # debounced the touch); any other contact, like every later finger, must last.
@@ -304,6 +349,11 @@ class Tracker:
                 self.next_id += 1
                 self.slots[c.slot] = c
                 events.append((c, "start"))
+                if held is not None:
+                    self.slots[held.slot] = None
+                    events.remove((held, "move"))
+                    events.append((held, "end"))
+                    held = None
             else:
                 self.candidates.append(c)
         events.sort(key=lambda e: e[0].slot)
@@ -311,6 +361,8 @@ class Tracker:
 
     def end_all(self) -> list[Track]:
         """End every track (the touch ended); returns them by slot and frees every slot."""
+        if self.pair is not None:
+            self.pair.reset()
         out = [t for t in self.slots if t is not None]
         self.slots = [None] * self.max_contacts
         self.candidates = []

@@ -1,0 +1,115 @@
+"""A second finger the per-frame count misses: the two-contact fit weighed over frames.
+
+The multi-contact search decides one frame at a time whether an image holds one finger or two,
+and on the simulated two-finger taps it sees one in about half of them (docs/multitouch.md).
+The tracker knows where the first finger is. ``PairPrior`` asks, while a touch has one track
+and the search reports one contact, for the two-contact fit anchored at that contact
+(``skinloc.models.contact_refit``), and:
+
+* **starts** a second finger when, within ``window_s`` of the first finger's landing, the fit
+  has been better than one contact by ``start_ratio`` (relative residual reduction) with its
+  weaker contact at ``start_z`` noise levels or more in ``start_frames`` consecutive frames,
+  its second contact staying within ``consistent_mm`` from frame to frame (a finger stays put;
+  the second contact of a single finger's fit wanders or straddles it);
+* **keeps** two fingers, once there are two tracks and the search is back to one contact,
+  while the anchored fit stays better than one by the lower ``keep_ratio`` and ``keep_z``
+  (hysteresis: the evidence that started a finger need not be repeated each frame), up to
+  ``keep_s`` after the first landing (a tap's length: after it, a finger only the prior saw
+  ends, and the recogniser takes such a brief second touch within a long one as a piece of
+  the long one's image).
+
+Only the touch's first moments are searched: that is when the second finger of a two-finger
+tap lands, and it keeps the cost (a fit of about 40 us) off long touches. The thresholds were
+set on simulated gesture streams of skin seeds 1-5 (docs/multitouch.md).
+
+Units: metres, seconds; ``consistent_mm`` in mm.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+__all__ = ["PairPrior", "PairRule", "pair_prior"]
+
+
+@dataclass(frozen=True)
+class PairRule:
+    """Thresholds of ``PairPrior`` (see the module's docstring)."""
+
+    window_s: float = 0.25
+    keep_s: float = 0.30
+    start_ratio: float = 0.15
+    start_z: float = 5.0
+    start_frames: int = 3
+    consistent_mm: float = 15.0
+    keep_ratio: float = 0.08
+    keep_z: float = 3.0
+
+
+class PairPrior:
+    """The anchored pair of each frame, weighed over frames.
+
+    Parameters
+    ----------
+    refit : PairRefit
+        The model's anchored two-contact fit (``skinloc.models.contact_refit``).
+    image : (n_features,) float32
+        The buffer holding the current frame's baseline-subtracted counts (read each frame).
+    rule : PairRule, optional
+        Thresholds.
+    """
+
+    def __init__(self, refit: Any, image: np.ndarray, rule: PairRule | None = None) -> None:
+        self.refit = refit
+        self.image = image
+        self.rule = PairRule() if rule is None else rule
+        self.run = 0
+        self._last = np.zeros(3)
+
+    def reset(self) -> None:
+        """Forget the evidence (the touch ended, or the search saw the fingers itself)."""
+        self.run = 0
+
+    def step(self, ts: float, live: Sequence[Any], contact_m: np.ndarray) -> np.ndarray | None:
+        """Two contacts ``(2, 3)`` m for this frame instead of ``contact_m``, or None.
+
+        ``live``: the live tracks (``start_s``); ``contact_m``: the search's one contact.
+        """
+        r = self.rule
+        n = len(live)
+        first_s = min(t.start_s for t in live)
+        if n > 2 or ts - first_s > (r.window_s if n == 1 else r.keep_s):
+            self.run = 0
+            return None
+        fit = self.refit.fit(self.image, contact_m)
+        if fit is None:
+            self.run = 0
+            return None
+        if n == 2:
+            if fit.ratio >= r.keep_ratio and fit.z2 >= r.keep_z:
+                return np.array([fit.first_m, fit.second_m])
+            return None
+        if not (fit.ratio >= r.start_ratio and fit.z2 >= r.start_z):
+            self.run = 0
+            return None
+        if self.run and math.dist(fit.second_m, self._last) > r.consistent_mm * 1e-3:
+            self.run = 0
+        self.run += 1
+        self._last[:] = fit.second_m
+        if self.run >= r.start_frames:
+            return np.array([fit.first_m, fit.second_m])
+        return None
+
+
+def pair_prior(engine: Any, image: np.ndarray, rule: PairRule | None = None) -> PairPrior | None:
+    """The prior for ``engine``, or None if its model has no multi-contact search."""
+    if not hasattr(engine, "search_tables"):
+        return None
+    from skinloc.models.contact_refit import PairRefit
+
+    return PairPrior(PairRefit(engine), image, rule)

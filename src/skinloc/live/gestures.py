@@ -41,6 +41,9 @@ __all__ = ["GestureConfig", "GestureRecognizer", "SkinFrame"]
 
 #: Points of a swipe's ``path_m`` at most (a longer path is subsampled evenly).
 MAX_PATH_POINTS = 64
+#: How long after the first finger a brief touch within it may lift and still be a piece of
+#: its image (``GestureRecognizer._main``), s.
+BRIEF_SLACK_S = 0.05
 
 
 @dataclass
@@ -252,8 +255,8 @@ class GestureRecognizer:
                 self._pending = pend = None
         if ep is None:
             return out
-        if not ep.done and len(ep.fingers) == 1:
-            f = ep.fingers[0]
+        f = self._main(ep) if not ep.done else None
+        if f is not None:
             still = f.max_from_first <= cfg.still_mm * 1e-3
             held = (f.end_s if f.ended else ts) - f.start_s
             if still and held >= cfg.long_press_s:
@@ -297,6 +300,26 @@ class GestureRecognizer:
         length = sum(steps)
         return length > 0.0 and steps[-1] + steps[-2] <= self.cfg.swipe_max_jump_frac * length
 
+    def _main(self, ep: _Episode) -> _Finger | None:
+        """The episode's one finger: its first, if every other is a brief touch within it.
+
+        A brief touch (lifted, at most ``tap_max_s``) that lands after the first finger and
+        lifts before it (within ``BRIEF_SLACK_S``) is taken as a piece of the first finger's
+        image that the localiser split off, so that it does not undo a long press or a swipe;
+        two fingers that both tap are a two-finger tap first (``_classify``).
+        """
+        fs = ep.fingers
+        f = fs[0]
+        for g in fs[1:]:
+            if not (
+                g.ended
+                and g.end_s - g.start_s <= self.cfg.tap_max_s
+                and g.start_s >= f.start_s
+                and (not f.ended or g.end_s <= f.end_s + BRIEF_SLACK_S)
+            ):
+                return None
+        return f
+
     def _could_pair(self, ep: _Episode, pend: _Finger) -> bool:
         """Whether episode ``ep`` may still be the second tap of the pending tap."""
         cfg = self.cfg
@@ -318,9 +341,10 @@ class GestureRecognizer:
         cfg = self.cfg
         out: list[dict[str, Any]] = []
         fs = ep.fingers
-        if len(fs) == 1:
-            f = fs[0]
-            if self._is_tap(f):
+        main = self._main(ep)
+        if main is not None and (len(fs) == 1 or not all(self._is_tap(g) for g in fs)):
+            f = main
+            if len(fs) == 1 and self._is_tap(f):
                 pend = self._pending
                 if pend is not None and self._could_pair(ep, pend):
                     self._pending = None
@@ -330,6 +354,10 @@ class GestureRecognizer:
                     self._pending = f
                 return out
             out += self._resolve_pending(ts)
+            if len(fs) > 1:
+                # a swipe is one finger: a brief second touch within a moving one is as likely
+                # the other finger of a two-finger tap the first track drifted towards
+                return out
             dist = math.dist(f.path[0], f.path[-1])
             dur = max(f.end_s - f.start_s, 1e-6)
             if (

@@ -358,3 +358,26 @@ def test_a_held_track_outlives_a_weak_image_whose_contact_wanders_far():
         assert np.allclose(tr.tracks[0].last_m, A)
     assert _step(tr, 0.08, A + 0.001) == [(1, 0, "move")]
     assert tr.next_id == 2
+
+
+def test_pair_prior_weighs_the_mean_of_its_window_not_each_frame():
+    # one weak frame between strong ones: the window's means still reach the thresholds
+    fits = [_Fit(0.5, 12.0, A, B), _Fit(0.05, 2.0, A, B), _Fit(0.5, 12.0, A, B)]
+    tr, _ = _pair_tracker(fits)
+    _step(tr, 0.0, A, start=True)
+    assert [len(_step(tr, k * 0.01, A)) for k in (1, 2, 3)] == [1, 1, 2]
+    # three frames just under on average: nothing
+    tr, _ = _pair_tracker([_Fit(0.14, 12.0, A, B)])
+    _step(tr, 0.0, A, start=True)
+    assert [len(_step(tr, k * 0.01, A)) for k in range(1, 8)] == [1] * 7
+
+
+def test_frames_where_the_search_saw_two_count_towards_the_pair():
+    # the search reports the second finger in one frame, the anchored fit in the next two:
+    # together three frames of evidence, and the candidate the search started is confirmed
+    tr, prior = _pair_tracker([_Fit(0.5, 12.0, A, B)])
+    _step(tr, 0.00, A, start=True)
+    _step(tr, 0.01, A, B)
+    assert prior.run == 1 and prior.refit.calls == 0
+    assert _step(tr, 0.02, A) == [(1, 0, "move")]
+    assert _step(tr, 0.03, A) == [(1, 0, "move"), (2, 1, "start")]

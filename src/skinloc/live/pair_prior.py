@@ -6,11 +6,13 @@ The tracker knows where the first finger is. ``PairPrior`` asks, while a touch h
 and the search reports one contact, for the two-contact fit anchored at that contact
 (``skinloc.models.contact_refit``), and:
 
-* **starts** a second finger when, within ``window_s`` of the first finger's landing, the fit
-  has been better than one contact by ``start_ratio`` (relative residual reduction) with its
-  weaker contact at ``start_z`` noise levels or more in ``start_frames`` consecutive frames,
-  its second contact staying within ``consistent_mm`` from frame to frame (a finger stays put;
-  the second contact of a single finger's fit wanders or straddles it);
+* **starts** a second finger when, within ``window_s`` of the first finger's landing, over
+  the last ``start_frames`` frames the fit has been better than one contact by ``start_ratio``
+  on average (relative residual reduction) with its weaker contact at ``start_z`` noise
+  levels on average, its second contact staying within ``consistent_mm`` from frame to frame
+  (a finger stays put; the second contact of a single finger's fit wanders); a frame in which
+  the search itself reports two contacts counts as one at the thresholds, with its contact
+  farthest from the track as the second (the search sees some fingers in some frames only);
 * **keeps** two fingers, once there are two tracks and the search is back to one contact,
   while the anchored fit stays better than one by the lower ``keep_ratio`` and ``keep_z``
   (hysteresis: the evidence that started a finger need not be repeated each frame), up to
@@ -70,10 +72,49 @@ class PairPrior:
         self.rule = PairRule() if rule is None else rule
         self.run = 0
         self._last = np.zeros(3)
+        n = max(int(self.rule.start_frames), 1)
+        self._ratio = np.zeros(n)
+        self._z = np.zeros(n)
 
     def reset(self) -> None:
-        """Forget the evidence (the touch ended, or the search saw the fingers itself)."""
+        """Forget the evidence (the touch ended)."""
         self.run = 0
+
+    def _window(self, ts: float, live: Sequence[Any]) -> bool:
+        r = self.rule
+        n = len(live)
+        if n == 0 or n > 2:
+            return False
+        first_s = min(t.start_s for t in live)
+        return ts - first_s <= (r.window_s if n == 1 else r.keep_s)
+
+    def _push(self, second_m: np.ndarray, ratio: float, z2: float) -> bool:
+        """One frame's evidence; whether the window's means reach the start thresholds."""
+        r = self.rule
+        if self.run and math.dist(second_m, self._last) > r.consistent_mm * 1e-3:
+            self.run = 0
+        i = self.run % len(self._ratio)
+        self._ratio[i], self._z[i] = ratio, z2
+        self.run += 1
+        self._last[:] = second_m
+        return (
+            self.run >= len(self._ratio)
+            and float(self._ratio.mean()) >= r.start_ratio
+            and float(self._z.mean()) >= r.start_z
+        )
+
+    def saw(self, ts: float, live: Sequence[Any], positions: np.ndarray) -> None:
+        """The search itself reported several contacts while one track is live.
+
+        Its contact farthest from the track counts as one frame of evidence at the start
+        thresholds (the search's own rule is stricter), so that a second finger the search
+        sees in some frames and the anchored fit in the others adds up.
+        """
+        if len(live) != 1 or not self._window(ts, live):
+            self.run = 0
+            return
+        d = np.linalg.norm(positions - live[0].last_m, axis=1)
+        self._push(positions[int(np.argmax(d))], self.rule.start_ratio, self.rule.start_z)
 
     def step(self, ts: float, live: Sequence[Any], contact_m: np.ndarray) -> np.ndarray | None:
         """Two contacts ``(2, 3)`` m for this frame instead of ``contact_m``, or None.
@@ -81,27 +122,18 @@ class PairPrior:
         ``live``: the live tracks (``start_s``); ``contact_m``: the search's one contact.
         """
         r = self.rule
-        n = len(live)
-        first_s = min(t.start_s for t in live)
-        if n > 2 or ts - first_s > (r.window_s if n == 1 else r.keep_s):
+        if not self._window(ts, live):
             self.run = 0
             return None
         fit = self.refit.fit(self.image, contact_m)
         if fit is None:
             self.run = 0
             return None
-        if n == 2:
+        if len(live) == 2:
             if fit.ratio >= r.keep_ratio and fit.z2 >= r.keep_z:
                 return np.array([fit.first_m, fit.second_m])
             return None
-        if not (fit.ratio >= r.start_ratio and fit.z2 >= r.start_z):
-            self.run = 0
-            return None
-        if self.run and math.dist(fit.second_m, self._last) > r.consistent_mm * 1e-3:
-            self.run = 0
-        self.run += 1
-        self._last[:] = fit.second_m
-        if self.run >= r.start_frames:
+        if self._push(fit.second_m, fit.ratio, fit.z2):
             return np.array([fit.first_m, fit.second_m])
         return None
 

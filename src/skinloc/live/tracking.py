@@ -272,6 +272,8 @@ class Tracker:
                     uncertainty_mm = np.array([uncertainty_mm[0], math.nan])
                     k = 2
                     pair_second = 1 if len(live) == 1 else -1
+            elif k > 1 and new_fingers:
+                self.pair.saw(ts, live, positions)
             else:
                 self.pair.reset()
         used = [False] * k

@@ -237,3 +237,13 @@ def test_new_thresholds_are_checked():
         GestureConfig(swipe_max_jump_frac=1.5)
     with pytest.raises(ValueError, match="landing_s"):
         GestureConfig(landing_s=0.5)
+
+
+def test_a_finger_drifting_until_the_second_is_found_is_still_in_a_two_finger_tap():
+    # one contact's fit to both fingers' image drifts 40 mm from the first landing until the
+    # second finger is found (within the sync window); from then on both rest: a two-finger tap
+    drift = lambda k: (0.0, 0.008 * min(k - 100, 5), 0.0)  # noqa: E731
+    ev = run(stream([(1, 0, 100, 115, drift), (2, 1, 105, 114, still(FAR))], 300))
+    assert [e["kind"] for e in ev] == ["two_finger_tap"]
+    # the same drift with no second finger is the finger moving: a swipe, not a tap
+    assert [e["kind"] for e in run(stream([(1, 0, 100, 115, drift)], 300))] == ["swipe"]

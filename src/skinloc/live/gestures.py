@@ -223,6 +223,12 @@ class GestureRecognizer:
                 ep = self._episode
                 if ep is None:
                     ep = self._episode = _Episode(c.timestamp_s)
+                for g in ep.fingers:
+                    if not g.ended and c.timestamp_s - g.start_s <= self.cfg.two_finger_sync_s:
+                        # until this finger was found, the other's positions were one
+                        # contact's fit to both fingers' image: its stillness starts now
+                        g.first = np.array(g.path[-1])
+                        g.max_from_first = 0.0
                 ep.fingers.append(f)
                 ep.active += 1
                 continue

@@ -10,9 +10,10 @@ over several frames.
 The fit is the search's (noise-whitened image, non-negative strengths, the same candidate
 tables and refinement): the anchor's nearest coarse candidate refined alone (the one-contact
 fit, gain ``g1``); every coarse candidate at least ``min_separation_mm`` from it tried as the
-second (2 x 2 NNLS); the best pair refined once, one contact at a time. Returned: the relative
-residual reduction ``(R1 - R2) / R2`` (``R_m = |xw|^2 - g_m``, floored at 1), the weaker
-contact's peak in noise levels (``z2``) and both places.
+second (2 x 2 NNLS; the correlations by two matrix-vector products); the best pair refined
+once, one contact at a time. Returned: the relative residual reduction ``(R1 - R2) / R2``
+(``R_m = |xw|^2 - g_m``, floored at 1), the weaker contact's peak in noise levels (``z2``)
+and both places.
 """
 
 from __future__ import annotations
@@ -80,26 +81,20 @@ def _anchored_pair(
             ca = c
     fi[0] = cfine[ca]
     g1 = _polish(1, fi, xw, xx, arrays, 0.0, S, 1)
+    # every coarse candidate against the image and against the anchored contact: two
+    # matrix-vector products (BLAS), then a 2 x 2 NNLS per candidate far enough
     ra = Ft[fi[0]]
-    gaa = 0.0
-    ba = 0.0
-    for j in range(k):
-        gaa += float(ra[j]) * float(ra[j])
-        ba += float(ra[j]) * float(xw[j])
+    gaa = float(np.dot(ra, ra))
+    ba = float(np.dot(ra, xw))
+    bc = np.dot(Ct, xw)
+    gc = np.dot(Ct, ra)
     bestg = -1.0
     cb = -1
     for c in range(C):
-        if not _far(Cpos[c], Fpos[fi[0]], min2):
+        bb = float(bc[c])
+        if bb <= 0.0 or not _far(Cpos[c], Fpos[fi[0]], min2):
             continue
-        row = Ct[c]
-        bb = 0.0
-        gab = 0.0
-        for j in range(k):
-            bb += float(row[j]) * float(xw[j])
-            gab += float(row[j]) * float(ra[j])
-        if bb <= 0.0:
-            continue
-        g, s1, s2 = _nnls2(gaa, gab, Cd[c], ba, bb)
+        g, s1, s2 = _nnls2(gaa, float(gc[c]), Cd[c], ba, bb)
         if g > bestg and s1 > 0.0 and s2 > 0.0:
             bestg = g
             cb = c

@@ -381,3 +381,19 @@ def test_frames_where_the_search_saw_two_count_towards_the_pair():
     assert prior.run == 1 and prior.refit.calls == 0
     assert _step(tr, 0.02, A) == [(1, 0, "move")]
     assert _step(tr, 0.03, A) == [(1, 0, "move"), (2, 1, "start")]
+
+
+def test_pair_prior_fits_at_most_max_fits_per_touch_whatever_the_timestamps():
+    # frames stamped 1 us apart (a replay as fast as it goes): the time window never closes,
+    # the cap on fits per touch does; a new touch may fit again
+    from skinloc.live.pair_prior import PairRule
+
+    tr, prior = _pair_tracker([_Fit(0.0, 0.0, A, B)], PairRule(max_fits=5))
+    _step(tr, 0.0, A, start=True)
+    for k in range(1, 20):
+        _step(tr, k * 1e-6, A)
+    assert prior.refit.calls == 5
+    tr.end_all()
+    _step(tr, 1.0, A, start=True)
+    _step(tr, 1.0 + 1e-6, A)
+    assert prior.refit.calls == 6

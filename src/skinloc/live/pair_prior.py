@@ -21,7 +21,10 @@ and the search reports one contact, for the two-contact fit anchored at that con
   the long one's image).
 
 Only the touch's first moments are searched: that is when the second finger of a two-finger
-tap lands, and it keeps the cost (a fit of about 40 us) off long touches. The thresholds were
+tap lands, and it keeps the cost (a fit of about 30-40 us) off long touches. ``max_fits``
+(30, the 0.30 s of ``keep_s`` at the skin's 100 Hz) caps the fits of one touch whatever the
+frame rate or the timestamps (a replay as fast as it goes, stamped with arrival times, fits
+a whole touch in 0.25 s). The thresholds were
 set on simulated gesture streams of skin seeds 1-5 (docs/multitouch.md).
 
 Units: metres, seconds; ``consistent_mm`` in mm.
@@ -51,6 +54,7 @@ class PairRule:
     consistent_mm: float = 15.0
     keep_ratio: float = 0.08
     keep_z: float = 3.0
+    max_fits: int = 30
 
 
 class PairPrior:
@@ -71,14 +75,20 @@ class PairPrior:
         self.image = image
         self.rule = PairRule() if rule is None else rule
         self.run = 0
+        self.fits = 0  # anchored fits asked in this touch
         self._last = np.zeros(3)
         n = max(int(self.rule.start_frames), 1)
         self._ratio = np.zeros(n)
         self._z = np.zeros(n)
 
     def reset(self) -> None:
-        """Forget the evidence (the touch ended)."""
+        """Forget the evidence gathered so far."""
         self.run = 0
+
+    def end_touch(self) -> None:
+        """The touch ended: forget the evidence and the fits counted."""
+        self.run = 0
+        self.fits = 0
 
     def _window(self, ts: float, live: Sequence[Any]) -> bool:
         r = self.rule
@@ -122,9 +132,10 @@ class PairPrior:
         ``live``: the live tracks (``start_s``); ``contact_m``: the search's one contact.
         """
         r = self.rule
-        if not self._window(ts, live):
+        if not self._window(ts, live) or self.fits >= r.max_fits:
             self.run = 0
             return None
+        self.fits += 1
         fit = self.refit.fit(self.image, contact_m)
         if fit is None:
             self.run = 0

@@ -364,7 +364,7 @@ class Tracker:
     def end_all(self) -> list[Track]:
         """End every track (the touch ended); returns them by slot and frees every slot."""
         if self.pair is not None:
-            self.pair.reset()
+            self.pair.end_touch()
         out = [t for t in self.slots if t is not None]
         self.slots = [None] * self.max_contacts
         self.candidates = []

@@ -14,9 +14,11 @@ For each skin seed: a calibration session of that skin (`skinloc simulate --poin
   the end of the double-tap window after its lift, for a long press the moment it has been held
   `long_press_s`, for the others the last lift (truth `end_s`).
 
-None of the seeds here set a threshold: the recogniser's thresholds are fixed in
-`skinloc.live.gestures.GestureConfig` (docs/live.md).
+The thresholds and rules (`skinloc.live.gestures.GestureConfig`, `skinloc.live.pair_prior.
+PairRule`, the tracker's gate) were set on skin seeds 1-5 (script seeds 6-10, the default
+`--seed 5` plus the skin seed); skin seeds 11-13 are for reporting only (docs/multitouch.md):
 
+    python bench/gesture_eval.py --skin-seeds 1 2 3 4 5 --gestures 60   # development
     python bench/gesture_eval.py --skin-seeds 11 12 13 --gestures 60 --out gesture-eval.json
 """
 

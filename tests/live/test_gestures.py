@@ -171,3 +171,79 @@ def test_config_is_checked():
         GestureConfig(tap_max_s=-1.0)
     with pytest.raises(ValueError, match="up"):
         SkinFrame(None, None, up=(0.0, 0.0, 0.0))
+
+
+# ------------------------------------------------------------- rules against the localiser's slips
+
+
+def landing(off, p, k0):
+    """At ``p``, except its first two frames at ``off`` (a weak landing image)."""
+    return lambda k: off if k < k0 + 2 else p
+
+
+def test_stillness_is_measured_after_the_landing():
+    # the first two frames 25 mm off (more than still_mm): still a tap and a long press
+    off = (0.025, 0.0, 0.0)
+    assert [e["kind"] for e in run(stream([(1, 0, 100, 112, landing(off, P, 100))], 200))] == [
+        "tap"
+    ]
+    ev = run(stream([(1, 0, 100, 190, landing(off, P, 100))], 250))
+    assert [e["kind"] for e in ev] == ["long_press"]
+    # after the landing the same 25 mm does count: not a tap
+    late = lambda k: off if 105 <= k < 107 else P  # noqa: E731
+    assert run(stream([(1, 0, 100, 112, late)], 200)) == []
+
+
+def test_a_path_that_leaps_is_no_swipe():
+    # 40 mm in 0.2 s, but 36 mm of it in one frame: a track jumping to another finger
+    leap = lambda k: P if k < 110 else (0.0, 0.036 + 0.0004 * (k - 110), 0.0)  # noqa: E731
+    assert run(stream([(1, 0, 100, 120, leap)], 200)) == []
+    steady = stream([(1, 0, 100, 120, line(P, (0.0, 0.04, 0.0), 100, 120))], 200)
+    assert [e["kind"] for e in run(steady)] == ["swipe"]
+
+
+def test_a_third_track_within_the_sync_window_is_still_a_two_finger_tap():
+    ev = run(
+        stream(
+            [
+                (1, 0, 100, 115, still(P)),
+                (2, 1, 104, 110, still(FAR)),
+                (3, 1, 112, 116, still(FAR)),
+            ],
+            300,
+        )
+    )
+    assert [e["kind"] for e in ev] == ["two_finger_tap"]
+    assert ev[0]["track_ids"] == [1, 2, 3]
+
+
+def test_a_brief_touch_within_a_long_press_does_not_undo_it():
+    ev = run(stream([(1, 0, 100, 200, still(P)), (2, 1, 110, 125, still(FAR))], 300))
+    assert [e["kind"] for e in ev] == ["long_press"]
+    # not brief (longer than a tap): two fingers held, nothing
+    assert run(stream([(1, 0, 100, 200, still(P)), (2, 1, 110, 150, still(FAR))], 300)) == []
+
+
+def test_a_swipe_is_one_finger():
+    two = stream(
+        [(1, 0, 100, 120, line(P, (0.0, 0.04, 0.0), 100, 120)), (2, 1, 105, 112, still(FAR))],
+        200,
+    )
+    assert run(two) == []
+
+
+def test_new_thresholds_are_checked():
+    with pytest.raises(ValueError, match="swipe_max_jump_frac"):
+        GestureConfig(swipe_max_jump_frac=1.5)
+    with pytest.raises(ValueError, match="landing_s"):
+        GestureConfig(landing_s=0.5)
+
+
+def test_a_finger_drifting_until_the_second_is_found_is_still_in_a_two_finger_tap():
+    # one contact's fit to both fingers' image drifts 40 mm from the first landing until the
+    # second finger is found (within the sync window); from then on both rest: a two-finger tap
+    drift = lambda k: (0.0, 0.008 * min(k - 100, 5), 0.0)  # noqa: E731
+    ev = run(stream([(1, 0, 100, 115, drift), (2, 1, 105, 114, still(FAR))], 300))
+    assert [e["kind"] for e in ev] == ["two_finger_tap"]
+    # the same drift with no second finger is the finger moving: a swipe, not a tap
+    assert [e["kind"] for e in run(stream([(1, 0, 100, 115, drift)], 300))] == ["swipe"]

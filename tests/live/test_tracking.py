@@ -203,3 +203,197 @@ def test_pipeline_config_checks_the_tracking_fields():
         PipelineConfig(track_miss_frames=-1)
     with pytest.raises(ValueError, match="gestures"):
         PipelineConfig(gestures="yes")
+
+
+# ------------------------------------------------------------------- jumps and the pair prior
+
+
+def test_a_settled_track_does_not_jump_to_a_far_contact_it_is_a_second_finger():
+    # settled (seen >= settle_frames = confirm = 2): a contact 50 mm away in the next frame is
+    # not the finger moving (that would be 5 m/s) but another one; the first is held, then ends
+    tr = _tracker()
+    _step(tr, 0.00, A, start=True)
+    _step(tr, 0.01, A)
+    assert _step(tr, 0.02, B) == [(1, 0, "move")]
+    assert np.allclose(tr.tracks[0].last_m, A)  # held, not moved to B
+    assert _step(tr, 0.03, B) == [(1, 0, "end"), (2, 1, "start")]  # B took over
+    assert np.allclose(tr.tracks[0].last_m, B)
+    # within the gate it is motion, even on the one-finger fast path
+    tr = _tracker()
+    _step(tr, 0.00, A, start=True)
+    _step(tr, 0.01, A)
+    near = A + np.array([0.02, 0.0, 0.0])
+    assert _step(tr, 0.02, near) == [(1, 0, "move")]
+    assert np.allclose(tr.tracks[0].last_m, near)
+
+
+def test_a_landing_track_may_jump_until_it_settles():
+    tr = _tracker(confirm=4)  # settle_frames defaults to confirm_frames
+    _step(tr, 0.00, A, start=True)
+    assert _step(tr, 0.01, B) == [(1, 0, "move")]
+    assert np.allclose(tr.tracks[0].last_m, B)
+    tr = Tracker(3, 30.0, 1, 4, lambda x, y, z, out: out.__setitem__(slice(None), (x, y, z)),
+                 None, settle_frames=1)  # fmt: skip
+    _step(tr, 0.00, A, start=True)
+    _step(tr, 0.01, B)
+    assert np.allclose(tr.tracks[0].last_m, A)
+
+
+class _Fit:
+    def __init__(self, ratio, z2, first, second):
+        self.ratio, self.z2 = ratio, z2
+        self.first_m, self.second_m = np.asarray(first, float), np.asarray(second, float)
+
+
+class _Refit:
+    """A scripted anchored fit: one ``_Fit`` (or None) per call."""
+
+    def __init__(self, fits):
+        self.fits = list(fits)
+        self.calls = 0
+
+    def fit(self, x, anchor):
+        f = self.fits[min(self.calls, len(self.fits) - 1)]
+        self.calls += 1
+        return f
+
+
+def _pair_tracker(fits, rule=None):
+    from skinloc.live.pair_prior import PairPrior
+
+    def constrain(x, y, z, out):
+        out[:] = (x, y, z)
+
+    prior = PairPrior(_Refit(fits), np.zeros(64, np.float32), rule)
+    return Tracker(3, 30.0, 1, 4, constrain, None, pair=prior), prior
+
+
+def test_pair_prior_starts_a_second_finger_after_consistent_frames_without_the_confirm_wait():
+    good = _Fit(0.5, 12.0, A, B)
+    tr, prior = _pair_tracker([good])
+    assert _step(tr, 0.00, A, start=True) == [(1, 0, "start")]
+    # frames 1, 2 of the evidence (start_frames = 3): nothing yet
+    assert _step(tr, 0.01, A) == [(1, 0, "move")]
+    assert _step(tr, 0.02, A) == [(1, 0, "move")]
+    # third consistent frame: the second finger starts at once (not after 4 more frames)
+    assert _step(tr, 0.03, A) == [(1, 0, "move"), (2, 1, "start")]
+    assert np.allclose(tr.slots[1].last_m, B)
+    # then kept while the anchored fit stays better than one (keep thresholds, lower)
+    prior.refit.fits = [_Fit(0.1, 4.0, A, B)]
+    assert _step(tr, 0.04, A) == [(1, 0, "move"), (2, 1, "move")]
+    # below the keep thresholds: the search's one contact only; the second finger ends
+    prior.refit.fits = [_Fit(0.01, 1.0, A, B)]
+    _step(tr, 0.05, A)
+    assert _step(tr, 0.06, A) == [(1, 0, "move"), (2, 1, "end")]
+
+
+def test_pair_prior_wants_a_second_contact_that_stays_put_strong_and_early():
+    # the second contact wandering (more than 15 mm between frames): never a finger
+    wander = [_Fit(0.5, 12.0, A, B + [0.0, 0.02 * (k % 2), 0.0]) for k in range(10)]
+    tr, _ = _pair_tracker(wander)
+    _step(tr, 0.0, A, start=True)
+    for k in range(1, 10):
+        assert _step(tr, k * 0.01, A) == [(1, 0, "move")]
+    # too weak (z2 under start_z), then too late (after window_s of the first landing)
+    tr, prior = _pair_tracker([_Fit(0.5, 3.0, A, B)])
+    _step(tr, 0.0, A, start=True)
+    for k in range(1, 6):
+        assert _step(tr, k * 0.01, A) == [(1, 0, "move")]
+    prior.refit.fits = [_Fit(0.5, 12.0, A, B)]
+    for k in range(30, 40):
+        assert _step(tr, k * 0.01, A) == [(1, 0, "move")]
+    # a frame without evidence restarts the count
+    tr, prior = _pair_tracker([_Fit(0.5, 12.0, A, B)] * 2 + [None] + [_Fit(0.5, 12.0, A, B)] * 5)
+    _step(tr, 0.0, A, start=True)
+    got = [len(_step(tr, k * 0.01, A)) for k in range(1, 7)]
+    assert got == [1, 1, 1, 1, 1, 2]
+
+
+def test_pair_prior_stays_out_of_the_way_when_the_search_sees_two_or_the_touch_releases():
+    tr, prior = _pair_tracker([_Fit(0.5, 12.0, A, B)])
+    _step(tr, 0.0, A, start=True)
+    _step(tr, 0.01, A, C)  # the search's own two contacts: no fit asked
+    assert prior.refit.calls == 0
+    p = np.array([A])
+    tr.update(0.02, p, p, np.ones(1), np.ones(1), new_fingers=False)
+    assert prior.refit.calls == 0
+
+
+def test_pipeline_with_a_real_model_finds_the_second_finger_the_search_missed():
+    # the scripted search says one contact; the image holds two fingers: the anchored fit on
+    # the model's own tables finds the second, and a two-finger tap is reported
+    engine = load_engine(model_path("map"))
+    t = engine.search_tables()
+    Fpos, Ft, w = t.arrays[7], t.arrays[6], t.arrays[0]
+    i = int(np.argmax(Fpos[:, 2]))
+    j = int(np.argmax(np.linalg.norm(Fpos - Fpos[i], axis=1) > 0.045))
+    img = 60.0 * (Ft[i].astype(float) + Ft[j].astype(float)) / w  # counts
+    rng = np.random.default_rng(3)
+    frames = 1000.0 + rng.normal(0, 2.0, (80, 64))
+    frames[55:70] += img
+    engine.contacts = _Scripted([[Fpos[i]]])
+    try:
+        core = SkinCore(engine, PipelineConfig(baseline_frames=50), name="s")
+        out = []
+        for k, f in enumerate(frames):
+            out += core.process_frame(f, k * 0.01, k)
+        core.flush_gestures()
+        ids = {c.track_id for c in out}
+        assert ids == {1, 2}
+        second = [c for c in out if c.track_id == 2 and c.state == "start"][0]
+        assert np.linalg.norm(np.subtract(second.raw_m, Fpos[j])) < 0.015
+        assert [g["kind"] for g in core.take_gestures()] == ["two_finger_tap"]
+    finally:
+        del engine.contacts
+
+
+def test_a_held_track_outlives_a_weak_image_whose_contact_wanders_far():
+    # the contact slips far for several frames, never twice in the same place: no candidate
+    # is confirmed, so the finger's track is held (not ended by misses) and goes on after
+    tr = _tracker(miss=1, confirm=2)
+    _step(tr, 0.00, A, start=True)
+    _step(tr, 0.01, A)
+    for k, p in enumerate([B, C, B, C, B]):
+        assert _step(tr, 0.02 + 0.01 * k, p) == [(1, 0, "move")]
+        assert np.allclose(tr.tracks[0].last_m, A)
+    assert _step(tr, 0.08, A + 0.001) == [(1, 0, "move")]
+    assert tr.next_id == 2
+
+
+def test_pair_prior_weighs_the_mean_of_its_window_not_each_frame():
+    # one weak frame between strong ones: the window's means still reach the thresholds
+    fits = [_Fit(0.5, 12.0, A, B), _Fit(0.05, 2.0, A, B), _Fit(0.5, 12.0, A, B)]
+    tr, _ = _pair_tracker(fits)
+    _step(tr, 0.0, A, start=True)
+    assert [len(_step(tr, k * 0.01, A)) for k in (1, 2, 3)] == [1, 1, 2]
+    # three frames just under on average: nothing
+    tr, _ = _pair_tracker([_Fit(0.14, 12.0, A, B)])
+    _step(tr, 0.0, A, start=True)
+    assert [len(_step(tr, k * 0.01, A)) for k in range(1, 8)] == [1] * 7
+
+
+def test_frames_where_the_search_saw_two_count_towards_the_pair():
+    # the search reports the second finger in one frame, the anchored fit in the next two:
+    # together three frames of evidence, and the candidate the search started is confirmed
+    tr, prior = _pair_tracker([_Fit(0.5, 12.0, A, B)])
+    _step(tr, 0.00, A, start=True)
+    _step(tr, 0.01, A, B)
+    assert prior.run == 1 and prior.refit.calls == 0
+    assert _step(tr, 0.02, A) == [(1, 0, "move")]
+    assert _step(tr, 0.03, A) == [(1, 0, "move"), (2, 1, "start")]
+
+
+def test_pair_prior_fits_at_most_max_fits_per_touch_whatever_the_timestamps():
+    # frames stamped 1 us apart (a replay as fast as it goes): the time window never closes,
+    # the cap on fits per touch does; a new touch may fit again
+    from skinloc.live.pair_prior import PairRule
+
+    tr, prior = _pair_tracker([_Fit(0.0, 0.0, A, B)], PairRule(max_fits=5))
+    _step(tr, 0.0, A, start=True)
+    for k in range(1, 20):
+        _step(tr, k * 1e-6, A)
+    assert prior.refit.calls == 5
+    tr.end_all()
+    _step(tr, 1.0, A, start=True)
+    _step(tr, 1.0 + 1e-6, A)
+    assert prior.refit.calls == 6

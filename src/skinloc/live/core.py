@@ -35,19 +35,14 @@ from skinloc.live.config import PipelineConfig, TouchState
 from skinloc.live.contact import Contact
 from skinloc.live.gestures import GestureConfig, GestureRecognizer, SkinFrame
 from skinloc.live.one_euro import one_euro as _one_euro
+from skinloc.live.pair_prior import pair_prior
 from skinloc.live.tracking import Track, Tracker, frame_contacts
 from skinloc.live.wire_input import WireInput
 from skinloc.models.engine import Engine, load_engine
 
 log = logging.getLogger(__name__)
 
-__all__ = [
-    "Contact",
-    "PipelineConfig",
-    "SkinCore",
-    "TouchState",
-    "load_fast_localizer",
-]
+__all__ = ["Contact", "PipelineConfig", "SkinCore", "TouchState", "load_fast_localizer"]
 
 
 # --------------------------------------------------------------------------------------------
@@ -162,6 +157,7 @@ class SkinCore(WireInput):
                 cfg.track_confirm_frames,
                 self.fast.constrain_into,
                 self._filt_prm if cfg.filter == "one-euro" else None,
+                pair=pair_prior(self.fast, self._delta),
             )
         self.gestures: list[dict[str, Any]] = []  # events due, collected by ``take_gestures``
         self._recognizer: GestureRecognizer | None = None

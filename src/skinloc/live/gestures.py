@@ -41,6 +41,9 @@ __all__ = ["GestureConfig", "GestureRecognizer", "SkinFrame"]
 
 #: Points of a swipe's ``path_m`` at most (a longer path is subsampled evenly).
 MAX_PATH_POINTS = 64
+#: How long after the first finger a brief touch within it may lift and still be a piece of
+#: its image (``GestureRecognizer._main``), s.
+BRIEF_SLACK_S = 0.05
 
 
 @dataclass
@@ -66,6 +69,12 @@ class GestureConfig:
         Slowest mean speed (that distance over the touch's duration) of a swipe, m/s.
     two_finger_sync_s : float
         Largest time between the two fingers' landings (and lifts) of a two-finger tap, s.
+    landing_s : float
+        A finger's first moments, s, whose positions (a weak, rising image) are not where it
+        settled: stillness is measured from its position at the end of them.
+    swipe_max_jump_frac : float
+        Largest share of a swipe's path length its two largest frame-to-frame steps may
+        take (a path that leaps is a track jumping to another finger, not a swipe).
     """
 
     tap_max_s: float = 0.30
@@ -76,6 +85,8 @@ class GestureConfig:
     swipe_min_mm: float = 30.0
     swipe_min_speed_m_s: float = 0.10
     two_finger_sync_s: float = 0.15
+    swipe_max_jump_frac: float = 0.5
+    landing_s: float = 0.03
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -86,6 +97,10 @@ class GestureConfig:
                 raise ValueError(f"GestureConfig.{f.name} must be finite, got {v!r}")
         if self.long_press_s <= self.tap_max_s:
             raise ValueError("GestureConfig.long_press_s must be longer than tap_max_s")
+        if self.swipe_max_jump_frac > 1.0:
+            raise ValueError("GestureConfig.swipe_max_jump_frac must be at most 1")
+        if self.landing_s >= self.tap_max_s:
+            raise ValueError("GestureConfig.landing_s must be shorter than tap_max_s")
         if self.swipe_min_mm <= self.still_mm:
             raise ValueError("GestureConfig.swipe_min_mm must be larger than still_mm")
 
@@ -208,15 +223,24 @@ class GestureRecognizer:
                 ep = self._episode
                 if ep is None:
                     ep = self._episode = _Episode(c.timestamp_s)
+                for g in ep.fingers:
+                    if not g.ended and c.timestamp_s - g.start_s <= self.cfg.two_finger_sync_s:
+                        # until this finger was found, the other's positions were one
+                        # contact's fit to both fingers' image: its stillness starts now
+                        g.first = np.array(g.path[-1])
+                        g.max_from_first = 0.0
                 ep.fingers.append(f)
                 ep.active += 1
                 continue
             f = self._fingers[tid]
             if p[0] == p[0] and not releasing:
                 f.path.append(p)
-                d = math.dist(p, f.first)
-                if d > f.max_from_first:
-                    f.max_from_first = d
+                if c.timestamp_s - f.start_s < self.cfg.landing_s:
+                    # still landing (the pressure rising, the image weak): the position
+                    # settles; stillness is measured from where it settled
+                    f.first = np.array(p)
+                else:
+                    f.max_from_first = max(f.max_from_first, math.dist(p, f.first))
             f.last_s = c.timestamp_s
             if c.state == "end":
                 f.end_s = c.timestamp_s
@@ -237,8 +261,8 @@ class GestureRecognizer:
                 self._pending = pend = None
         if ep is None:
             return out
-        if not ep.done and len(ep.fingers) == 1:
-            f = ep.fingers[0]
+        f = self._main(ep) if not ep.done else None
+        if f is not None:
             still = f.max_from_first <= cfg.still_mm * 1e-3
             held = (f.end_s if f.ended else ts) - f.start_s
             if still and held >= cfg.long_press_s:
@@ -267,6 +291,41 @@ class GestureRecognizer:
             and f.max_from_first <= cfg.still_mm * 1e-3
         )
 
+    def _steady(self, f: _Finger) -> bool:
+        """Whether a path moves steadily (its 2 largest steps <= ``swipe_max_jump_frac``).
+
+        The two largest frame-to-frame steps against the path's length. A swiping finger's
+        speed rises and falls smoothly (its largest steps are a few millimetres of several
+        centimetres); a track whose position leaps across in one or two frames followed another
+        finger (landing or lifting beside it) or a fading image.
+        """
+        path = f.path
+        if len(path) < 3:
+            return False
+        steps = sorted(math.dist(p, q) for p, q in zip(path, path[1:], strict=False))
+        length = sum(steps)
+        return length > 0.0 and steps[-1] + steps[-2] <= self.cfg.swipe_max_jump_frac * length
+
+    def _main(self, ep: _Episode) -> _Finger | None:
+        """The episode's one finger: its first, if every other is a brief touch within it.
+
+        A brief touch (lifted, at most ``tap_max_s``) that lands after the first finger and
+        lifts before it (within ``BRIEF_SLACK_S``) is taken as a piece of the first finger's
+        image that the localiser split off, so that it does not undo a long press or a swipe;
+        two fingers that both tap are a two-finger tap first (``_classify``).
+        """
+        fs = ep.fingers
+        f = fs[0]
+        for g in fs[1:]:
+            if not (
+                g.ended
+                and g.end_s - g.start_s <= self.cfg.tap_max_s
+                and g.start_s >= f.start_s
+                and (not f.ended or g.end_s <= f.end_s + BRIEF_SLACK_S)
+            ):
+                return None
+        return f
+
     def _could_pair(self, ep: _Episode, pend: _Finger) -> bool:
         """Whether episode ``ep`` may still be the second tap of the pending tap."""
         cfg = self.cfg
@@ -288,9 +347,10 @@ class GestureRecognizer:
         cfg = self.cfg
         out: list[dict[str, Any]] = []
         fs = ep.fingers
-        if len(fs) == 1:
-            f = fs[0]
-            if self._is_tap(f):
+        main = self._main(ep)
+        if main is not None and (len(fs) == 1 or not all(self._is_tap(g) for g in fs)):
+            f = main
+            if len(fs) == 1 and self._is_tap(f):
                 pend = self._pending
                 if pend is not None and self._could_pair(ep, pend):
                     self._pending = None
@@ -300,16 +360,26 @@ class GestureRecognizer:
                     self._pending = f
                 return out
             out += self._resolve_pending(ts)
+            if len(fs) > 1:
+                # a swipe is one finger: a brief second touch within a moving one is as likely
+                # the other finger of a two-finger tap the first track drifted towards
+                return out
             dist = math.dist(f.path[0], f.path[-1])
             dur = max(f.end_s - f.start_s, 1e-6)
-            if dist >= cfg.swipe_min_mm * 1e-3 and dist / dur >= cfg.swipe_min_speed_m_s:
+            if (
+                dist >= cfg.swipe_min_mm * 1e-3
+                and dist / dur >= cfg.swipe_min_speed_m_s
+                and self._steady(f)
+            ):
                 out.append(self._event("swipe", [f], ts))
             return out
         out += self._resolve_pending(ts)
-        if len(fs) == 2 and all(self._is_tap(f) for f in fs):
-            a, b = fs
+        if all(self._is_tap(f) for f in fs):
+            # two fingers tapping together; a third track within the same window is a piece of
+            # one of them (the localiser lost a finger for a few frames), not a third finger
             sync = cfg.two_finger_sync_s
-            if abs(a.start_s - b.start_s) <= sync and abs(a.end_s - b.end_s) <= sync:
+            starts, ends = [f.start_s for f in fs], [f.end_s for f in fs]
+            if max(starts) - min(starts) <= sync and max(ends) - min(ends) <= sync:
                 out.append(self._event("two_finger_tap", fs, ts))
         return out
 

@@ -9,11 +9,18 @@ and lift independently.
 Per frame, ``Tracker.update`` receives the contacts the localiser found (positions on the
 surface, strongest first) and:
 
+0. while a touch has one track and the localiser reports one contact, the pair prior
+   (``skinloc.live.pair_prior``, optional) may replace that contact by two: a second finger
+   the per-frame count missed, seen in the anchored two-contact fit over several frames;
 1. matches them to the live tracks by distance (the smallest total distance, each pair within
    ``gate_mm``; straight-line distance, which on a skin is the distance along the surface to
    within 2 % for the few centimetres a finger moves between frames); when one track and one
-   contact are left over, they are matched whatever their distance (the localiser jumped on a
-   weak image: a finger lifting and another landing in the same frame is far rarer);
+   contact are left over and the track is still landing (fewer than ``settle_frames`` frames:
+   its image weak, the localiser jumping), they are matched whatever their distance. A
+   settled track never follows a contact beyond the gate (a finger does not move 30 mm in one
+   frame: that is a second finger arriving, the first one lifting beside it, or a slip of a
+   weakening image): the track is held, and the contact is a candidate (step 3); if that
+   candidate becomes a track, the held one ends;
 2. a live track with no match keeps its slot and last position for ``miss_frames`` frames (a
    contact the localiser misses for one frame does not end the finger), then ends;
 3. a contact with no match is a candidate finger; it becomes a track (``start``) when seen in
@@ -30,10 +37,14 @@ import itertools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from skinloc.live.one_euro import one_euro
+
+if TYPE_CHECKING:
+    from skinloc.live.pair_prior import PairPrior
 
 __all__ = ["Track", "Tracker", "assign", "frame_contacts"]
 
@@ -71,6 +82,12 @@ def frame_contacts(
             return pos, pos, np.asarray(cs.strength, float), np.asarray(cs.uncertainty_mm, float)
     engine.localise_into(delta, out)
     return out[None, 3:6], out[None, 0:3], np.full(1, math.nan), out[6:7]
+
+
+def _within(a: np.ndarray, b: np.ndarray, r: float) -> bool:
+    """Whether points ``a`` and ``b`` (3,) are at most ``r`` apart (m)."""
+    d0, d1, d2 = float(a[0] - b[0]), float(a[1] - b[1]), float(a[2] - b[2])
+    return d0 * d0 + d1 * d1 + d2 * d2 <= r * r
 
 
 def assign(tracks: np.ndarray, detections: np.ndarray, gate_m: float) -> list[tuple[int, int]]:
@@ -139,6 +156,8 @@ class Track:
         Consecutive frames matched (candidates: towards ``confirm_frames``).
     missed : int
         Consecutive frames unmatched.
+    start_s : float
+        When the track started (its first frame as a candidate), s.
     """
 
     slot: int = -1
@@ -150,6 +169,7 @@ class Track:
     uncertainty_mm: float = math.nan
     seen: int = 0
     missed: int = 0
+    start_s: float = math.nan
     filt: np.ndarray = field(default_factory=lambda: np.zeros(8))
 
 
@@ -170,6 +190,10 @@ class Tracker:
         Puts a point back onto the surface (``Engine.constrain_into``).
     filter_params : (3,) float or None
         One-Euro ``[min_cutoff_hz, beta s/m, d_cutoff_hz]``; None: no filter.
+    settle_frames : int, optional
+        Frames a landing track may jump beyond the gate (default ``confirm_frames``).
+    pair : PairPrior, optional
+        The second-finger prior (``skinloc.live.pair_prior``); None: the localiser's count.
     """
 
     def __init__(
@@ -180,8 +204,11 @@ class Tracker:
         confirm_frames: int,
         constrain: Callable[[float, float, float, np.ndarray], None],
         filter_params: np.ndarray | None,
+        settle_frames: int | None = None,
+        pair: PairPrior | None = None,
     ) -> None:
         self.max_contacts = int(max_contacts)
+        self.settle_frames = int(confirm_frames if settle_frames is None else settle_frames)
         self.gate_m = float(gate_mm) * 1e-3
         self.miss_frames = int(miss_frames)
         self.confirm_frames = int(confirm_frames)
@@ -189,6 +216,7 @@ class Tracker:
         self._prm = filter_params
         self.slots: list[Track | None] = [None] * self.max_contacts
         self.candidates: list[Track] = []
+        self.pair = pair
         self.next_id = 1
         self._tmp = np.zeros(3)
 
@@ -203,6 +231,8 @@ class Tracker:
         t.raw_m[:] = raw
         t.last_m[:] = pos
         t.strength, t.uncertainty_mm = float(s), float(u)
+        if t.seen == 0:
+            t.start_s = ts
         t.seen += 1
         t.missed = 0
         if self._prm is None:
@@ -232,14 +262,31 @@ class Tracker:
         """
         live = [t for t in self.slots if t is not None]
         k = len(positions)
+        pair_second = -1
+        if self.pair is not None:
+            if k == 1 and live and new_fingers:
+                got = self.pair.step(ts, live, positions[0])
+                if got is not None:
+                    positions = raw = got
+                    strength = np.array([strength[0], math.nan])
+                    uncertainty_mm = np.array([uncertainty_mm[0], math.nan])
+                    k = 2
+                    pair_second = 1 if len(live) == 1 else -1
+            elif k > 1 and new_fingers:
+                self.pair.saw(ts, live, positions)
+            else:
+                self.pair.reset()
         used = [False] * k
         events: list[tuple[Track, str]] = []
         matched: set[int] = set()
+        held: Track | None = None
         if len(live) == 1 and k == 1 and not self.candidates:
-            # one finger, one contact (the common frame): the same finger, as in step 1's
-            # lone-pair rule; no assignment to compute
-            self._measure(live[0], ts, positions[0], raw[0], strength[0], uncertainty_mm[0])
-            return [(live[0], "move")]
+            t = live[0]
+            if t.seen < self.settle_frames or _within(t.last_m, positions[0], self.gate_m):
+                # one finger, one contact near it (the common frame), or a landing finger:
+                # the same finger, as in step 1; no assignment to compute
+                self._measure(t, ts, positions[0], raw[0], strength[0], uncertainty_mm[0])
+                return [(t, "move")]
         if live and k:
             prev = np.array([t.last_m for t in live])
             for i, j in assign(prev, positions, self.gate_m):
@@ -249,14 +296,21 @@ class Tracker:
             lone_t = [i for i in range(len(live)) if i not in matched]
             lone_d = [j for j in range(k) if not used[j]]
             if len(lone_t) == 1 and len(lone_d) == 1:
-                # one finger left and one contact left: the same finger, whose position jumped
-                # (a weak or changing image), not a lift and a landing in the same frame
                 i, j = lone_t[0], lone_d[0]
-                self._measure(live[i], ts, positions[j], raw[j], strength[j], uncertainty_mm[j])
-                used[j] = True
-                matched.add(i)
+                if live[i].seen < self.settle_frames:
+                    # a landing finger (its first frames, a weak and changing image) and one
+                    # contact left: the same finger, whose position jumped
+                    self._measure(live[i], ts, positions[j], raw[j], strength[j], uncertainty_mm[j])
+                    used[j] = True
+                    matched.add(i)
+                else:
+                    # a settled finger does not move that far in one frame: the contact is a
+                    # second finger arriving, or a slip of a weakening image. The track is
+                    # held, not missed, until the contact's candidate is confirmed (then it
+                    # ends: the other finger took over) or the contact comes back
+                    held = live[i]
         for i, t in enumerate(live):
-            if i in matched:
+            if i in matched or t is held:
                 events.append((t, "move"))
                 continue
             t.missed += 1
@@ -281,6 +335,11 @@ class Tracker:
                 c = Track()
                 self._measure(c, ts, positions[j], raw[j], strength[j], uncertainty_mm[j])
                 keep.append(c)
+        if pair_second >= 0:
+            # the anchored pair has held for its frames: that finger is confirmed
+            for c in keep:
+                if np.array_equal(c.last_m, positions[pair_second]):
+                    c.seen = max(c.seen, self.confirm_frames)
         self.candidates = []
         # On a touch's first frame its strongest contact starts at once (the detector has
         # debounced the touch); any other contact, like every later finger, must last.
@@ -292,6 +351,11 @@ class Tracker:
                 self.next_id += 1
                 self.slots[c.slot] = c
                 events.append((c, "start"))
+                if held is not None:
+                    self.slots[held.slot] = None
+                    events.remove((held, "move"))
+                    events.append((held, "end"))
+                    held = None
             else:
                 self.candidates.append(c)
         events.sort(key=lambda e: e[0].slot)
@@ -299,6 +363,8 @@ class Tracker:
 
     def end_all(self) -> list[Track]:
         """End every track (the touch ended); returns them by slot and frees every slot."""
+        if self.pair is not None:
+            self.pair.end_touch()
         out = [t for t in self.slots if t is not None]
         self.slots = [None] * self.max_contacts
         self.candidates = []

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import time
 
+import numpy as np
 import pytest
 
 from skinloc.evaluation.live_delivery import blind, score_gestures, score_tracks
@@ -120,6 +121,7 @@ def test_scripted_gestures_through_a_faulty_virtual_skin_are_delivered_once(tmp_
     No timing is asserted: the hand keeps the wall clock whatever the machine's load, and only
     the delivery rules that do not depend on how well the fingers are found are checked.
     """
+    from skinloc.errors import SourceNotConnectedError
     from skinloc.live.runner import Runner
     from skinloc.live.spec import SkinSpec
     from skinloc.sim.gestures import GESTURE_KINDS, GestureScript
@@ -138,8 +140,14 @@ def test_scripted_gestures_through_a_faulty_virtual_skin_are_delivered_once(tmp_
     out = tmp_path / "events.jsonl"
     with VirtualSkin(skin, fmt="binary", rate_hz=100, faults=faults, hand=hand) as dev:
         spec = SkinSpec(model=model_path("map"), source=dev.path, wire_format="binary")
-        runner = Runner([spec], sinks=[f"jsonl:{out}"])
-        runner.start()
+        for _ in range(20):  # the port may be unplugged right then: open it once it is back
+            runner = Runner([spec], sinks=[f"jsonl:{out}"])
+            try:
+                runner.start()
+                break
+            except SourceNotConnectedError:
+                runner.close()
+                time.sleep(0.2)
         try:
             deadline = time.monotonic() + 120
             while not runner.cores[0].calibrated and time.monotonic() < deadline:
@@ -151,6 +159,7 @@ def test_scripted_gestures_through_a_faulty_virtual_skin_are_delivered_once(tmp_
         finally:
             runner.close()
         downtimes = list(dev.downtimes)
+        assert len(downtimes) == dev.counts["disconnects"]
     lines = [json.loads(ln) for ln in out.read_text().splitlines()]
     contacts = [e for e in lines if "event" not in e]
     events = [e for e in lines if e.get("event") == "gesture"]
@@ -163,25 +172,39 @@ def test_scripted_gestures_through_a_faulty_virtual_skin_are_delivered_once(tmp_
         n_recognised=stats["gestures"],
         contact_track_ids={c["track_id"] for c in contacts},
     )
-    assert tracks["strokes"] == 6 and tracks["tracks"] >= 1
+    assert tracks["strokes"] == 7 and tracks["tracks"] >= 1  # double and two-finger taps: 2
     assert tracks["bad_tracks"] == 0, tracks["examples"]
+    # a finger's track never restarts while it is down, across an unplug either, and no track
+    # appears where no finger is (how many fingers the search finds is not this test's)
+    assert tracks["restarted"] == tracks["ghost_tracks"] == 0, tracks["examples"]
+    assert tracks["held_across_unplug"] == tracks["held_across_unplug_one_track"]
     assert gest["duplicates"] == 0 and gest["unknown_track_ids"] == 0
     assert gest["recognised_equals_written"], (gest["recognised"], gest["events"])
     assert gest["events"] >= 1
 
 
-@pytest.mark.parametrize("now", [-1.0, 0.5, 100.0])
-def test_the_hand_lifts_between_items_and_after_the_last(now):
+def test_the_hand_touches_during_its_items_lifts_once_and_is_still_after_the_last():
     from skinloc.sim.gestures import GestureScript
     from skinloc.sim.hand import ScriptedHand, script_items
     from skinloc.sim.skin import SimulatedSkin
 
     skin = SimulatedSkin(random_state=0)
-    items = script_items(GestureScript(skin.mesh, 3, random_state=1), 30.0, skin)
-    hand = ScriptedHand(items, t0=0.0, ramp_s=0.02)
-    assert hand(now) is None  # before the lead-in ends, or after the last item: nothing, ever
-    first = items[0]
-    mid = 0.5 * (first.strokes[0].t0_s + first.strokes[0].t1_s)
-    assert len(hand(mid)) >= 1
-    assert hand(first.end_s + 0.01) == []  # the lift is shown once...
-    assert hand(first.end_s + 0.02) is None  # ...then the skin is left alone
+    items = script_items(GestureScript(skin.mesh, 5, random_state=1), 60.0, skin)
+    assert items and items[-1].end_s <= 60.0
+    hand = ScriptedHand(items, t0=100.0, ramp_s=0.02)
+    assert hand(99.0) is None and hand(100.5) is None  # before, in the lead-in: nothing
+    two = next(i for i in items if i.kind == "two_finger_tap")
+    both = max(s.t0_s for s in two.strokes) + 0.01
+    fingers = hand(100.0 + both)
+    assert len(fingers) == 2 and fingers[0].position_m.shape == (3,)
+    assert hand(100.0 + two.end_s + 0.01) == []  # the lift is shown once...
+    assert hand(100.0 + two.end_s + 0.02) is None  # ...then the skin is left alone
+    swipe = next(i for i in items if i.kind == "swipe")
+    s = swipe.strokes[0]
+    a = hand(100.0 + s.t0_s + 0.3 * (s.t1_s - s.t0_s))[0].position_m
+    b = hand(100.0 + s.t0_s + 0.7 * (s.t1_s - s.t0_s))[0].position_m
+    assert np.linalg.norm(b - a) > 0.01  # a swipe moves
+    assert hand(100.0 + items[-1].end_s + 5.0) in (None, [])
+    truth = hand.truth()
+    assert len(truth["strokes"]) == sum(len(i.strokes) for i in items)
+    assert truth["truth_gestures"][0]["start_s"] == pytest.approx(100.0 + items[0].start_s)

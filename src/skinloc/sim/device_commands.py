@@ -2,14 +2,11 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Any
 
 import numpy as np
 
 from skinloc.hardware.wire import WireFormat
-
-if TYPE_CHECKING:
-    from skinloc.sim.virtual_device import VirtualSkin
 
 __all__ = ["FIRMWARE_VERSION", "answer_command"]
 
@@ -17,8 +14,8 @@ __all__ = ["FIRMWARE_VERSION", "answer_command"]
 FIRMWARE_VERSION = "skinloc_muca 1.0.0"
 
 
-def answer_command(dev: VirtualSkin, line: str) -> str:
-    """``dev``'s answer to one command line (empty: none); switches its format or gain."""
+def answer_command(dev: Any, line: str) -> str:
+    """A ``VirtualSkin``'s answer to one command line (empty: none); sets its format or gain."""
     words = line.split()
     if not words:
         return ""

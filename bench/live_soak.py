@@ -127,7 +127,11 @@ def link_report(
         or reconnects >= disconnects,
         "device_frames": {k: v for k, v in counts.items() if k in ("sent", "destroyed", "unheard")},
         "device_faults": {k: v for k, v in counts.items() if k.startswith("fault_")},
+        "device_downtime_s_total": counts.get("downtime_s_total"),
         "runner_frames": stats.get("frames"),
+        # every frame the runner reads is one the device sent intact: more means it read
+        # another device (a pty number reused while this one was unplugged)
+        "runner_frames_minus_sent": (stats.get("frames") or 0) - counts.get("sent", 0),
         "runner_wire": stats.get("wire"),
         "latency_median_us": float(np.median(lat)) if len(lat) else None,
         "latency_p99_us": float(np.percentile(lat, 99)) if len(lat) else None,
@@ -255,6 +259,7 @@ def gestures(args: argparse.Namespace, tmp: Path) -> tuple[dict, bool]:
     counts = dict(dev.counts)
     downtimes = list(dev.downtimes)
     dev.stop()
+    counts["downtime_s_total"] = float(sum(b - a for a, b in downtimes))
 
     contacts, events = read_lines(events_path)
     truth = hand.truth()

@@ -191,6 +191,9 @@ class VirtualSkin:
         log.info("virtual skin on %s -> %s", self.path, name)
 
     def _unplug(self) -> None:
+        # The port goes with the device, as a USB serial node does: a link left to the closed
+        # pty would lead a host that reopens it to whichever process gets that pty number next.
+        Path(self.path).unlink(missing_ok=True)
         if self._master is not None:
             os.close(self._master)
             self._master = None

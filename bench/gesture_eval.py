@@ -34,38 +34,16 @@ from pathlib import Path
 
 import numpy as np
 
+from skinloc.evaluation.live_delivery import GESTURE_KINDS as KINDS
+from skinloc.evaluation.live_delivery import match_gestures as match
+from skinloc.evaluation.live_delivery import unambiguous_s
 from skinloc.live.gestures import GestureConfig
 from skinloc.sim.gesture_stream import read_gesture_truth
-
-KINDS = ("tap", "double_tap", "long_press", "swipe", "two_finger_tap")
 
 
 def skinloc(*args: object) -> None:
     cmd = [sys.executable, "-c", "from skinloc.cli.main import main; main()", *map(str, args)]
     subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-
-
-def unambiguous_s(truth: dict, cfg: GestureConfig) -> float:
-    """When a true gesture became certain (stream time, s)."""
-    if truth["kind"] == "tap":
-        return truth["end_s"] + cfg.double_tap_gap_s
-    if truth["kind"] == "long_press":
-        return truth["start_s"] + cfg.long_press_s
-    return truth["end_s"]
-
-
-def match(events: list[dict], truths: list[dict], slack_s: float) -> list[tuple[dict, dict]]:
-    """Greedy one-to-one matching by kind and overlapping time spans, earliest first."""
-    pairs, used = [], set()
-    for ev in sorted(events, key=lambda e: e["start_s"]):
-        for i, t in enumerate(truths):
-            if i in used or t["kind"] != ev["kind"]:
-                continue
-            if ev["start_s"] - slack_s <= t["end_s"] and t["start_s"] <= ev["end_s"] + slack_s:
-                pairs.append((ev, t))
-                used.add(i)
-                break
-    return pairs
 
 
 def one_skin(skin_seed: int, seed: int, n: int, slack_s: float, tmp: Path) -> dict:
@@ -96,7 +74,9 @@ def score(runs: list[dict], slack_s: float, cfg: GestureConfig) -> dict:
         n_tr.update(t["kind"] for t in truths)
         n_ok.update(t["kind"] for _, t in pairs)
         for ev, t in pairs:
-            delays[t["kind"]].append(ev["timestamp_s"] - unambiguous_s(t, cfg))
+            delays[t["kind"]].append(
+                ev["timestamp_s"] - unambiguous_s(t, cfg.double_tap_gap_s, cfg.long_press_s)
+            )
             if t["kind"] == "swipe":
                 dir_n += 1
                 dir_ok += ev["direction"] == t["direction"]

@@ -157,3 +157,19 @@ def test_config_checks():
         VirtualSkin(fmt="auto")
     with pytest.raises(ValueError, match="probabilities"):
         FaultConfig(p_drop=1.5)
+
+
+def test_an_unplugged_virtual_skin_takes_its_port_away():
+    """While unplugged, the port's link is gone: a host retrying it never opens someone else's
+    pty that got the closed one's number (the gesture soak once read another test's skin)."""
+    faults = FaultConfig(0, 0, 0, 0, disconnect_every_s=0.05, downtime_s=3.0)
+    with VirtualSkin(rate_hz=100, faults=faults) as dev:
+        deadline = time.monotonic() + 30
+        while dev.counts["disconnects"] < 1 and time.monotonic() < deadline:
+            time.sleep(0.005)
+        assert dev.counts["disconnects"] == 1 and not dev.downtimes  # still unplugged
+        assert not os.path.lexists(dev.path)
+        while not dev.downtimes and time.monotonic() < deadline:
+            time.sleep(0.01)
+        a, b = dev.downtimes[0]  # plugged back in (and the link made anew) after the downtime
+        assert b - a >= 3.0

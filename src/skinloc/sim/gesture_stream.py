@@ -33,13 +33,13 @@ from skinloc.sim.signal import sensor_image
 
 log = logging.getLogger(__name__)
 
-__all__ = ["read_gesture_truth", "record_gestures"]
+__all__ = ["make_felt", "read_gesture_truth", "record_gestures"]
 
 _FELT_SIGMA = 6.0  # as for a calibration touch: 2 sensors above 6 noise stds, or press harder
 _TAIL_S = 1.0  # untouched after the last item
 
 
-def _make_felt(skin, stroke: Stroke) -> None:
+def make_felt(skin, stroke: Stroke) -> None:
     """Raise a stroke's pressure until the skin feels it where it lands (a person would)."""
     felt = _FELT_SIGMA * skin.layout.noise_std_counts
     image = sensor_image(
@@ -227,7 +227,7 @@ def record_gestures(
         try:
             for done, item in enumerate(script.items()):
                 for s in item.strokes:
-                    _make_felt(skin, s)
+                    make_felt(skin, s)
                 run_until(item.start_s, None)
                 run_until(item.end_s, item)
                 flush()

@@ -26,14 +26,12 @@ from pathlib import Path
 import numpy as np
 
 from skinloc.hardware.wire import WireFormat, encode_binary, encode_text
+from skinloc.sim.device_commands import FIRMWARE_VERSION, answer_command
 from skinloc.sim.device_faults import Fate, FaultConfig, Pending, TruthLog
 
 log = logging.getLogger(__name__)
 
 __all__ = ["FIRMWARE_VERSION", "FaultConfig", "Fate", "VirtualSkin"]
-
-#: Version string the virtual device reports, the same as the firmware it imitates.
-FIRMWARE_VERSION = "skinloc_muca 1.0.0"
 
 
 class VirtualSkin:
@@ -55,6 +53,14 @@ class VirtualSkin:
         the system temp dir by default (where ``skinloc ports`` finds it).
     keep_truth : bool
         Keep the per-frame ground truth (``truth()``), for soak tests.
+    hand : callable, optional
+        ``hand(now)`` (``time.monotonic()`` s) -> the fingers down before each frame, or None to
+        leave the skin as it is (``sim.hand.ScriptedHand``: moving fingers, two at once).
+
+    Attributes
+    ----------
+    downtimes : list of (float, float)
+        Each disconnect's unplug and replug, ``time.monotonic()`` s.
 
     Examples
     --------
@@ -73,6 +79,7 @@ class VirtualSkin:
         faults: FaultConfig | None = None,
         link_dir: str | Path | None = None,
         keep_truth: bool = False,
+        hand=None,
     ) -> None:
         if not (np.isfinite(rate_hz) and 0 < rate_hz <= 2000):
             raise ValueError(f"rate_hz must be in (0, 2000], got {rate_hz!r}")
@@ -93,6 +100,8 @@ class VirtualSkin:
         )
         self.path = str(self.link_dir / "ttySKIN0")
         self.keep_truth = keep_truth
+        self.hand = hand
+        self.downtimes: list[tuple[float, float]] = []
         self._truth = TruthLog()
         self.counts: Counter[str] = Counter()
         self._master: int | None = None
@@ -182,6 +191,9 @@ class VirtualSkin:
         log.info("virtual skin on %s -> %s", self.path, name)
 
     def _unplug(self) -> None:
+        # The port goes with the device, as a USB serial node does: a link left to the closed
+        # pty would lead a host that reopens it to whichever process gets that pty number next.
+        Path(self.path).unlink(missing_ok=True)
         if self._master is not None:
             os.close(self._master)
             self._master = None
@@ -284,52 +296,7 @@ class VirtualSkin:
 
     def handle_command(self, line: str) -> str:
         """Answer one command line like the firmware does (see ``firmware/README.md``)."""
-        words = line.split()
-        if not words:
-            return ""
-        cmd, args = words[0].lower(), words[1:]
-        skin = self.skin
-        try:
-            if cmd in ("v", "version"):
-                return (
-                    f"{FIRMWARE_VERSION} grid {skin.n_tx}x{skin.n_rx} format {self.fmt.value} "
-                    f"gain {self.gain} rate {self.rate_hz:g} virtual"
-                )
-            if cmd == "f" and args and args[0] in ("text", "binary"):
-                self._flush_pending()
-                self.fmt = WireFormat(args[0])
-                return f"ok format {self.fmt.value}"
-            if cmd == "g" and args:
-                gain = int(args[0])
-                if not 0 <= gain <= 255:
-                    return "error gain must be 0-255"
-                self.gain = gain
-                return f"ok gain {gain}"
-            if cmd == "l" and len(args) == 2:
-                # Checked and acknowledged like the firmware; the simulated grid stays as it is.
-                tx, rx = args
-                ok = all(set(m) <= {"0", "1"} and "1" in m for m in (tx, rx))
-                if not ok or len(tx) > 21 or len(rx) > 12:
-                    return "error usage: l TXMASK RXMASK, e.g. l 11111111 11111111"
-                return f"ok lines {tx.count('1')}x{rx.count('1')}"
-            if cmd == "?":
-                return (
-                    "commands: v | f text|binary | g N | l TXMASK RXMASK | c | ? "
-                    "| touch X Y Z | lift"
-                )
-            if cmd == "c":
-                return "ok recalibrated"
-            if cmd == "touch" and len(args) == 3:
-                point = np.array([float(a) for a in args])
-                skin.touch_near(point)
-                self.counts["touches"] += 1
-                return ""
-            if cmd == "lift":
-                skin.release()
-                return ""
-        except ValueError:
-            pass
-        return f"error unknown command {line[:40]!r}; try v, f text|binary, g N, l TX RX, c"
+        return answer_command(self, line)
 
     # ------------------------------------------------------------------ frames and faults
     def _schedule_disconnect(self, now: float) -> None:
@@ -459,7 +426,7 @@ class VirtualSkin:
                 self._disconnect()
                 start, k = time.monotonic(), 0
                 continue
-            frame = self.skin.read()
+            frame = self._next_frame()
             index = frame.index
             if self._host_listening():
                 if self._banner_due:
@@ -473,6 +440,14 @@ class VirtualSkin:
             k += 1
         self._flush_pending()
 
+    def _next_frame(self):
+        """The skin's next frame, with the hand's fingers as they are now."""
+        if self.hand is not None:
+            fingers = self.hand(time.monotonic())
+            if fingers is not None:
+                self.skin.touch(fingers)
+        return self.skin.read()
+
     def _disconnect(self) -> None:
         """Pull the plug: the frames the host has not read are lost; come back after downtime."""
         assert self.faults is not None
@@ -481,10 +456,12 @@ class VirtualSkin:
         self._unplug()
         self.counts["disconnects"] += 1
         log.info("virtual skin: disconnect %d", self.counts["disconnects"])
-        end = time.monotonic() + self.faults.downtime_s
+        start = time.monotonic()
+        end = start + self.faults.downtime_s
         while time.monotonic() < end and not self._stop.is_set():
-            frame = self.skin.read()
+            frame = self._next_frame()
             self._record(frame.index, frame.values, Fate.UNHEARD)
             self._stop.wait(1.0 / self.rate_hz)
         self._plug()
+        self.downtimes.append((start, time.monotonic()))
         self._schedule_disconnect(time.monotonic())

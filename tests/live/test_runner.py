@@ -262,7 +262,7 @@ def test_the_skins_file_in_the_docs_loads(tmp_path):
     cfg.write_text(block.group(1))
     specs, sinks = load_skins(cfg)
     left, right = specs
-    assert sinks == ["jsonl", "ws://127.0.0.1:8767"]
+    assert sinks == ["jsonl", "ws://127.0.0.1:8767"]  # any-port-ok: text read, nothing bound
     assert left.gestures.long_press_s == 0.8 and left.gestures.swipe_min_mm == 30.0
     assert right.gestures.swipe_min_mm == 40.0 and right.config.max_contacts == 2
     assert right.parent_frame == "fr3_link7" and right.model == str(tmp_path / "right.h5")

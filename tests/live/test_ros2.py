@@ -277,6 +277,7 @@ class _Sub:
             Policy.History.KeepLast(100),
         )
         self.reader = DataReader(dp, Topic(dp, "rt" + topic, cls, qos=qos), qos=qos)
+        self.topic = topic
         self.got: list = []
 
     def take(self):
@@ -293,9 +294,9 @@ def _wait(cond, timeout_s=20.0):
     return False
 
 
-def _matched(sink, topic):
-    w = sink._io.writers[topic]
-    return len(w.get_matched_subscriptions()) > 0
+def _matched(sub):
+    """Whether the subscriber has matched the sink's writer (the publisher process's)."""
+    return len(sub.reader.get_matched_publications()) > 0
 
 
 # ----------------------------------------------------------------------------- the DDS sink
@@ -319,9 +320,8 @@ def test_dds_sink_received_by_an_independent_subscriber(domain):
         poses = _Sub(dp, "/skinloc/arm/contacts", PA)
         gest = _Sub(dp, "/skinloc/arm/gestures", Str)
         marks = _Sub(dp, "/skinloc/arm/markers", MkA)
-        for topic in ("contact", "contacts", "gestures", "markers"):
-            topic = f"/skinloc/arm/{topic}"
-            assert _wait(lambda t=topic: _matched(sink, t)), f"no subscriber matched {topic}"
+        for sub in (point, poses, gest, marks):
+            assert _wait(lambda s=sub: _matched(s)), f"no writer matched {sub.topic}"
         # the single-contact path: one emit per frame, no track id
         sink.emit(_contact("start", 0, (0.01, 0.02, 0.03)))
         sink.emit(_contact("move", 1, (0.011, 0.021, 0.031)))
@@ -382,9 +382,8 @@ def test_dds_sink_publishes_multi_contact_frames(domain):
             "markers": _Sub(dp, "/skinloc/arm/markers", MkA),
             "gestures": _Sub(dp, "/skinloc/arm/gestures", Str),
         }
-        for name in subs:
-            topic = f"/skinloc/arm/{name}"
-            assert _wait(lambda t=topic: _matched(sink, t)), f"no subscriber matched {topic}"
+        for name, sub in subs.items():
+            assert _wait(lambda s=sub: _matched(s)), f"no writer matched /skinloc/arm/{name}"
         _two_finger_frames(sink)
         want = {"contact": 2, "contacts": 3, "markers": 3, "gestures": 1}
         assert _wait(lambda: all(len(subs[k].take()) >= n for k, n in want.items()))
@@ -402,24 +401,57 @@ def test_dds_sink_publishes_multi_contact_frames(domain):
 
 
 def test_dds_sink_never_blocks_the_pipeline_and_counts_what_it_drops(domain):
-    """A stuck publisher: ``emit_contacts`` still returns; the queue drops its oldest frames."""
+    """A stopped publisher: ``emit`` still returns at once; a full pipe drops and counts."""
+    import signal
+
     from skinloc.live.sinks.ros2 import Ros2Sink
 
-    sink = Ros2Sink(domain_id=domain, backend="dds", queue_frames=4)
+    sink = Ros2Sink(domain_id=domain, backend="dds", queue_frames=4)  # one page of pipe
     sink.open([SkinInfo("arm")])
+    pid = sink.publisher_pid
+    os.kill(pid, signal.SIGSTOP)  # the publisher reads nothing while stopped
     try:
-        with sink._lock:  # the publisher thread cannot publish while this is held
-            for k in range(100):
-                sink.emit(_contact("move", k, (0.01, 0.02, 0.03)))
-            held = sink.stats()
-        assert held["queued"] == 100 and held["dropped"] >= 100 - 4 - 64
-        assert held["pending"] <= 4
-        assert sink.flush(30.0)
+        for k in range(2000):
+            sink.emit(_contact("move", k, (0.01, 0.02, 0.03)))
+        assert sink.n_put == 2000 and 0 < sink.n_dropped < 2000
+    finally:
+        os.kill(pid, signal.SIGCONT)
+    try:
+        assert sink.flush(60.0)
         st = sink.stats()
-        assert st["sent"] + st["dropped"] == 100 and st["errors"] == 0
+        assert st["queued"] == 2000 and st["sent"] + st["dropped"] == 2000
+        assert st["errors"] == 0 and st["pending"] == 0
+        assert st["publish_delay_p99_us"] > 0
     finally:
         sink.close()
-    assert sink.stats()["pending"] == 0
+
+
+def test_dds_sink_reports_a_failed_start_in_one_line(domain, monkeypatch):
+    """The publisher's own errors (here: two skins on one topic) are raised by ``open``."""
+    from skinloc.live.sinks.ros2 import Ros2Sink
+
+    sink = Ros2Sink(domain_id=domain, backend="dds")
+    with pytest.raises(ValueError, match="would share the ROS 2 topics"):
+        sink.open([SkinInfo("left arm"), SkinInfo("left_arm")])
+    assert sink.publisher_pid is None  # the publisher ended; nothing left running
+    sink.close()
+
+
+def test_a_publisher_gone_mid_run_drops_and_says_so_once(domain, caplog):
+    import signal
+
+    from skinloc.live.sinks.ros2 import Ros2Sink
+
+    sink = Ros2Sink(domain_id=domain, backend="dds")
+    sink.open([SkinInfo("arm")])
+    os.kill(sink.publisher_pid, signal.SIGKILL)
+    sink._proc.wait(30)
+    with caplog.at_level("ERROR"):
+        for k in range(5):
+            sink.emit(_contact("move", k))
+    assert sink.n_dropped == 5
+    assert sum("publisher process ended" in r.message for r in caplog.records) == 1
+    sink.close()  # no error, no wait
 
 
 def test_dds_sink_is_what_make_sink_builds_and_checks_its_domain(monkeypatch):
@@ -696,7 +728,7 @@ def test_frames_from_a_serial_port_are_recorded(tmp_path):
     assert frames[0][2].height * frames[0][2].width == 64
 
 
-def test_dds_sink_close_leaves_no_thread(domain):
+def test_dds_sink_close_leaves_no_thread_and_no_process(domain):
     from skinloc.live.sinks.ros2 import Ros2Sink
 
     def threads():
@@ -706,10 +738,13 @@ def test_dds_sink_close_leaves_no_thread(domain):
     for _ in range(2):
         sink = Ros2Sink(domain_id=domain, backend="dds")
         sink.open([SkinInfo("a")])
-        assert threads() > before  # Cyclone's own threads
+        proc = sink._proc
         sink.emit(_contact(skin="a"))
         sink.close()
-    assert _wait(lambda: threads() <= before, 10.0)
+        assert proc.poll() == 0  # the publisher drained, ended and was reaped
+        assert sink.stats()["sent"] == 1
+    # the DDS participant lives in the publisher: this process never starts Cyclone's threads
+    assert threads() <= before
 
 
 def test_an_encoder_mismatch_is_one_clear_error(monkeypatch):
@@ -761,7 +796,7 @@ def test_skinloc_run_publishes_to_a_subscriber_in_another_process(tmp_path, doma
             proc.kill()
             raise AssertionError("skinloc run --sink ros2 did not stop on one Ctrl-C") from None
     assert got, f"nothing received from skinloc run; its stderr: {err.decode()[-2000:]}"
-    # stopped cleanly: the publisher thread drained and joined, the run's summary printed
+    # stopped cleanly: the publisher process drained and ended, the run's summary printed
     assert proc.returncode == 0 and "Traceback" not in err.decode(), err.decode()[-2000:]
     assert "frames" in err.decode()
     assert point.got[0].header.frame_id == "skin/arm"
@@ -785,9 +820,9 @@ def test_bench_functions_with_the_ros2_sink_run_small(domain):
     }
     assert all(v["contacts"] == 300 and v["emit_median_us"] > 0 for v in cost.values())
     assert all(v["dropped"] == 0 for v in cost.values())
-    # the ROS 2 sink's work is on its publisher thread; the others work on the caller's
-    assert cost["ros2 (DDS, no subscriber)"]["thread_cpu_us_per_contact"] > 0
-    assert cost["jsonl"]["thread_cpu_us_per_contact"] == 0
+    # the ROS 2 sink works in its publisher process; the others on the caller's thread
+    assert cost["ros2 (DDS, no subscriber)"]["publisher_cpu_us_per_contact"] > 0
+    assert cost["jsonl"]["publisher_cpu_us_per_contact"] == 0
     assert cost["ros2 (DDS, 1 subscriber)"]["samples_taken_by_subscriber"] > 0
     m = many_skins(model_path("map"), n_skins=3, rate_hz=50.0, duration_s=2.0, sinks=("ros2",))
     assert m["sinks"] == ["ros2"] and m["frames_processed"] > 0

@@ -161,13 +161,21 @@ def _worker(conn: Any, kw: dict) -> None:
 
 
 def _merge_sink_stats(parts: list[dict]) -> dict:
-    """Every worker's sink statistics summed per sink (counts and CPU seconds)."""
+    """Every worker's sink statistics summed per sink (counts and CPU seconds).
+
+    Delays (``publish_delay_*``) cannot be summed: the worst worker's is kept.
+    """
     out: dict[str, dict] = {}
     for part in parts:
         for name, st in part.items():
             acc = out.setdefault(name, {})
             for k, v in st.items():
-                acc[k] = acc.get(k, 0) + v if isinstance(v, int | float) else v
+                if k.startswith("publish_delay"):
+                    acc[k] = max((x for x in (acc.get(k), v) if x is not None), default=None)
+                elif isinstance(v, int | float):
+                    acc[k] = acc.get(k, 0) + v
+                else:
+                    acc[k] = v
     return out
 
 
@@ -185,7 +193,8 @@ def many_skins(
 
     ``sinks``: sink specs every skin's contacts go to (``ros2``: plain DDS on loopback, no
     subscriber). End-to-end times are taken after the sinks, so they include what the loop
-    pays for them (for ``ros2``, the enqueue; its publisher thread's CPU is in ``sink_stats``).
+    pays for them (for ``ros2``, packing a record into its pipe; its publisher process's CPU is in
+    ``sink_stats``).
     ``max_contacts``: contacts per frame each pipeline looks for (``PipelineConfig``'s; ``None``:
     its default). ``workers``: 1, one ``Runner`` in this process; more, one per worker
     process over consecutive shares of the skins (loop CPU then summed over the workers).
@@ -281,7 +290,7 @@ def many_skins(
         "model": str(model_path),
         "sinks": list(sinks),
         "max_contacts": parts[0]["max_contacts"],
-        # the publisher threads: frames queued, dropped (queue full), sent; their CPU s
+        # the publisher processes: frames queued, dropped (pipe full), sent; their CPU s, delays
         "sink_stats": sink_stats,
         "sink_frames_dropped": int(sum(v["dropped"] for v in sink_stats.values())),
         "loop_thread_cpu_s": cpu_thread,

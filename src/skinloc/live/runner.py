@@ -41,6 +41,10 @@ from skinloc.sources.base import Frame
 
 log = logging.getLogger(__name__)
 
+#: how often the loop looks for lost ports to reopen and touches gone stale, s (port retries
+#: come every 0.1 s, ``stale_s`` is 1 s by default)
+_SWEEP_S = 0.01
+
 __all__ = ["Pipeline", "Runner", "ScriptedFinger", "SkinSpec", "open_source"]
 
 
@@ -122,6 +126,7 @@ class Runner:
         self._ports: list[_PortFeed] = []
         self._threads: list[_ThreadFeed] = []
         self._sel: selectors.BaseSelector | None = None
+        self._next_sweep = -math.inf  # when the loop next looks for lost ports and stale touches
         self._error: BaseException | None = None
         self.n_emitted = 0
 
@@ -331,11 +336,15 @@ class Runner:
             if contacts or cores[slot].gestures:
                 self._emit(slot, contacts, out)
         now = time.monotonic()
-        if self._ports:
-            self._retry_ports(now)
-        for slot, core in enumerate(cores):
-            if core.touching:
-                self._emit(slot, core.end_stale(now), out)
+        # the sweep visits every skin: once per turn it cost more than the frame itself at
+        # 100 skins (a turn per frame on a quiet machine); its deadlines are 0.1 s and more
+        if now >= self._next_sweep or timeout_s == 0.0:
+            self._next_sweep = now + _SWEEP_S
+            if self._ports:
+                self._retry_ports(now)
+            for slot, core in enumerate(cores):
+                if core.touching:
+                    self._emit(slot, core.end_stale(now), out)
         return out
 
     @property

@@ -9,8 +9,8 @@ process (``skinloc.live.sinks.ros2_publisher``) reads, rebuilds the contacts and
 A record is ``<I`` total length (header included), ``<B`` kind, then the payload:
 
 * ``FRAME``: ``<HddB`` skin number, frame timestamp (s), the sink's ``time.monotonic()`` at
-  ``emit`` (s), contact count; then per contact ``<BqqqqddddB`` state, frame index, touch id,
-  track id, slot, x, y, z (m), strength (counts), signal (noise units)... see ``_CONTACT``.
+  ``emit`` (s), contact count; then per contact ``<Bqqqqddddd``: state, frame index, touch id,
+  track id, slot, x, y, z (m), strength (counts), peak signal (noise units).
 * ``GESTURE``: ``<Hdd`` skin number, timestamp, emit time; then the event as UTF-8 JSON.
 * ``SKINS``: a pickle of ``list[SkinInfo]``, numbered from the first unnumbered skin.
 * ``SYNC``: ``<I`` token: the publisher answers once everything before it is published.

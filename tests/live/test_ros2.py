@@ -294,9 +294,9 @@ def _wait(cond, timeout_s=20.0):
     return False
 
 
-def _matched(sub):
-    """Whether the subscriber has matched the sink's writer (the publisher process's)."""
-    return len(sub.reader.get_matched_publications()) > 0
+def _matched(sink, sub):
+    """Whether the sink's writer (in its publisher process) and the subscriber matched."""
+    return sink.matched(sub.topic) > 0 and len(sub.reader.get_matched_publications()) > 0
 
 
 # ----------------------------------------------------------------------------- the DDS sink
@@ -321,7 +321,7 @@ def test_dds_sink_received_by_an_independent_subscriber(domain):
         gest = _Sub(dp, "/skinloc/arm/gestures", Str)
         marks = _Sub(dp, "/skinloc/arm/markers", MkA)
         for sub in (point, poses, gest, marks):
-            assert _wait(lambda s=sub: _matched(s)), f"no writer matched {sub.topic}"
+            assert _wait(lambda s=sub: _matched(sink, s)), f"no match on {sub.topic}"
         # the single-contact path: one emit per frame, no track id
         sink.emit(_contact("start", 0, (0.01, 0.02, 0.03)))
         sink.emit(_contact("move", 1, (0.011, 0.021, 0.031)))
@@ -383,7 +383,7 @@ def test_dds_sink_publishes_multi_contact_frames(domain):
             "gestures": _Sub(dp, "/skinloc/arm/gestures", Str),
         }
         for name, sub in subs.items():
-            assert _wait(lambda s=sub: _matched(s)), f"no writer matched /skinloc/arm/{name}"
+            assert _wait(lambda s=sub: _matched(sink, s)), f"no match on /skinloc/arm/{name}"
         _two_finger_frames(sink)
         want = {"contact": 2, "contacts": 3, "markers": 3, "gestures": 1}
         assert _wait(lambda: all(len(subs[k].take()) >= n for k, n in want.items()))

@@ -11,11 +11,13 @@ from skinloc.live.sinks.base import SkinInfo
 from skinloc.live.sinks.ros2_records import (
     FRAME,
     GESTURE,
+    MATCHED,
     SKINS,
     SYNC,
     RecordReader,
     pack_frame,
     pack_gesture,
+    pack_matched,
     pack_skins,
     pack_sync,
 )
@@ -74,3 +76,8 @@ def test_skins_records_number_skins_in_order():
     ((kind, (skin, *_)),) = reader.feed(pack_frame(2, 0.0, 0.0, [_c("move", (0, 0, 0), skin="c")]))
     assert kind == FRAME and reader.names[skin] == "c"
     assert pickle.loads(pack_skins([SkinInfo("d")])[5:])[0].name == "d"
+
+
+def test_matched_records_carry_the_topic():
+    ((kind, value),) = RecordReader().feed(pack_matched(9, "/skinloc/arm/contacts"))
+    assert kind == MATCHED and value == (9, "/skinloc/arm/contacts")

@@ -60,10 +60,12 @@ def _contacts(n: int, n_skins: int, random_state: int) -> list[Any]:
     ]
 
 
-def _wait_matched(readers: list[Any], timeout_s: float = 10.0) -> None:
-    """Until every skin's ``contacts`` reader has matched the sink's writer (bounded)."""
+def _wait_matched(sink: Any, infos: list[Any], timeout_s: float = 10.0) -> None:
+    """Until every skin's ``contacts`` writer has matched the subscriber (bounded)."""
     end = time.monotonic() + timeout_s
-    while time.monotonic() < end and not all(r.get_matched_publications() for r in readers):
+    while time.monotonic() < end and not all(
+        sink.matched(f"/skinloc/{i.name}/contacts") for i in infos
+    ):
         time.sleep(0.01)
 
 
@@ -127,7 +129,7 @@ def sink_cost(n_contacts: int = 20000, n_skins: int = 10, rounds: int = 3) -> di
                 sink = make()
                 sink.open(infos)
                 if "1 subscriber" in label:
-                    _wait_matched(readers)
+                    _wait_matched(sink, infos)
                 dt = np.empty(len(contacts))
                 for k, c in enumerate(contacts):
                     t = time.perf_counter_ns()

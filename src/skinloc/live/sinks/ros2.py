@@ -34,7 +34,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from skinloc.live.sinks.base import Sink, SkinInfo
-from skinloc.live.sinks.ros2_records import pack_frame, pack_gesture, pack_skins, pack_sync
+from skinloc.live.sinks.ros2_records import (
+    pack_frame,
+    pack_gesture,
+    pack_matched,
+    pack_skins,
+    pack_sync,
+)
 
 # the runner, the bag source and users' code import these from here
 from skinloc.live.sinks.ros2_topics import quaternion_from_rpy as quaternion_from_rpy
@@ -244,6 +250,18 @@ class Ros2Sink(Sink):
         except TimeoutError:
             return False
         return True
+
+    def matched(self, topic: str, timeout_s: float = 10.0) -> int:
+        """How many subscriptions the writer of ``topic`` (``/skinloc/S/contacts``...) matched.
+
+        Whether anyone listens yet: a volatile topic's messages before that are lost.
+        """
+        if self._proc is None:
+            return 0
+        self._token += 1
+        token = self._token
+        self._write_all(pack_matched(token, topic))
+        return int(self._reply(lambda m: m.get("matched") == token, timeout_s, "matched")["n"])
 
     # ------------------------------------------------------------------ the pipeline's side
     def _put(self, record: bytes) -> None:

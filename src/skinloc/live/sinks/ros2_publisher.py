@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from skinloc.live.sinks.base import SkinInfo
-from skinloc.live.sinks.ros2_records import FRAME, GESTURE, SKINS, SYNC, RecordReader
+from skinloc.live.sinks.ros2_records import FRAME, GESTURE, MATCHED, SKINS, SYNC, RecordReader
 from skinloc.live.sinks.ros2_topics import Ros2Topics, _require_msgs, rclpy_available
 
 log = logging.getLogger(__name__)
@@ -79,6 +79,10 @@ class _DdsBackend:
         if ret < 0:
             raise OSError(f"DDS write on {topic} failed ({ret})")
 
+    def matched(self, topic: str) -> int:
+        w = self.writers.get(topic)
+        return len(w.get_matched_subscriptions()) if w is not None else 0
+
     def close(self) -> None:
         self.writers.clear()
         self._refs.clear()
@@ -119,6 +123,10 @@ class _RclpyBackend:
 
     def write(self, topic: str, data: bytes) -> None:
         self.pubs[topic].publish(data)
+
+    def matched(self, topic: str) -> int:
+        p = self.pubs.get(topic)
+        return p.get_subscription_count() if p is not None else 0
 
     def close(self) -> None:
         import rclpy
@@ -262,6 +270,9 @@ def _serve(fd_in: int, reply: Any, config: dict[str, Any]) -> int:
                         say(ready=True, backend=pub.backend_used, pid=os.getpid())
                 elif kind == SYNC:
                     say(sync=value, stats=stats.as_dict())
+                elif kind == MATCHED:
+                    token, topic = value
+                    say(matched=token, n=pub._io.matched(topic) if pub._io is not None else 0)
             if gather_s > 0:  # let the next batch gather: a bound on the wake-ups per second
                 time.sleep(gather_s)
         say(final=stats.as_dict())

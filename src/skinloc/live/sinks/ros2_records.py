@@ -14,6 +14,8 @@ A record is ``<I`` total length (header included), ``<B`` kind, then the payload
 * ``GESTURE``: ``<Hdd`` skin number, timestamp, emit time; then the event as UTF-8 JSON.
 * ``SKINS``: a pickle of ``list[SkinInfo]``, numbered from the first unnumbered skin.
 * ``SYNC``: ``<I`` token: the publisher answers once everything before it is published.
+* ``MATCHED``: ``<I`` token, then a topic name (UTF-8): the publisher answers with the number of
+  subscriptions its writer of that topic has matched.
 
 Frame records are far below ``PIPE_BUF`` (4096 bytes), so a non-blocking write of one is atomic:
 it goes in whole or raises ``BlockingIOError`` (the pipe is full: the record is dropped and
@@ -37,16 +39,18 @@ if TYPE_CHECKING:
 __all__ = [
     "FRAME",
     "GESTURE",
+    "MATCHED",
     "SKINS",
     "SYNC",
     "RecordReader",
     "pack_frame",
     "pack_gesture",
+    "pack_matched",
     "pack_skins",
     "pack_sync",
 ]
 
-FRAME, GESTURE, SKINS, SYNC = 1, 2, 3, 4
+FRAME, GESTURE, SKINS, SYNC, MATCHED = 1, 2, 3, 4, 5
 
 _HEAD = struct.Struct("<IB")  # record length, kind
 _FRAME = struct.Struct("<HddB")  # skin, timestamp s, emitted at (monotonic s), n contacts
@@ -117,12 +121,19 @@ def pack_sync(token: int) -> bytes:
     return _HEAD.pack(_HEAD.size + _SYNC.size, SYNC) + _SYNC.pack(token)
 
 
+def pack_matched(token: int, topic: str) -> bytes:
+    """A ``MATCHED`` record: asks how many subscriptions the writer of ``topic`` matched."""
+    body = _SYNC.pack(token) + topic.encode()
+    return _HEAD.pack(_HEAD.size + len(body), MATCHED) + body
+
+
 class RecordReader:
     """Split a byte stream into records, rebuilding contacts and events.
 
     ``feed(data)`` yields ``(kind, value)`` for every record completed by ``data``:
     ``FRAME``: ``(skin, timestamp_s, emitted_s, [Contact, ...])``; ``GESTURE``: ``(skin,
-    timestamp_s, emitted_s, event dict)``; ``SKINS``: ``list[SkinInfo]``; ``SYNC``: the token.
+    timestamp_s, emitted_s, event dict)``; ``SKINS``: ``list[SkinInfo]``; ``SYNC``: the token;
+    ``MATCHED``: ``(token, topic)``.
     The contacts carry the skin's name once ``names`` (the numbered skins) has it.
     """
 
@@ -187,4 +198,6 @@ class RecordReader:
             return skins
         if kind == SYNC:
             return _SYNC.unpack(body)[0]
+        if kind == MATCHED:
+            return _SYNC.unpack_from(body)[0], body[_SYNC.size :].decode()
         raise ValueError(f"corrupt record stream (unknown record kind {kind})")

@@ -28,15 +28,13 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from skinloc.errors import SourceNotConnectedError
 from skinloc.live.config import PipelineConfig
 from skinloc.live.core import Contact, SkinCore, load_fast_localizer
 from skinloc.live.feeds import _NoFileDescriptor, _PortFeed, _ThreadFeed
 from skinloc.live.scripted import ScriptedFinger
 from skinloc.live.sinks.base import Sink, SkinInfo, make_sink
-from skinloc.live.spec import SkinSpec, _is_recording, open_source, skin_info
+from skinloc.live.spec import SkinSpec, _is_recording, open_source, record_frames, skin_info
 from skinloc.sources.base import Frame
 
 log = logging.getLogger(__name__)
@@ -164,7 +162,7 @@ class Runner:
                 if getattr(s, "wants_frames", False)
             ]
             if recorders:
-                self._record_frames(core, recorders)
+                record_frames(core, recorders)
         for slot, (spec, core) in enumerate(zip(self.specs, self.cores, strict=True)):
             src = spec.source
             if (
@@ -196,26 +194,6 @@ class Runner:
             self._threads.append(feed_t)
         for feed_t in self._threads:
             feed_t.thread.start()
-
-    @staticmethod
-    def _record_frames(core: SkinCore, sinks: list[Sink]) -> None:
-        """Hand every raw frame of ``core`` to ``sinks`` (``emit_frame``) before processing.
-
-        The instance's ``process_frame`` is wrapped, so frames parsed from a serial port's
-        bytes (``SkinCore.feed``) are recorded as well as frames from thread-fed sources;
-        skins without a recording sink keep the unwrapped method.
-        """
-        process = core.process_frame
-        name = core.name
-
-        def recording_process(
-            values: np.ndarray, timestamp_s: float, index: int = -1, t_in: float | None = None
-        ) -> Sequence[Contact]:
-            for sink in sinks:
-                sink.emit_frame(name, values, timestamp_s, index)
-            return process(values, timestamp_s, index, t_in)
-
-        core.process_frame = recording_process  # type: ignore[method-assign]
 
     def _skin_info(self, i: int) -> SkinInfo:
         """What the sinks learn of skin ``i`` (``skinloc.live.spec.skin_info``)."""

@@ -20,9 +20,13 @@ from skinloc.live.sinks.base import SkinInfo
 from skinloc.sources.base import FrameSource
 
 if TYPE_CHECKING:
-    from skinloc.live.core import SkinCore
+    import numpy as np
 
-__all__ = ["SkinSpec", "open_source", "skin_info"]
+    from skinloc.live.contact import Contact
+    from skinloc.live.core import SkinCore
+    from skinloc.live.sinks.base import Sink
+
+__all__ = ["SkinSpec", "open_source", "record_frames", "skin_info"]
 
 _RECORDING_SUFFIXES = (".h5", ".hdf5", ".mat", ".mcap")
 
@@ -213,3 +217,23 @@ def skin_info(spec: SkinSpec, core: SkinCore) -> SkinInfo:
         rotation_xyzw=rotation,
         max_contacts=core.max_contacts,
     )
+
+
+def record_frames(core: SkinCore, sinks: Sequence[Sink]) -> None:
+    """Hand every raw frame of ``core`` to ``sinks`` (``emit_frame``) before processing.
+
+    The instance's ``process_frame`` is wrapped, so frames parsed from a serial port's
+    bytes (``SkinCore.feed``) are recorded as well as frames from thread-fed sources;
+    skins without a recording sink keep the unwrapped method.
+    """
+    process = core.process_frame
+    name = core.name
+
+    def recording_process(
+        values: np.ndarray, timestamp_s: float, index: int = -1, t_in: float | None = None
+    ) -> Sequence[Contact]:
+        for sink in sinks:
+            sink.emit_frame(name, values, timestamp_s, index)
+        return process(values, timestamp_s, index, t_in)
+
+    core.process_frame = recording_process  # type: ignore[method-assign]

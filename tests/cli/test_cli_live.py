@@ -113,7 +113,12 @@ def test_run_with_a_skins_file(tmp_path):
         (("run",), "give --model"),
         (("run", "--model", "nope.h5"), "model not found"),
         (("run", "--model", "MAP", "--sink", "pigeon"), "unknown sink"),
-        (("run", "--model", "MAP", "--source", "/dev/ttyNOPE0"), "cannot open serial port"),
+        (
+            ("run", "--model", "MAP", "--source", "/dev/ttyNOPE0", "--no-wait"),
+            "cannot open serial port /dev/ttyNOPE0: no such device",
+        ),
+        (("run", "--model", "MAP", "--source", "/dev/null"), "/dev/null: not a serial port"),
+        (("run", "--model", "MAP", "--source", "/dev"), "is not a serial port"),
         (("run", "--model", "MAP", "--source", "socket://127.0.0.1:9"), "--allow-url"),
         (("run", "--model", "MAP", "--config", "x.toml"), "not both"),
         (("run", "--config", "missing.toml"), "skins file not found"),

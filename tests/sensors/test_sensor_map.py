@@ -320,3 +320,34 @@ def test_weak_line_is_judged_without_the_skin_wide_response_trend(tmp_path):
     smap = S.sensor_map_from_recordings([rec], n_boot=0)
     assert smap.line_status["rx"][3] == "weak"
     assert [s for i, s in enumerate(smap.line_status["rx"]) if i != 3] == ["ok"] * 7
+
+
+def test_sensors_fields_flag_reaches_the_sensor_map(sim_path, tmp_path, monkeypatch):
+    # The fields are tried only where the whole-image model is not kept (as on the real cone):
+    # refuse it here so the flag can show.
+    monkeypatch.setattr(J, "plausible", lambda *a, **k: False)
+    seen = []
+    estimate = S.estimate_sensor_map
+
+    def spy(*args, **kw):
+        seen.append(kw.get("fields"))
+        return estimate(*args, **kw)
+
+    monkeypatch.setattr(S, "estimate_sensor_map", spy)
+    plain = json.loads(run("sensors", sim_path, "--json", "--boot", "0").output)
+    res = run("sensors", sim_path, "--boot", "0", "--fields", "--out", tmp_path / "rep")
+    assert res.exit_code == 0, res.output
+    assert "held-out misfit" in res.output  # the human summary says what the check found
+    with_fields = json.loads((tmp_path / "rep" / "sensors.json").read_text())
+    assert seen == [False, True]
+    assert plain["method"] == "per-crossing" and "heldout" not in plain
+    h = with_fields["heldout"]
+    assert with_fields["method"] == ("fields" if h["fields_better"] else "per-crossing")
+    assert h["per_crossing"] > 0 and min(h["fields"].values()) > 0
+    if h["fields_better"]:
+        assert with_fields["sensors"] != plain["sensors"]
+    # A model keeps no touches: the flag is refused in one line.
+    model = tmp_path / "m.h5"
+    assert run("train", sim_path, "--out", model).exit_code == 0
+    res = run("sensors", model, "--fields")
+    assert res.exit_code == 1 and "--fields" in res.output and "Traceback" not in res.output

@@ -41,17 +41,27 @@ def _sigterm_as_interrupt() -> Any:
         return None
 
 
-def _check_sources(specs: list[Any], allow_url: bool) -> None:
-    """Refuse a port that is a pyserial URL (without ``--allow-url``) or not a serial device."""
-    from skinloc.hardware.ports import check_source
+def _check_sources(specs: list[Any], allow_url: bool, wait: bool) -> None:
+    """Refuse a port that is a pyserial URL (without ``--allow-url``) or not a serial device.
+
+    A port that does not exist yet is let through to the runner, which waits for it, unless
+    ``--no-wait`` (``wait`` False) or the skin's own ``wait = false`` says to fail at once;
+    every spec leaves with ``wait`` set.
+    """
+    from skinloc.hardware.ports import PortMissingError, check_source
     from skinloc.live.runner import _is_recording
 
     for spec in specs:
+        spec.wait = wait and spec.wait is not False
         src = spec.source
         if not isinstance(src, str) or src == "sim" or src.startswith("sim:"):
             continue
         if not _is_recording(src):
-            check_source(src, allow_urls=allow_url, allow_sim=False, opt_in="pass --allow-url")
+            try:
+                check_source(src, allow_urls=allow_url, allow_sim=False, opt_in="pass --allow-url")
+            except PortMissingError:
+                if not spec.wait:
+                    raise
 
 
 def _sink_files(spec: str) -> list[Path]:
@@ -159,6 +169,14 @@ def register(app: typer.Typer) -> None:
                 "these reach the network or files, not only a skin.",
             ),
         ] = False,
+        wait: Annotated[
+            bool,
+            typer.Option(
+                "--wait/--no-wait",
+                help="Wait for a serial port that is not plugged in yet (retried every 0.1 s, "
+                "Ctrl-C stops); --no-wait fails at once with exit code 1, for scripts.",
+            ),
+        ] = True,
     ) -> None:
         """Run the live pipeline: frames -> baseline -> touch -> localiser -> surface -> sinks.
 
@@ -179,7 +197,7 @@ def register(app: typer.Typer) -> None:
             if model is not None:
                 raise ValueError("give either --config (many skins) or --model, not both")
             specs, global_sinks = load_skins(config)
-            _check_sources(specs, allow_url)
+            _check_sources(specs, allow_url, wait)
             runner = Runner(specs, sinks=[*global_sinks, *(sink or [])] or ["jsonl"])
         else:
             if model is None:
@@ -208,7 +226,7 @@ def register(app: typer.Typer) -> None:
                 loop=loop,
                 baseline=baseline,
             )
-            _check_sources([spec], allow_url)
+            _check_sources([spec], allow_url, wait)
             runner = Runner([spec], sinks=sinks)
         previous = _sigterm_as_interrupt()
         t0 = time.monotonic()
@@ -222,6 +240,12 @@ def register(app: typer.Typer) -> None:
                 # Servers asked for port 0 got a free one: say which.
                 for url in _served_urls(runner):
                     err_console.print(f"serving contacts on {url}", highlight=False)
+                for skin, port in runner.waiting:
+                    err_console.print(
+                        f"waiting for {port} (skin {skin}): not present; plug it in or "
+                        "press Ctrl-C",
+                        highlight=False,
+                    )
                 try:
                     runner.run(duration)
                 except KeyboardInterrupt:

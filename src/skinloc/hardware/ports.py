@@ -13,7 +13,14 @@ import stat
 import tempfile
 from dataclasses import dataclass
 
-__all__ = ["ALLOWED_SOURCES", "VIRTUAL_GLOB", "PortInfo", "check_source", "list_ports"]
+__all__ = [
+    "ALLOWED_SOURCES",
+    "VIRTUAL_GLOB",
+    "PortInfo",
+    "PortMissingError",
+    "check_source",
+    "list_ports",
+]
 
 #: USB vendor ids of Arduino boards and the USB-serial chips on their clones.
 ARDUINO_VIDS = {
@@ -36,6 +43,10 @@ ALLOWED_SOURCES = (
 )
 
 
+class PortMissingError(ValueError):
+    """A source names a device path that does not exist (not plugged in yet, or a typo)."""
+
+
 def check_source(
     source: str, *, allow_urls: bool = False, allow_sim: bool = True, opt_in: str = ""
 ) -> str:
@@ -45,6 +56,8 @@ def check_source(
     opens a network connection, ``loop://``, ``rfc2217://``, ``hwgrep://``) reaches far more
     than a skin, so it passes only with ``allow_urls``. A path must be a character device (a
     USB serial port, or the pseudo-terminal of ``skinloc virtual-skin``); nothing is opened.
+    A path that does not exist raises ``PortMissingError`` (a ``ValueError``), so a caller
+    may wait for the device instead.
 
     Parameters
     ----------
@@ -79,6 +92,11 @@ def check_source(
         return source  # Windows ports are names, not files
     try:
         mode = os.stat(source).st_mode
+    except FileNotFoundError:
+        raise PortMissingError(
+            f"cannot open serial port {source}: no such device (is the board plugged in? "
+            "`skinloc ports` lists the ports)"
+        ) from None
     except (OSError, ValueError):
         raise ValueError(
             f"cannot open serial port {source}: no such device (is the board plugged in? "

@@ -1,11 +1,13 @@
 """How frames reach a runner's loop.
 
 Serial ports are read by the loop itself (``_PortFeed``); any other ``FrameSource`` is read on
-a small thread of its own (``_ThreadFeed``).
+a small thread of its own (``_ThreadFeed``). A port missing at start is waited for when its
+skin asks to (``SkinSpec.wait``): the loop retries it on the unplug recovery's schedule.
 """
 
 from __future__ import annotations
 
+import errno
 import io
 import logging
 import os
@@ -14,7 +16,7 @@ import threading
 import time
 from typing import TYPE_CHECKING, Any, Protocol
 
-from skinloc.errors import FrameTimeoutError, SkinlocError
+from skinloc.errors import FrameTimeoutError, SkinlocError, SourceNotConnectedError
 from skinloc.sources.base import FrameSource
 
 if TYPE_CHECKING:
@@ -26,6 +28,9 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 _MAX_QUEUED = 256  # frames waiting for the loop before a fast source is held back
+_RETRY_S = 0.1  # how often a lost (or not yet plugged) port is tried again, s
+#: Errors that mean "no such device yet" (a USB node not created, a link not made): waited for.
+_MISSING = (errno.ENOENT, errno.ENODEV, errno.ENXIO)
 
 
 class _Loop(Protocol):
@@ -68,6 +73,10 @@ class _PortFeed:
         self.n_bytes = 0
         self.retry_at = 0.0
         self.last_error = ""
+        #: Missing at start and waited for (no reconnect is counted when it appears).
+        self.waiting = False
+        self._told_denied = False
+        self.name = spec.name
 
     def open(self) -> None:
         import serial
@@ -105,19 +114,61 @@ class _PortFeed:
         self.close()
         self.core.reset_link()
         self.n_disconnects += 1
-        self.retry_at = time.monotonic() + 0.1
+        self.retry_at = time.monotonic() + _RETRY_S
 
     def retry(self, sel: selectors.BaseSelector, now: float) -> None:
-        """Reopen a lost port when its retry time has come (still unplugged: later)."""
+        """Reopen a lost or awaited port when its retry time has come (still absent: later)."""
         if self.ser is None and now >= self.retry_at:
             try:
                 self.open()
-            except Exception:  # noqa: BLE001 - still unplugged: try again later
-                self.retry_at = now + 0.1
+            except Exception as exc:  # noqa: BLE001 - still unplugged: try again later
+                self.retry_at = now + _RETRY_S
+                # A node that appeared but stays unreadable is told once (udev may fix the
+                # group a moment after the node appears, so this is no reason to stop).
+                if getattr(exc, "errno", None) == errno.EACCES and not self._told_denied:
+                    from skinloc.hardware.serial import _why_not_open
+
+                    self._told_denied = True
+                    log.warning("%s (skin %s): %s", self.port, self.name, _why_not_open(exc))
                 return
             sel.register(self.fd, selectors.EVENT_READ, self)
-            self.n_reconnects += 1
-            log.warning("reconnected to %s", self.port)
+            if self.waiting:
+                self.waiting = False
+                log.warning("%s (skin %s) is here: reading it", self.port, self.name)
+            else:
+                self.n_reconnects += 1
+                log.warning("reconnected to %s", self.port)
+
+
+def open_port_feed(slot: int, spec: SkinSpec, core: SkinCore) -> _PortFeed | None:
+    """The loop's feed of a serial port, opened; None for a URL without a file descriptor.
+
+    A port that does not exist (yet) is waited for when ``spec.wait``: the feed is returned
+    closed, marked ``waiting``, and the loop's ``retry`` opens it once it appears.
+
+    Raises
+    ------
+    SourceNotConnectedError
+        For a port that cannot be opened and is not waited for, in one line saying why
+        (missing, permission denied: the dialout group, busy, not a serial port).
+    """
+    from skinloc.hardware.serial import _why_not_open
+
+    feed = _PortFeed(slot, spec, core)
+    try:
+        feed.open()
+    except _NoFileDescriptor:
+        return None  # a URL without a file descriptor (loop://): read on a thread
+    except (OSError, ValueError) as exc:  # serial.SerialException is an OSError
+        code = getattr(exc, "errno", None)
+        if spec.wait and (code in _MISSING or (code is None and not os.path.exists(feed.port))):
+            feed.waiting = True
+            feed.last_error = "not present"
+            return feed
+        raise SourceNotConnectedError(
+            f"cannot open serial port {spec.source}: {_why_not_open(exc)}"
+        ) from None
+    return feed
 
 
 class _ThreadFeed:

@@ -31,7 +31,7 @@ from typing import Any
 from skinloc.errors import SourceNotConnectedError
 from skinloc.live.config import PipelineConfig
 from skinloc.live.core import Contact, SkinCore, load_fast_localizer
-from skinloc.live.feeds import _NoFileDescriptor, _PortFeed, _ThreadFeed
+from skinloc.live.feeds import _PortFeed, _ThreadFeed, open_port_feed
 from skinloc.live.scripted import ScriptedFinger
 from skinloc.live.sinks.base import Sink, SkinInfo, make_sink
 from skinloc.live.spec import SkinSpec, _is_recording, open_source, record_frames, skin_info
@@ -170,19 +170,11 @@ class Runner:
                 and not _is_recording(str(src))
                 and not (str(src) == "sim" or str(src).startswith("sim:"))
             ):
-                feed = _PortFeed(slot, spec, core)
-                try:
-                    feed.open()
-                except _NoFileDescriptor:
-                    feed = None  # a URL without a file descriptor (loop://): use a thread
-                except (OSError, ValueError) as exc:  # serial.SerialException is an OSError
-                    raise SourceNotConnectedError(
-                        f"cannot open serial port {src}: {exc} (is the board plugged in? "
-                        "`skinloc ports` lists the ports)"
-                    ) from None
+                feed = open_port_feed(slot, spec, core)  # None: a URL read on a thread
                 if feed is not None:
                     self._ports.append(feed)
-                    self._sel.register(feed.fd, selectors.EVENT_READ, feed)
+                    if not feed.waiting:  # a missing port waited for is opened by the loop
+                        self._sel.register(feed.fd, selectors.EVENT_READ, feed)
                     continue
             source = open_source(spec, core.n_sensors)
             if source.n_sensors != core.n_sensors:
@@ -326,6 +318,11 @@ class Runner:
         return out
 
     @property
+    def waiting(self) -> list[tuple[str, str]]:
+        """``(skin, port)`` of every port missing at start and not yet there."""
+        return [(f.name, f.port) for f in self._ports if f.waiting]
+
+    @property
     def finished(self) -> bool:
         """Whether every source has ended (only recordings end)."""
         return not self._ports and all(f.finished for f in self._threads) and not self._queue
@@ -414,6 +411,7 @@ class Runner:
                 d.update(
                     port=f.port,
                     link_up=f.ser is not None,
+                    waiting=f.waiting,
                     disconnects=f.n_disconnects,
                     reconnects=f.n_reconnects,
                     bytes=f.n_bytes,
@@ -447,7 +445,7 @@ class Pipeline(Runner):
         Called for every gesture event, on the pipeline's thread.
     **source_options
         Further ``SkinSpec`` fields: ``name``, ``baud``, ``wire_format``, ``n_tx``, ``n_rx``,
-        ``realtime``, ``loop``, ``rate_hz``, ``baseline``.
+        ``realtime``, ``loop``, ``rate_hz``, ``baseline``, ``wait`` (a missing port).
 
     Examples
     --------

@@ -80,6 +80,10 @@ class SkinSpec:
     gestures : GestureConfig, dict or None
         The gesture recogniser's thresholds (a dict of ``GestureConfig`` fields, as a skins
         file's ``gestures`` table gives them); None: the documented defaults.
+    wait : bool or None
+        A serial port that does not exist when the runner opens: wait for it to appear
+        (retried every 0.1 s, as after an unplug) instead of failing. None: the caller's
+        default (``Runner``: fail; ``skinloc run``: wait unless ``--no-wait``).
     """
 
     model: Any
@@ -103,9 +107,12 @@ class SkinSpec:
     rpy: Sequence[float] | None = None
     up: Sequence[float] | None = None
     gestures: GestureConfig | dict[str, Any] | None = None
+    wait: bool | None = None
 
     def __post_init__(self) -> None:
         self._mount = _mount_pose(self)
+        if self.wait is not None and not isinstance(self.wait, bool):
+            raise ValueError(f"wait must be true or false, not {self.wait!r}")
         if isinstance(self.gestures, dict):
             self.gestures = settings_from_dict(GestureConfig, self.gestures, "gestures")
         elif self.gestures is not None and not isinstance(self.gestures, GestureConfig):

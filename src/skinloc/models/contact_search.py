@@ -37,6 +37,16 @@ class SearchTables:
         Noise per sensor, counts (``None``: ``DEFAULT_NOISE_COUNTS``).
     rule : CountRule
         The count rule.
+
+    Attributes
+    ----------
+    arrays : tuple
+        The kernels' tables: ``w, Ct, Cg, Cd, Cpos, nbr, Ft, Fpos, Fpk, Fcell, off, cfine`` and
+        ``Fn (P,)`` float64, each fine row's ``_dot(row, row)`` (whitened counts^2).
+    pair : PairTables
+        The pruned seed and pair stages' tables (``skinloc.models.contact_pairs``).
+    scratch : tuple
+        The search's work arrays; ``scratch[-1]`` its statistics.
     """
 
     def __init__(

@@ -80,7 +80,16 @@ def search_statistics(
     res = np.zeros((len(images), 7))
     X = np.ascontiguousarray(images, dtype=np.float32)
     for i, x in enumerate(X):
-        search_into(x, max_contacts, tables.arrays, tables.prm, tables.scratch, True, out)
+        search_into(
+            x,
+            max_contacts,
+            tables.arrays,
+            tables.prm,
+            tables.scratch,
+            True,
+            out,
+            *tables.pair.kernel_args,
+        )
         res[i, :6] = st[:6]
         res[i, 6] = float(np.max(x * tables.w))
     return res

@@ -61,7 +61,7 @@ def _anchored_pair(
     out: np.ndarray,
 ) -> int:  # pragma: no cover - compiled
     """The fit into ``out (3,)``: ratio, z2, found (1.0) or not; rows of ``S[4][:2]``."""
-    w, Ct, Cg, Cd, Cpos, nbr, Ft, Fpos, Fpk, Fcell, off, cfine = arrays
+    w, Ct, Cg, Cd, Cpos, nbr, Ft, Fpos, Fpk, Fcell, off, cfine, _ = arrays
     xw, fi, s = S[0], S[4], S[8]
     k = x.shape[0]
     xx = 0.0

@@ -7,6 +7,7 @@ import math
 import numpy as np
 
 from skinloc._jit import jit
+from skinloc.models.contact_pairs import PairTables, _far, seeds_and_pair
 from skinloc.models.multi_contact import N_COLS, CountRule, noise_weights
 
 __all__ = ["SearchTables", "relative_gain", "search_into", "single_into"]
@@ -36,6 +37,16 @@ class SearchTables:
         Noise per sensor, counts (``None``: ``DEFAULT_NOISE_COUNTS``).
     rule : CountRule
         The count rule.
+
+    Attributes
+    ----------
+    arrays : tuple
+        The kernels' tables: ``w, Ct, Cg, Cd, Cpos, nbr, Ft, Fpos, Fpk, Fcell, off, cfine`` and
+        ``Fn (P,)`` float64, each fine row's ``_dot(row, row)`` (whitened counts^2).
+    pair : PairTables
+        The pruned seed and pair stages' tables (``skinloc.models.contact_pairs``).
+    scratch : tuple
+        The search's work arrays; ``scratch[-1]`` its statistics.
     """
 
     def __init__(
@@ -75,6 +86,8 @@ class SearchTables:
         n_nb = min(N_NEIGHBOURS, len(coarse))
         self.nbr = cKDTree(self.Cpos).query(self.Cpos, k=n_nb)[1].reshape(len(coarse), n_nb)
         self.nbr = np.ascontiguousarray(self.nbr, dtype=np.int64)
+        # the pruned seed and pair stages' tables (``skinloc.models.contact_pairs``)
+        self.pair = PairTables(self.Cg, self.Cpos, float(self.prm[1]))
         widest = int(np.diff(self.off).max()) * n_nb
         n_top = max(1, min(int(rule.n_top), len(coarse)))
         self.arrays = (
@@ -90,6 +103,7 @@ class SearchTables:
             self.Fcell,
             self.off,
             self.cfine,
+            _row_norms(self.Ft),
         )
         self.scratch = (
             np.zeros(k, dtype=np.float32),  # whitened image
@@ -116,6 +130,15 @@ def _dot(a: np.ndarray, b: np.ndarray) -> float:  # pragma: no cover - compiled
     for i in range(a.shape[0]):
         acc += a[i] * b[i]
     return float(acc)
+
+
+@jit()
+def _row_norms(Ft: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    """``_dot(row, row)`` of every row of ``Ft (P, k)``: ``(P,)`` float64 (the search's own)."""
+    n = np.empty(Ft.shape[0])
+    for q in range(Ft.shape[0]):
+        n[q] = _dot(Ft[q], Ft[q])
+    return n
 
 
 @jit()
@@ -180,14 +203,6 @@ def _nnls(G: np.ndarray, b: np.ndarray, m: int, s: np.ndarray) -> float:  # prag
 
 
 @jit()
-def _far(p: np.ndarray, q: np.ndarray, min2: float) -> bool:  # pragma: no cover - compiled
-    d = 0.0
-    for t in range(3):
-        d += (p[t] - q[t]) ** 2
-    return d >= min2
-
-
-@jit()
 def _refine(
     i: int,
     m: int,
@@ -204,7 +219,7 @@ def _refine(
 
     Returns ``(gain, spread_mm)``; ``fi[i]`` and the strengths ``s_out[:m]`` are updated.
     """
-    w, Ct, Cg, Cd, Cpos, nbr, Ft, Fpos, Fpk, Fcell, off, cfine = arrays
+    w, Ct, Cg, Cd, Cpos, nbr, Ft, Fpos, Fpk, Fcell, off, cfine, Fn = arrays
     G = np.empty((3, 3))  # once per call, not per candidate
     b = np.empty(3)
     s = np.empty(3)
@@ -230,7 +245,7 @@ def _refine(
             for j in range(m):
                 if j != i:
                     G[i, j] = G[j, i] = _dot(row, Ft[fi[j]])
-            G[i, i] = _dot(row, row)
+            G[i, i] = Fn[q]  # _dot(row, row), once per model
             g = _nnls(G, b, m, s)
             gq[n] = g
             qq[n] = q
@@ -305,15 +320,26 @@ def _weakest_z(m: int, fi: np.ndarray, s: np.ndarray, Fpk: np.ndarray) -> float:
 
 @jit()
 def search_into(
-    x: np.ndarray, K: int, arrays: tuple, prm: np.ndarray, S: tuple, calib: bool, out: np.ndarray
+    x: np.ndarray,
+    K: int,
+    arrays: tuple,
+    prm: np.ndarray,
+    S: tuple,
+    calib: bool,
+    out: np.ndarray,
+    pair: tuple,
+    pair_s: tuple,
 ) -> int:  # pragma: no cover - compiled
     """The contacts of one image ``x (k,)`` float32 counts into ``out (K, 5)``; returns their count.
+
+    ``arrays``, ``prm``, ``S``: ``SearchTables.arrays``, ``.prm``, ``.scratch``; ``pair``,
+    ``pair_s``: ``SearchTables.pair.arrays`` and ``.scratch`` (the pruned seed and pair stages).
 
     A count of 1 leaves ``out`` to the caller (the model's single-contact answer). With
     ``calib`` every stage up to ``K`` runs whatever the rule says (for its calibration); the
     statistics go to ``S[10]``: g1, g2, g3, weakest z of 2 and of 3 contacts, ``|xw|^2``.
     """
-    w, Ct, Cg, Cd, Cpos, nbr, Ft, Fpos, Fpk, Fcell, off, cfine = arrays
+    w, Ct, Cg, Cd, Cpos, nbr, Ft, Fpos, Fpk, Fcell, off, cfine, Fn = arrays
     xw, bC, g1, top, fi, keep, gq, qq, s, spread, st = S
     z_on, min2, tau2, tau3, z2_min, z3_min = prm[0], prm[1], prm[2], prm[3], prm[5], prm[6]
     k = x.shape[0]
@@ -337,57 +363,14 @@ def search_into(
         bc = _dot(Ct[c], xw)
         bC[c] = bc
         g1[c] = bc * bc / Cd[c] if bc > 0.0 else 0.0
-    # seeds: the best one-contact candidates, each at least half the separation from the rest
-    nt = top.shape[0]
-    n_seeds = 0
-    for t in range(nt):
-        best = -1.0
-        bi = -1
-        for c in range(C):
-            if g1[c] > best:
-                best = g1[c]
-                bi = c
-        if bi < 0:
-            break
-        top[t] = bi
-        n_seeds += 1
-        for c in range(C):
-            if not _far(Cpos[c], Cpos[bi], 0.25 * min2):
-                g1[c] = -1.0
+    # seeds: the best one-contact candidates, each at least half the separation from the rest;
+    # then every seed with every coarse candidate far enough from it (pruned: contact_pairs)
+    n_seeds, pa, pb = seeds_and_pair(bC, g1, Cg, Cd, Cpos, min2, top, pair, pair_s)
     # one contact, refined (its residual is what a second must improve on)
     fi[0] = cfine[top[0]]
     gain1 = _polish(1, fi, xw, xx, arrays, 0.0, S)
     st[0] = gain1
     st[11] = fi[0]
-    # pairs: every seed with every coarse candidate far enough from it
-    bestg = -1.0
-    pa = -1
-    pb = -1
-    for t in range(n_seeds):
-        a = top[t]
-        gaa = float(Cg[a, a])
-        ba = bC[a]
-        ga_row = Cg[a]
-        for c in range(C):
-            bb = bC[c]
-            # rows are mostly non-negative: a partner the image does not correlate with
-            # cannot take a positive strength
-            if bb <= 0.0 or c == a:
-                continue
-            gab = float(ga_row[c])
-            gbb = Cd[c]
-            det = gaa * gbb - gab * gab
-            if det <= 1e-12 * gaa * gbb:
-                continue
-            # s_a, s_b and the gain over det, free of divisions: det > 0
-            na = gbb * ba - gab * bb
-            nb = gaa * bb - gab * ba
-            if na <= 0.0 or nb <= 0.0:
-                continue
-            if na * ba + nb * bb > bestg * det and _far(Cpos[a], Cpos[c], min2):
-                bestg = (na * ba + nb * bb) / det
-                pa = a
-                pb = c
     if pa < 0:
         return 1
     fi[0] = cfine[pa]

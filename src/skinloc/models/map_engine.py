@@ -201,7 +201,9 @@ class MapEngine(Engine):
         """
         if max_contacts > 1:
             t = self._tables if self._tables is not None else self.search_tables()
-            n = search_into(x, max_contacts, t.arrays, t.prm, t.scratch, False, out)
+            n = search_into(
+                x, max_contacts, t.arrays, t.prm, t.scratch, False, out, *t.pair.kernel_args
+            )
             if n > 1:
                 _peel(
                     x,

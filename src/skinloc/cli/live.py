@@ -49,14 +49,12 @@ def _check_sources(specs: list[Any], allow_url: bool, wait: bool) -> None:
     every spec leaves with ``wait`` set.
     """
     from skinloc.hardware.ports import PortMissingError, check_source
-    from skinloc.live.runner import _is_recording
+    from skinloc.sources.base import SourceKind, source_kind
 
     for spec in specs:
         spec.wait = wait and spec.wait is not False
         src = spec.source
-        if not isinstance(src, str) or src == "sim" or src.startswith("sim:"):
-            continue
-        if not _is_recording(src):
+        if isinstance(src, str) and source_kind(src) is SourceKind.SERIAL:
             try:
                 check_source(src, allow_urls=allow_url, allow_sim=False, opt_in="pass --allow-url")
             except PortMissingError:
@@ -183,7 +181,7 @@ def register(app: typer.Typer) -> None:
         Example: skinloc run --model model.h5 --source /dev/ttyACM0 --sink jsonl --sink ws://127.0.0.1:8767
         """
         from skinloc.live.core import PipelineConfig
-        from skinloc.live.runner import Runner, SkinSpec
+        from skinloc.live.runner import Runner, SkinConfig
 
         sinks = list(sink) if sink else ["jsonl"]
         inputs = [model, baseline, config, Path(source)]
@@ -213,7 +211,7 @@ def register(app: typer.Typer) -> None:
                 max_contacts=max_contacts,
                 gestures=gestures,
             )
-            spec = SkinSpec(
+            spec = SkinConfig(
                 model=model,
                 source=source,
                 name=name,

@@ -2,7 +2,7 @@
 
 Serial ports are read by the loop itself (``_PortFeed``); any other ``FrameSource`` is read on
 a small thread of its own (``_ThreadFeed``). A port missing at start is waited for when its
-skin asks to (``SkinSpec.wait``): the loop retries it on the unplug recovery's schedule.
+skin asks to (``SkinConfig.wait``): the loop retries it on the unplug recovery's schedule.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ if TYPE_CHECKING:
     import collections
 
     from skinloc.live.core import SkinCore
-    from skinloc.live.spec import SkinSpec
+    from skinloc.live.skin_config import SkinConfig
 
 log = logging.getLogger(__name__)
 
@@ -51,7 +51,7 @@ class _NoFileDescriptor(Exception):
 class _PortFeed:
     """A serial port read by the loop itself (non-blocking file descriptor, no thread)."""
 
-    def __init__(self, slot: int, spec: SkinSpec, core: SkinCore) -> None:
+    def __init__(self, slot: int, spec: SkinConfig, core: SkinCore) -> None:
         from skinloc.hardware.serial import SerialSourceConfig
 
         self.slot = slot
@@ -140,7 +140,7 @@ class _PortFeed:
                 log.warning("reconnected to %s", self.port)
 
 
-def open_port_feed(slot: int, spec: SkinSpec, core: SkinCore) -> _PortFeed | None:
+def open_port_feed(slot: int, spec: SkinConfig, core: SkinCore) -> _PortFeed | None:
     """The loop's feed of a serial port, opened; None for a URL without a file descriptor.
 
     A port that does not exist (yet) is waited for when ``spec.wait``: the feed is returned

@@ -157,22 +157,22 @@ def _vector(value: Any, n: int, what: str) -> tuple[float, ...]:
 
 
 def _mount_pose(
-    spec: SkinConfig,
+    skin: SkinConfig,
 ) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
-    """Check and normalise a spec's mounting pose (translation m, unit quaternion xyzw)."""
-    if spec.parent_frame is not None and (
-        not isinstance(spec.parent_frame, str) or not spec.parent_frame.strip()
+    """Check and normalise a skin's mounting pose (translation m, unit quaternion xyzw)."""
+    if skin.parent_frame is not None and (
+        not isinstance(skin.parent_frame, str) or not skin.parent_frame.strip()
     ):
-        raise ValueError(f"parent_frame must be a frame name, not {spec.parent_frame!r}")
-    t = _vector(spec.translation, 3, "translation")
-    if spec.rotation is not None and spec.rpy is not None:
+        raise ValueError(f"parent_frame must be a frame name, not {skin.parent_frame!r}")
+    t = _vector(skin.translation, 3, "translation")
+    if skin.rotation is not None and skin.rpy is not None:
         raise ValueError("give rotation (quaternion x, y, z, w) or rpy (rad), not both")
-    if spec.rpy is not None:
+    if skin.rpy is not None:
         from skinloc.live.sinks.ros2.sink import quaternion_from_rpy
 
-        q = quaternion_from_rpy(*_vector(spec.rpy, 3, "rpy"))
-    elif spec.rotation is not None:
-        q = _vector(spec.rotation, 4, "rotation (quaternion x, y, z, w)")
+        q = quaternion_from_rpy(*_vector(skin.rpy, 3, "rpy"))
+    elif skin.rotation is not None:
+        q = _vector(skin.rotation, 4, "rotation (quaternion x, y, z, w)")
         norm = math.sqrt(sum(v * v for v in q))
         if abs(norm - 1.0) > 1e-3:
             raise ValueError(f"rotation must be a unit quaternion x, y, z, w (norm {norm:.4g})")
@@ -182,16 +182,16 @@ def _mount_pose(
     return (t[0], t[1], t[2]), (q[0], q[1], q[2], q[3])
 
 
-def skin_info(spec: SkinConfig, core: SkinCore) -> SkinInfo:
+def skin_info(skin: SkinConfig, core: SkinCore) -> SkinInfo:
     """What the sinks learn of a skin: name, mesh (the model's), grid and pose on the robot."""
-    translation, rotation = spec.mount
+    translation, rotation = skin.mount
     return SkinInfo(
-        spec.name,
+        skin.name,
         core.engine.spec.vertices,
         core.engine.spec.faces,
         n_tx=core.n_tx,
         n_rx=core.n_rx,
-        parent_frame=spec.parent_frame,
+        parent_frame=skin.parent_frame,
         translation_m=translation,
         rotation_xyzw=rotation,
         max_contacts=core.max_contacts,

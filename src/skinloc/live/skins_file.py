@@ -82,7 +82,7 @@ def load_skins(path: str | Path) -> tuple[list[SkinConfig], list[str]]:
     base = path.parent
     known = {f.name for f in dataclasses.fields(SkinConfig)} - {"config"} | {"pipeline"}
     defaults = dict(raw.get("defaults", {}))
-    specs = []
+    skins = []
     for k, entry in enumerate(skins_raw):
         merged = {**defaults, **entry}
         name = str(merged.get("name", f"skin{k}"))
@@ -111,16 +111,16 @@ def load_skins(path: str | Path) -> tuple[list[SkinConfig], list[str]]:
         if not isinstance(sinks, list):
             raise ValueError(f"{path}: skin {name!r}: sinks must be a list of strings")
         try:
-            specs.append(SkinConfig(config=config, sinks=list(sinks), **merged))
+            skins.append(SkinConfig(config=config, sinks=list(sinks), **merged))
         except (TypeError, ValueError) as exc:
             raise ValueError(f"{path}: skin {name!r}: {exc}") from None
     sinks = raw.get("sinks", [])
     if not isinstance(sinks, list):
         raise ValueError(f"{path}: sinks must be a list of strings")
-    return specs, [str(s) for s in sinks]
+    return skins, [str(s) for s in sinks]
 
 
 def runner_from_config(path: str | Path, extra_sinks: list[str] | None = None) -> Runner:
     """A ``Runner`` for every skin of a skins file (plus ``extra_sinks`` for all skins)."""
-    specs, sinks = load_skins(path)
-    return Runner(specs, sinks=[*sinks, *(extra_sinks or [])])
+    skins, sinks = load_skins(path)
+    return Runner(skins, sinks=[*sinks, *(extra_sinks or [])])

@@ -11,7 +11,7 @@ separately, and their pairwise agreement; the lines flagged in each.
 
 ``--fields`` lets ``skinloc sensors`` try the separable line-field model where the
 whole-image model is not kept, and use it where it predicts held-out touches better
-(``sensors.line_field_map``); each result then says which method was used and the held-out scores.
+(``sensors.line_fields``); each result then says which method was used and the held-out scores.
 """
 
 from __future__ import annotations

@@ -127,7 +127,7 @@ def test_scripted_gestures_through_a_faulty_virtual_skin_are_delivered_once(tmp_
     """
     from skinloc.errors import SourceNotConnectedError
     from skinloc.live.runner import Runner
-    from skinloc.live.spec import SkinSpec
+    from skinloc.live.skin_config import SkinConfig
     from skinloc.sim.gestures import GESTURE_KINDS, GestureScript
     from skinloc.sim.hand import ScriptedHand, script_items
     from skinloc.sim.skin import SimulatedSkin
@@ -143,7 +143,7 @@ def test_scripted_gestures_through_a_faulty_virtual_skin_are_delivered_once(tmp_
     faults = FaultConfig(disconnect_every_s=3.0, downtime_s=0.2, random_state=1)
     out = tmp_path / "events.jsonl"
     with VirtualSkin(skin, fmt="binary", rate_hz=100, faults=faults, hand=hand) as dev:
-        spec = SkinSpec(model=model_path("map"), source=dev.path, wire_format="binary")
+        spec = SkinConfig(model=model_path("map"), source=dev.path, wire_format="binary")
         for _ in range(20):  # the port may be unplugged right then: open it once it is back
             runner = Runner([spec], sinks=[f"jsonl:{out}"])
             try:

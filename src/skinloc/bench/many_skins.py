@@ -77,6 +77,7 @@ def _shard(
     sinks: tuple[str, ...],
     max_contacts: int | None,
     domain: int | None,
+    dds_config: str | None,
     start: Callable[[], float],
 ) -> dict:
     """One ``Runner`` over the skins ``first .. first + len(names) - 1`` (their ptys ``names``).
@@ -86,14 +87,14 @@ def _shard(
     contacts' latencies (s), the runner's and the sinks' statistics and the loop's CPU.
     """
     from skinloc.live.core import PipelineConfig
-    from skinloc.live.runner import Runner, SkinSpec
+    from skinloc.live.runner import Runner, SkinConfig
     from skinloc.models.engine import load_engine
 
     fast = load_engine(model_path)
     extra = {} if max_contacts is None else {"max_contacts": int(max_contacts)}
     config = PipelineConfig(baseline_frames=50, **extra)
     specs = [
-        SkinSpec(
+        SkinConfig(
             model=fast,
             source=name,
             name=f"skin{first + i:03d}",
@@ -117,7 +118,7 @@ def _shard(
         if spec.startswith("ros2"):
             from skinloc.live.sinks.ros2.sink import Ros2Sink
 
-            sink_objs.append(Ros2Sink(domain_id=domain, backend="dds"))
+            sink_objs.append(Ros2Sink(domain_id=domain, backend="dds", dds_config=dds_config))
         else:
             sink_objs.append(spec)
     runner = Runner(specs, sinks=sink_objs, callback=on_contact)
@@ -199,12 +200,12 @@ def many_skins(
     its default). ``workers``: 1, one ``Runner`` in this process; more, one per worker
     process over consecutive shares of the skins (loop CPU then summed over the workers).
     """
-    from skinloc.bench.sinks import bench_domain
+    from skinloc.bench.sinks import bench_dds
 
     if not 1 <= workers <= n_skins:
         raise ValueError(f"workers must be 1..{n_skins} (the skins), got {workers}")
     frames, _ = touch_stream(3000, random_state=random_state)
-    domain = bench_domain() if any(s.startswith("ros2") for s in sinks) else None
+    domain, dds = bench_dds() if any(s.startswith("ros2") for s in sinks) else (None, None)
     ctx = mp.get_context("spawn")
     parent, child = ctx.Pipe()
     proc = ctx.Process(
@@ -222,6 +223,7 @@ def many_skins(
             "sinks": tuple(sinks),
             "max_contacts": max_contacts,
             "domain": domain,
+            "dds_config": dds,
         }
 
         def go() -> float:

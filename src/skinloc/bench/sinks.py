@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["LOOPBACK_DDS", "bench_domain", "sink_cost"]
+__all__ = ["LOOPBACK_DDS", "bench_dds", "sink_cost"]
 
 #: Cyclone DDS on the loopback interface only, unicast: benchmarks must not talk to the network
 LOOPBACK_DDS = (
@@ -28,10 +28,13 @@ LOOPBACK_DDS = (
 )
 
 
-def bench_domain() -> int:
-    """A DDS domain for a benchmark run, kept on loopback unless CYCLONEDDS_URI is set."""
-    os.environ.setdefault("CYCLONEDDS_URI", LOOPBACK_DDS)
-    return 100 + os.getpid() % 100
+def bench_dds() -> tuple[int, str]:
+    """A DDS domain for a benchmark run and its configuration: loopback, or CYCLONEDDS_URI.
+
+    The configuration goes to the publishers (``Ros2Sink(dds_config=...)``) and to the
+    benchmark's own participants (``cyclonedds.domain.Domain``); ``os.environ`` is not changed.
+    """
+    return 100 + os.getpid() % 100, os.environ.get("CYCLONEDDS_URI") or LOOPBACK_DDS
 
 
 def _contacts(n: int, n_skins: int, random_state: int) -> list[Any]:
@@ -84,7 +87,7 @@ def sink_cost(n_contacts: int = 20000, n_skins: int = 10, rounds: int = 3) -> di
     contact, 0 for sinks without one), ``total_us_per_contact`` (their sum), ``dropped``.
     """
     from cyclonedds.core import Policy, Qos
-    from cyclonedds.domain import DomainParticipant
+    from cyclonedds.domain import Domain, DomainParticipant
     from cyclonedds.sub import DataReader
     from cyclonedds.topic import Topic
 
@@ -94,7 +97,7 @@ def sink_cost(n_contacts: int = 20000, n_skins: int = 10, rounds: int = 3) -> di
     from skinloc.live.sinks.ros2.sink import Ros2Sink
     from skinloc.ros2.msgs import PoseArray
 
-    alone = bench_domain()  # loopback configuration before the first participant
+    alone, dds = bench_dds()
     heard = alone + 1  # the subscriber's domain; nothing listens on ``alone``
     contacts = _contacts(n_contacts, n_skins, 0)
     infos = [SkinInfo(f"skin{i:03d}") for i in range(n_skins)]
@@ -103,6 +106,7 @@ def sink_cost(n_contacts: int = 20000, n_skins: int = 10, rounds: int = 3) -> di
     dropped: dict[str, int] = {}
     received = 0
     with tempfile.TemporaryDirectory(prefix="skinloc-sink-cost-") as tmp:
+        _domain = Domain(heard, dds)  # its configuration, kept while the participant lives
         reader_dp = DomainParticipant(heard)
         qos = Qos(Policy.Reliability.Reliable(0), Policy.History.KeepLast(10))
         readers = [
@@ -118,10 +122,10 @@ def sink_cost(n_contacts: int = 20000, n_skins: int = 10, rounds: int = 3) -> di
             makers = {
                 "jsonl": lambda r=r: JsonLinesSink(Path(tmp) / f"c{r}.jsonl"),
                 "ros2 (DDS, no subscriber)": lambda: Ros2Sink(
-                    domain_id=alone, backend="dds", queue_frames=n_queue
+                    domain_id=alone, backend="dds", queue_frames=n_queue, dds_config=dds
                 ),
                 "ros2 (DDS, 1 subscriber)": lambda: Ros2Sink(
-                    domain_id=heard, backend="dds", queue_frames=n_queue
+                    domain_id=heard, backend="dds", queue_frames=n_queue, dds_config=dds
                 ),
                 "mcap-ros2 (bag)": lambda r=r: Ros2BagSink(Path(tmp) / f"b{r}.mcap", frames=False),
             }

@@ -90,9 +90,9 @@ def register(app: typer.Typer) -> None:
         try:
             import uvicorn
 
-            from skinloc.app.device import SourceSpec
             from skinloc.app.server import create_app, own_origins
             from skinloc.app.workspace import AppConfig
+            from skinloc.sources.base import SourceOptions
         except ImportError as exc:  # pragma: no cover - dependencies of a plain install
             raise ValueError(f"the app needs {exc.name}: pip install skinloc") from None
         from skinloc.geometry.mesh import load_mesh
@@ -118,7 +118,7 @@ def register(app: typer.Typer) -> None:
             )
             spec = None
             if source is not None:
-                spec = SourceSpec(source=source, tx=tx, rx=rx, baud=baud, format=fmt, seed=seed)
+                spec = SourceOptions(source, n_tx=tx, n_rx=rx, baud=baud, format=fmt, seed=seed)
             hosts = ["127.0.0.1", "localhost", "[::1]", host, f"[{host}]"]
             # The page's own origins only: another site's page gets no stream and no actions.
             web = create_app(config, spec, allowed_hosts=hosts, origins=own_origins(host, port))

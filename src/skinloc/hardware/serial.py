@@ -25,7 +25,7 @@ from skinloc.errors import FrameTimeoutError, SourceNotConnectedError
 from skinloc.hardware.framing import ParserStats, make_parser
 from skinloc.hardware.ports import PortInfo, check_source, list_ports  # re-exported
 from skinloc.hardware.protocol import MAX_RX, MAX_TX, WireFormat
-from skinloc.sources.base import Frame, FrameSource
+from skinloc.sources.base import Frame, FrameSource, SourceOptions
 
 log = logging.getLogger(__name__)
 
@@ -225,9 +225,19 @@ class SerialSource(FrameSource):
         self._write_lock = threading.Lock()
 
     @classmethod
-    def from_options(cls, **config: Any) -> SerialSource:
-        """A source from ``SerialSourceConfig``'s fields as keywords (``make_source("serial")``)."""
-        return cls(SerialSourceConfig(**config))
+    def from_options(cls, options: SourceOptions, mesh: Any = None) -> SerialSource:
+        """The port ``options`` name (``skinloc.sources.base.make_source``); no ``mesh``."""
+        return cls(
+            SerialSourceConfig(
+                port=options.source,
+                baud=options.baud,
+                n_tx=options.n_tx,
+                n_rx=options.n_rx,
+                tx_mask=options.tx_mask,
+                rx_mask=options.rx_mask,
+                format=options.format,
+            )
+        )
 
     # -- FrameSource -------------------------------------------------------------------------
     @property

@@ -1,4 +1,8 @@
-"""The per-sensor fits behind ``sensors.sensor_map``: one crossing, the shared footprint, touches.
+"""The per-crossing fit behind ``sensors.sensor_map``, and the result every sensor fit gives.
+
+``CrossingFit`` is what the three estimates of the crossings hand to the sensor map: this
+module's fit, the whole-image model (``sensors.joint_fit``) and the line fields
+(``sensors.line_fields``).
 
 Each sensor's response to a touch is modelled as ``a / (1 + d^2 / w^2) + c``, with ``d`` the
 distance from the touch to the crossing, ``w`` the footprint (half-maximum radius), ``a`` the
@@ -7,6 +11,7 @@ gain and ``c`` an offset; a touch's whole image scales with its pressure. All le
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -16,6 +21,7 @@ from skinloc.sensors.wires import structured_crossings
 
 __all__ = [
     "LABEL_ERROR_MM",
+    "CrossingFit",
     "fit_per_crossing",
     "WIDTHS_MM",
     "local_fit",
@@ -24,6 +30,29 @@ __all__ = [
     "shared_width",
     "touch_pressure",
 ]
+
+
+@dataclass(frozen=True)
+class CrossingFit:
+    """Where each crossing of a skin is and how it responds (mm, counts).
+
+    Attributes
+    ----------
+    positions_mm : (n_sensors, 3) float
+        Each crossing on the surface, mm.
+    footprint_mm : (n_sensors,) float
+        Half-maximum radius of each crossing's response, mm.
+    gain : (n_sensors,) float
+        Each crossing's peak response (any common scale: the health rule compares them).
+    touches_mm : (n_touch, 3) float or None
+        Where the fit placed the touches, mm (None: at their labels).
+    """
+
+    positions_mm: np.ndarray
+    footprint_mm: np.ndarray
+    gain: np.ndarray
+    touches_mm: np.ndarray | None = None
+
 
 #: The person's miss per tangent axis, mm: measured on the real skin's repeated targets
 #: (docs/simulator.md); the prior of ``refine_touches``.
@@ -230,13 +259,12 @@ def fit_per_crossing(
     n_rx: int,
     structure: bool,
     label_mm: float = LABEL_ERROR_MM,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+) -> CrossingFit:
     """Steps 1-3 of ``sensors.sensor_map``: each crossing from its own column of responses.
 
     ``targets (n_touch, 3)`` m, ``images (n_touch, n_sensors)`` counts, ``candidates (P, 3)``
-    m with ``tree`` the cKDTree of the candidates in mm. Returns positions ``(n, 3)`` mm,
-    footprints mm, gains, residual rms and the touches ``(n_touch, 3)`` mm where the fit
-    placed them (the labels when ``label_mm`` is 0).
+    m with ``tree`` the cKDTree of the candidates in mm. The touches of the result are where
+    the fit placed them (the labels when ``label_mm`` is 0).
     """
     T_mm, C_mm = 1e3 * targets, 1e3 * candidates
     T_mm0 = T_mm
@@ -280,4 +308,4 @@ def fit_per_crossing(
             pos[k] = C_mm[ci]
     if structure:
         pos = structured_crossings(pos, amp / max(float(np.median(amp)), 1e-12), C_mm, n_tx, n_rx)
-    return pos, width, amp, rms, T_mm
+    return CrossingFit(pos, width, amp, T_mm)

@@ -27,6 +27,8 @@ from typing import Any
 
 import numpy as np
 
+from skinloc.sensors.crossing_fit import CrossingFit
+
 __all__ = ["JointFit", "half_max_mm", "joint_fit", "plausible"]
 
 _REL_SD = 0.1  # model error proportional to the predicted response
@@ -55,6 +57,11 @@ class JointFit:
     #: (n_sensors,) the crossing's own factor, with the skin-wide amplitude trend (thicker
     #: silicone, ...) taken out: what an electrical fault changes.
     electrical_gain: np.ndarray | None = None
+
+    def crossings(self) -> CrossingFit:
+        """The crossings: gains without the skin-wide trend, half-maximum footprints."""
+        gain = self.gain if self.electrical_gain is None else self.electrical_gain
+        return CrossingFit(self.positions_mm, half_max_mm(self), gain, self.touches_mm)
 
 
 def _frames(points: np.ndarray, cands: np.ndarray, tree: Any, k: int = 24) -> np.ndarray:

@@ -25,12 +25,12 @@ is the peak of its response over the surface:
    resamples of the touches (mm).
 
 Opt-in (``fields=True``): where the whole-image model is not kept, the separable line-field
-model (``skinloc.sensors.line_fields``, ``field_map``) replaces the per-crossing estimate when it
+model (``skinloc.sensors.line_fields``) replaces the per-crossing estimate when it
 predicts held-out touches better; it fits the real cone's images better but places its
 crossings less consistently, so it is off by default (docs/sensors.md).
 
-Lines are flagged from the fitted gains and the no-touch noise: ``dead`` (no usable response),
-``weak`` (well below the other lines), ``noisy`` (no-touch noise far above the rest).
+Sensors and lines are flagged from the fitted gains and the no-touch noise by the one rule
+the app uses too (``skinloc.sensors.health.classify_sensors``): ``dead``, ``weak``, ``noisy``.
 
 Units: metres in the API, millimetres in reports (names say which).
 """
@@ -45,8 +45,8 @@ import numpy as np
 
 from skinloc._typing import Points
 from skinloc.sensors import joint_fit as J
-from skinloc.sensors.crossing_fit import LABEL_ERROR_MM
-from skinloc.sensors.crossing_fit import fit_per_crossing as _fit_once
+from skinloc.sensors.crossing_fit import LABEL_ERROR_MM, fit_per_crossing
+from skinloc.sensors.health import classify_sensors
 from skinloc.sensors.wires import line_path
 
 __all__ = [
@@ -55,13 +55,6 @@ __all__ = [
     "sensor_map_from_recordings",
     "truth_sensor_positions",
 ]
-
-#: A line whose median gain is below this fraction of the median line is weak ...
-WEAK_FRACTION = 0.55
-#: ... and below this fraction, dead.
-DEAD_FRACTION = 0.12
-#: A sensor (line) whose no-touch noise exceeds this multiple of the median is noisy.
-NOISY_FACTOR = 3.0
 
 
 @dataclass
@@ -181,50 +174,6 @@ def _snap(points_m: Points, candidates: Points) -> tuple[Points, np.ndarray]:
     return candidates[idx], idx
 
 
-def _flag(
-    gain: np.ndarray, noise: np.ndarray, n_tx: int, n_rx: int
-) -> tuple[np.ndarray, dict[str, list[str]], dict[str, list[float]]]:
-    """Sensor and line status from gains (median 1) and no-touch noise (counts)."""
-    G = gain.reshape(n_tx, n_rx)
-    line_gain = {"tx": np.median(G, axis=1), "rx": np.median(G, axis=0)}
-    med_noise = float(np.nanmedian(noise)) if np.isfinite(noise).any() else np.nan
-    noisy = np.isfinite(noise) & (noise > NOISY_FACTOR * med_noise)
-    N = noisy.reshape(n_tx, n_rx)
-    line_status: dict[str, list[str]] = {}
-    status = np.full((n_tx, n_rx), "ok", dtype=object)
-    for kind, axis in (("tx", 1), ("rx", 0)):
-        ref = float(np.median(line_gain[kind]))
-        states = []
-        for i, g in enumerate(line_gain[kind]):
-            # A line is noisy when most of its sensors are; one noisy sensor stays a sensor fault.
-            frac_noisy = (N[i] if axis == 1 else N[:, i]).mean()
-            s = (
-                "dead"
-                if g < DEAD_FRACTION * ref
-                else "weak"
-                if g < WEAK_FRACTION * ref
-                else "noisy"
-                if frac_noisy > 0.5
-                else "ok"
-            )
-            states.append(s)
-            if s != "ok":
-                sl = (i, slice(None)) if axis == 1 else (slice(None), i)
-                cur = status[sl]
-                status[sl] = np.where(cur == "dead", "dead", s if s != "ok" else cur)
-        line_status[kind] = states
-    # Sensor-level faults on otherwise healthy lines.
-    ref_all = float(np.median(gain))
-    flat = status.ravel()
-    flat[(flat == "ok") & (gain < DEAD_FRACTION * ref_all)] = "dead"
-    flat[(flat == "ok") & noisy] = "noisy"
-    return (
-        flat.astype(str),
-        line_status,
-        {k: [float(v) for v in g] for k, g in line_gain.items()},
-    )
-
-
 def estimate_sensor_map(
     targets: Points,
     images: np.ndarray,
@@ -290,44 +239,45 @@ def estimate_sensor_map(
     if not (np.isfinite(label_error_mm) and label_error_mm >= 0):
         raise ValueError(f"label_error_mm must be >= 0, got {label_error_mm!r}")
     fit_args = (candidates, tree, n_tx, n_rx, structure, label_error_mm)
-    pos, width, amp, _, moved = _fit_once(targets, images, *fit_args)
+    fit = fit_per_crossing(targets, images, *fit_args)
     jf = None
     if joint:
         labels_mm, C_mm = 1e3 * targets, 1e3 * candidates
-        w0 = float(np.median(width))
+        w0 = float(np.median(fit.footprint_mm))
         jf = J.joint_fit(
-            labels_mm, images, pos, C_mm, tree, n_tx, n_rx, w0, noise_counts,
-            label_error_mm, init_touches_mm=moved,
+            labels_mm, images, fit.positions_mm, C_mm, tree, n_tx, n_rx, w0, noise_counts,
+            label_error_mm, init_touches_mm=fit.touches_mm,
         )  # fmt: skip
         if J.plausible(jf, labels_mm, w0, label_error_mm):
             # Gains without the skin-wide trend of the response (thicker silicone lower down
             # weakens every line there): an RX line runs at one height, so the raw peak would
             # confound a weak line near the top with a healthy one at the base.
-            pos, width, amp = jf.positions_mm, J.half_max_mm(jf), jf.electrical_gain
+            fit = jf.crossings()
         else:
             jf = None
     heldout, fm = None, None
     if fields and jf is None:
-        from skinloc.sensors import line_field_map as FMap
+        from skinloc.sensors import line_fields as LF
 
         labels_mm, C_mm = 1e3 * targets, 1e3 * candidates
-        predictor = FMap.per_crossing_predictor(C_mm, tree, n_tx, n_rx, label_error_mm)
-        heldout = FMap.heldout_comparison(
+        predictor = LF.per_crossing_predictor(C_mm, tree, n_tx, n_rx, label_error_mm)
+        heldout = LF.heldout_comparison(
             labels_mm, images, n_tx, n_rx, C_mm, tree, predictor, label_error_mm,
             random_state=random_state,
         )  # fmt: skip
         if heldout["fields_better"]:
-            fm = FMap.field_map(
+            fm = LF.field_map(
                 labels_mm, images, n_tx, n_rx, C_mm, tree, heldout["best_centres"],
                 label_error_mm, n_boot, random_state,
             )  # fmt: skip
-            pos, width, amp = fm.positions_mm, fm.footprint_mm, fm.peak
+            fit = fm.crossings()
+    pos, width, amp = fit.positions_mm, fit.footprint_mm, fit.gain
     rng = np.random.default_rng(random_state)
     boots = []
     for _ in range(n_boot if fm is None else 0):
         pick = rng.choice(len(targets), len(targets), replace=True)  # repeats act as weights
         if jf is None:
-            boots.append(_fit_once(targets[pick], images[pick], *fit_args)[0])
+            boots.append(fit_per_crossing(targets[pick], images[pick], *fit_args).positions_mm)
         else:
             # From the full fit (one pass): the spread of the same estimator, quicker.
             b = J.joint_fit(
@@ -350,7 +300,7 @@ def estimate_sensor_map(
     snapped, _ = _snap(1e-3 * pos, candidates)
     gain = amp / max(float(np.median(amp)), 1e-12)
     noise = np.full(n, np.nan) if noise_counts is None else np.asarray(noise_counts, float)
-    status, line_status, line_gain = _flag(gain, noise, n_tx, n_rx)
+    health = classify_sensors(n_tx, n_rx, gain=gain, noise=noise)
     S = snapped.reshape(n_tx, n_rx, 3)
     W = np.where(np.isfinite(unc), 1.0 / np.maximum(unc, 0.3) ** 2, 1.0).reshape(n_tx, n_rx)
     tx_paths = [line_path(S[i], W[i]) for i in range(n_tx)]
@@ -363,11 +313,11 @@ def estimate_sensor_map(
         footprint_mm=width,
         gain=gain,
         noise_counts=noise,
-        status=status,
+        status=health.status,
         tx_paths_m=tx_paths,
         rx_paths_m=rx_paths,
-        line_status=line_status,
-        line_gain=line_gain,
+        line_status=health.lines,
+        line_gain=health.line_gain or {},
         method="joint" if jf is not None else "fields" if fm is not None else "per-crossing",
         heldout=heldout,
     )

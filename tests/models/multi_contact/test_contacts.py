@@ -17,7 +17,7 @@ from skinloc.models.multi_contact.rule_calibration import (
     choose_thresholds,
     sensor_noise_from_frames,
 )
-from skinloc.models.multi_contact.search import _nnls
+from skinloc.models.multi_contact.search import nnls as search_nnls
 from tests._live import calibration, model_path
 
 GOLDEN = Path(__file__).parents[2] / "golden"
@@ -157,7 +157,7 @@ def test_nnls_kernel_is_scipys_nnls():
         A = rng.random((20, m)) + 0.2 * rng.standard_normal((20, m))
         b = A @ rng.standard_normal(m) + 0.3 * rng.standard_normal(20)
         G, ab = A.T @ A, A.T @ b
-        gain = _nnls(G, ab, m, s)
+        gain = search_nnls(G, ab, m, s)
         ref, rnorm = nnls(A, b)
         np.testing.assert_allclose(gain, b @ b - rnorm**2, rtol=1e-7, atol=1e-9)
         np.testing.assert_allclose(s[:m], ref, atol=1e-6)

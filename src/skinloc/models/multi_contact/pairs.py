@@ -23,7 +23,7 @@ import numpy as np
 
 from skinloc._jit import jit
 
-__all__ = ["BLOCK", "PairTables", "seeds_and_pair"]
+__all__ = ["BLOCK", "PairTables", "far_apart", "seeds_and_pair"]
 
 #: Coarse candidates per block of the seeds' running maximum.
 BLOCK = 32
@@ -32,7 +32,7 @@ BOUND_MARGIN = 1e-6
 
 
 @jit()
-def _far(p: np.ndarray, q: np.ndarray, min2: float) -> bool:  # pragma: no cover - compiled
+def far_apart(p: np.ndarray, q: np.ndarray, min2: float) -> bool:  # pragma: no cover - compiled
     """Whether points ``p``, ``q`` (3,) m are at least ``sqrt(min2)`` m apart."""
     d = 0.0
     for t in range(3):
@@ -42,21 +42,21 @@ def _far(p: np.ndarray, q: np.ndarray, min2: float) -> bool:  # pragma: no cover
 
 @jit()
 def _near_lists(Cpos: np.ndarray, min2: float) -> tuple:  # pragma: no cover - compiled
-    """Each coarse candidate's near ones (``not _far``, itself included), CSR: (off, idx)."""
+    """Each coarse candidate's near ones (``not far_apart``, itself included), CSR: (off, idx)."""
     C = Cpos.shape[0]
     off = np.zeros(C + 1, dtype=np.int64)
     for a in range(C):
         n = 0
         for c in range(C):
             # the search's own test, argument order included: the same booleans
-            if not _far(Cpos[c], Cpos[a], min2):
+            if not far_apart(Cpos[c], Cpos[a], min2):
                 n += 1
         off[a + 1] = off[a] + n
     idx = np.empty(off[C], dtype=np.int64)
     for a in range(C):
         n = off[a]
         for c in range(C):
-            if not _far(Cpos[c], Cpos[a], min2):
+            if not far_apart(Cpos[c], Cpos[a], min2):
                 idx[n] = c
                 n += 1
     return off, idx
@@ -203,7 +203,7 @@ def seeds_and_pair(
             nb_ = gaa * bb - gab * ba
             if na <= 0.0 or nb_ <= 0.0:
                 continue
-            if na * ba + nb_ * bb > bestg * det and _far(Cpos[a], Cpos[c], min2):
+            if na * ba + nb_ * bb > bestg * det and far_apart(Cpos[a], Cpos[c], min2):
                 bestg = (na * ba + nb_ * bb) / det
                 pa = a
                 pb = c

@@ -24,7 +24,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from skinloc._jit import jit
-from skinloc.models.multi_contact.search import _far, _nnls2, _polish, _weakest_z
+from skinloc.models.multi_contact.pairs import far_apart
+from skinloc.models.multi_contact.search import nnls2, polish, weakest_z
 
 __all__ = ["AnchoredPair", "PairRefit"]
 
@@ -80,7 +81,7 @@ def _anchored_pair(
             best = d
             ca = c
     fi[0] = cfine[ca]
-    g1 = _polish(1, fi, xw, xx, arrays, 0.0, S, 1)
+    g1 = polish(1, fi, xw, xx, arrays, 0.0, S, 1)
     # every coarse candidate against the image and against the anchored contact: two
     # matrix-vector products (BLAS), then a 2 x 2 NNLS per candidate far enough
     ra = Ft[fi[0]]
@@ -92,9 +93,9 @@ def _anchored_pair(
     cb = -1
     for c in range(C):
         bb = float(bc[c])
-        if bb <= 0.0 or not _far(Cpos[c], Fpos[fi[0]], min2):
+        if bb <= 0.0 or not far_apart(Cpos[c], Fpos[fi[0]], min2):
             continue
-        g, s1, s2 = _nnls2(gaa, float(gc[c]), Cd[c], ba, bb)
+        g, s1, s2 = nnls2(gaa, float(gc[c]), Cd[c], ba, bb)
         if g > bestg and s1 > 0.0 and s2 > 0.0:
             bestg = g
             cb = c
@@ -104,11 +105,11 @@ def _anchored_pair(
     if cb < 0:
         return 0
     fi[1] = cfine[cb]
-    g2 = _polish(2, fi, xw, xx, arrays, min2, S, 1)
+    g2 = polish(2, fi, xw, xx, arrays, min2, S, 1)
     r1 = max(xx - g1, 1.0)
     r2 = max(xx - g2, 1.0)
     out[0] = (r1 - r2) / r2
-    out[1] = _weakest_z(2, fi, s, Fpk)
+    out[1] = weakest_z(2, fi, s, Fpk)
     out[2] = 1.0
     return 1
 

@@ -8,9 +8,18 @@ import numpy as np
 
 from skinloc._jit import jit
 from skinloc.models.multi_contact.contacts import N_COLS, CountRule, noise_weights
-from skinloc.models.multi_contact.pairs import PairTables, _far, seeds_and_pair
+from skinloc.models.multi_contact.pairs import PairTables, far_apart, seeds_and_pair
 
-__all__ = ["SearchTables", "relative_gain", "search_into", "single_into"]
+__all__ = [
+    "SearchTables",
+    "nnls",
+    "nnls2",
+    "polish",
+    "relative_gain",
+    "search_into",
+    "single_into",
+    "weakest_z",
+]
 
 #: Coarse cells searched around each contact (its own and the nearest others).
 N_NEIGHBOURS = 7
@@ -142,7 +151,7 @@ def _row_norms(Ft: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
 
 
 @jit()
-def _nnls2(
+def nnls2(
     g11: float, g12: float, g22: float, b1: float, b2: float
 ) -> tuple:  # pragma: no cover - compiled
     """NNLS of two columns: ``(gain, s1, s2)``."""
@@ -160,7 +169,7 @@ def _nnls2(
 
 
 @jit()
-def _nnls(G: np.ndarray, b: np.ndarray, m: int, s: np.ndarray) -> float:  # pragma: no cover
+def nnls(G: np.ndarray, b: np.ndarray, m: int, s: np.ndarray) -> float:  # pragma: no cover
     """Non-negative least squares of ``m <= 3`` columns from their Gram ``G`` and ``b``.
 
     Returns the gain ``s . b`` (the residual's reduction), the strengths in ``s[:m]``. For three
@@ -171,7 +180,7 @@ def _nnls(G: np.ndarray, b: np.ndarray, m: int, s: np.ndarray) -> float:  # prag
         s[0] = b[0] / G[0, 0] if b[0] > 0.0 else 0.0
         return s[0] * b[0]
     if m == 2:
-        g, s[0], s[1] = _nnls2(G[0, 0], G[0, 1], G[1, 1], b[0], b[1])
+        g, s[0], s[1] = nnls2(G[0, 0], G[0, 1], G[1, 1], b[0], b[1])
         return g
     a, bb, c = G[0, 0], G[0, 1], G[0, 2]
     d, e, f = G[1, 1], G[1, 2], G[2, 2]
@@ -189,9 +198,9 @@ def _nnls(G: np.ndarray, b: np.ndarray, m: int, s: np.ndarray) -> float:  # prag
         if s0 >= 0.0 and s1 >= 0.0 and s2 >= 0.0:
             s[0], s[1], s[2] = s0, s1, s2
             return s0 * b[0] + s1 * b[1] + s2 * b[2]
-    g01, p0, p1 = _nnls2(a, bb, d, b[0], b[1])
-    g02, q0, q2 = _nnls2(a, c, f, b[0], b[2])
-    g12, r1, r2 = _nnls2(d, e, f, b[1], b[2])
+    g01, p0, p1 = nnls2(a, bb, d, b[0], b[1])
+    g02, q0, q2 = nnls2(a, c, f, b[0], b[2])
+    g12, r1, r2 = nnls2(d, e, f, b[1], b[2])
     if g01 >= g02 and g01 >= g12:
         s[0], s[1], s[2] = p0, p1, 0.0
         return g01
@@ -236,7 +245,7 @@ def _refine(
         for q in range(off[cell], off[cell + 1]):
             ok = True
             for j in range(m):
-                if j != i and not _far(Fpos[q], Fpos[fi[j]], min2):
+                if j != i and not far_apart(Fpos[q], Fpos[fi[j]], min2):
                     ok = False
             if not ok:
                 continue
@@ -246,7 +255,7 @@ def _refine(
                 if j != i:
                     G[i, j] = G[j, i] = _dot(row, Ft[fi[j]])
             G[i, i] = Fn[q]  # _dot(row, row), once per model
-            g = _nnls(G, b, m, s)
+            g = nnls(G, b, m, s)
             gq[n] = g
             qq[n] = q
             n += 1
@@ -278,7 +287,7 @@ def _refine(
 
 
 @jit()
-def _polish(
+def polish(
     m: int,
     fi: np.ndarray,
     xw: np.ndarray,
@@ -311,7 +320,8 @@ def relative_gain(r_prev: float, r_next: float, floor: float) -> float:  # pragm
 
 
 @jit()
-def _weakest_z(m: int, fi: np.ndarray, s: np.ndarray, Fpk: np.ndarray) -> float:  # pragma: no cover
+def weakest_z(m: int, fi: np.ndarray, s: np.ndarray, Fpk: np.ndarray) -> float:  # pragma: no cover
+    """The weakest of ``m`` contacts' peak signals, noise levels (strength times peak)."""
     z = np.inf
     for j in range(m):
         z = min(z, s[j] * Fpk[fi[j]])
@@ -368,15 +378,15 @@ def search_into(
     n_seeds, pa, pb = seeds_and_pair(bC, g1, Cg, Cd, Cpos, min2, top, pair, pair_s)
     # one contact, refined (its residual is what a second must improve on)
     fi[0] = cfine[top[0]]
-    gain1 = _polish(1, fi, xw, xx, arrays, 0.0, S)
+    gain1 = polish(1, fi, xw, xx, arrays, 0.0, S)
     st[0] = gain1
     st[11] = fi[0]
     if pa < 0:
         return 1
     fi[0] = cfine[pa]
     fi[1] = cfine[pb]
-    gain2 = _polish(2, fi, xw, xx, arrays, min2, S)
-    z2 = _weakest_z(2, fi, s, Fpk)
+    gain2 = polish(2, fi, xw, xx, arrays, min2, S)
+    z2 = weakest_z(2, fi, s, Fpk)
     st[1] = gain2
     st[3] = z2
     r1 = max(xx - gain1, 1.0)
@@ -400,7 +410,8 @@ def search_into(
             for t in range(2):
                 G[j, t] = _dot(Ft[fi[j]], Ft[fi[t]])
         for c in range(C):
-            if not (_far(Cpos[c], Fpos[fi[0]], min2) and _far(Cpos[c], Fpos[fi[1]], min2)):
+            far = far_apart(Cpos[c], Fpos[fi[0]], min2)
+            if not (far and far_apart(Cpos[c], Fpos[fi[1]], min2)):
                 continue
             b[2] = bC[c]
             if b[2] <= 0.0:
@@ -408,14 +419,14 @@ def search_into(
             G[2, 2] = Cd[c]
             for j in range(2):
                 G[2, j] = G[j, 2] = _dot(Ct[c], Ft[fi[j]])
-            g = _nnls(G, b, 3, s)
+            g = nnls(G, b, 3, s)
             if g > best3 and s[0] > 0.0 and s[1] > 0.0 and s[2] > 0.0:
                 best3 = g
                 pc = c
         if pc >= 0:
             fi[2] = cfine[pc]
-            gain3 = _polish(3, fi, xw, xx, arrays, min2, S)
-            z3 = _weakest_z(3, fi, s, Fpk)
+            gain3 = polish(3, fi, xw, xx, arrays, min2, S)
+            z3 = weakest_z(3, fi, s, Fpk)
             st[2] = gain3
             st[4] = z3
             r3 = max(xx - gain3, 1.0)

@@ -709,13 +709,13 @@ def test_skins_file_mount_errors(tmp_path, extra, match):
 
 def test_frames_from_a_serial_port_are_recorded(tmp_path):
     """Port-fed skins are parsed inside SkinCore.feed: their frames reach the bag too."""
-    from skinloc.live.runner import Runner, SkinSpec
+    from skinloc.live.runner import Runner, SkinConfig
     from skinloc.sim.virtual_device import VirtualSkin
     from tests._live import model_path
 
     bag = tmp_path / "port.mcap"
     with VirtualSkin(fmt="binary", rate_hz=200) as dev:
-        spec = SkinSpec(model=model_path("map"), source=dev.path, wire_format="binary", name="p")
+        spec = SkinConfig(model=model_path("map"), source=dev.path, wire_format="binary", name="p")
         runner = Runner([spec], sinks=[f"mcap-ros2:{bag}"])
         runner.start()
         assert _wait(lambda: runner.stats()[0]["frames"] >= 100)
@@ -811,6 +811,7 @@ def test_bench_functions_with_the_ros2_sink_run_small(domain):
     from skinloc.bench.sinks import sink_cost
     from tests._live import model_path
 
+    env = dict(os.environ)
     cost = sink_cost(300, n_skins=3, rounds=1)
     assert set(cost) == {
         "jsonl",
@@ -828,6 +829,7 @@ def test_bench_functions_with_the_ros2_sink_run_small(domain):
     assert m["sinks"] == ["ros2"] and m["frames_processed"] > 0
     st = m["sink_stats"]["ros2"]
     assert st["queued"] > 0 and st["sent"] == st["queued"] and st["pending"] == 0
+    assert dict(os.environ) == env  # the benchmarks configure DDS without touching it
     assert m["sink_frames_dropped"] == 0
 
 

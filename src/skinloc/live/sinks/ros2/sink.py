@@ -84,6 +84,9 @@ class Ros2Sink(Sink):
         is 0.4 s of 100 skins at 100 Hz.
     gather_s : float, default=0.001
         The publisher's pause after each batch it reads, s: a bound on its wake-ups per second.
+    dds_config : str, optional
+        Cyclone DDS configuration (XML or a file URI) for the publisher process, in place of
+        the ``CYCLONEDDS_URI`` it would inherit; this process's environment is left as it is.
     """
 
     name = "ros2"
@@ -96,6 +99,7 @@ class Ros2Sink(Sink):
         backend: str = "auto",
         queue_frames: int = 4096,
         gather_s: float = 0.001,
+        dds_config: str | None = None,
     ) -> None:
         if backend not in ("auto", "dds", "rclpy"):
             raise ValueError(f"unknown ROS 2 backend {backend!r}; use auto, dds or rclpy")
@@ -115,6 +119,7 @@ class Ros2Sink(Sink):
         self.backend_used = ""
         self.queue_frames = int(queue_frames)
         self.gather_s = float(gather_s)
+        self.dds_config = dds_config
         self._proc: subprocess.Popen | None = None
         self._w = self._r = -1  # our ends of the record pipe and of the reply pipe
         self._replies = b""
@@ -164,6 +169,8 @@ class Ros2Sink(Sink):
         root = str(Path(__file__).resolve().parents[3])
         env = dict(os.environ)
         env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH")) if p)
+        if self.dds_config is not None:
+            env["CYCLONEDDS_URI"] = self.dds_config
         cmd = [sys.executable, "-m", "skinloc.live.sinks.ros2.publisher"]
         try:
             self._proc = subprocess.Popen(

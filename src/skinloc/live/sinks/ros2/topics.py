@@ -18,7 +18,7 @@ topic                           type                                    QoS
 
 Per frame: ``contact`` is the strongest touching contact (published while something touches);
 ``contacts`` every touching contact ordered by slot (empty when nothing touches); ``markers``
-one sphere per track (``id`` = the track id, colour by slot) and a ``DELETE`` of each track
+one sphere per track (``id`` = the track id, the finger's colour) and a ``DELETE`` of each track
 that ended in the frame. ``/tf_static`` carries ``parent_frame -> skin/S`` for every skin whose
 pose on the robot is configured (skins file keys ``parent_frame``, ``translation``,
 ``rotation``/``rpy``).
@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from skinloc.live.contact import track_colour
 from skinloc.live.sinks.base import Sink, SkinInfo
 from skinloc.ros2.names import ros_name, topic_base
 
@@ -42,7 +43,6 @@ if TYPE_CHECKING:
     from skinloc.live.contact import Contact
 
 __all__ = [
-    "SLOT_COLOURS",
     "Ros2Topics",
     "dds_available",
     "quaternion_from_rpy",
@@ -52,18 +52,6 @@ __all__ = [
     "topic_base",
 ]
 
-#: RGBA in [0, 1] of the contact spheres by slot (``slot % 8``; a contact without a slot is grey)
-SLOT_COLOURS: tuple[tuple[float, float, float, float], ...] = (
-    (0.12, 0.47, 0.71, 0.9),
-    (1.00, 0.50, 0.05, 0.9),
-    (0.17, 0.63, 0.17, 0.9),
-    (0.84, 0.15, 0.16, 0.9),
-    (0.58, 0.40, 0.74, 0.9),
-    (0.55, 0.34, 0.29, 0.9),
-    (0.89, 0.47, 0.76, 0.9),
-    (0.09, 0.75, 0.81, 0.9),
-)
-_NO_SLOT = (0.6, 0.6, 0.6, 0.9)
 _TOUCHING = ("start", "move")
 
 
@@ -87,8 +75,9 @@ def _marker_id(c: Contact) -> int:
     return c.track_id if c.track_id >= 0 else c.touch_id
 
 
-def _colour(slot: int) -> tuple[float, float, float, float]:
-    return SLOT_COLOURS[slot % len(SLOT_COLOURS)] if slot >= 0 else _NO_SLOT
+def _colour(c: Contact) -> tuple[float, float, float, float]:
+    """The finger's colour (``skinloc.live.contact.track_colour``), RGBA in [0, 1]."""
+    return (*track_colour(c), 0.9)
 
 
 def rclpy_available() -> bool:
@@ -300,8 +289,8 @@ class Ros2Topics(Sink):
             self._write(contact_topic, enc.point_stamped(stamp, best.position_m), t_ns)
         positions = [c.position_m for c in touching]
         self._write(contacts_topic, enc.pose_array(stamp, positions), t_ns)
-        spheres = [(*c.position_m, _marker_id(c), 0, *_colour(c.slot)) for c in touching] + [
-            (0.0, 0.0, 0.0, _marker_id(c), 2, *_colour(c.slot))  # Marker.DELETE
+        spheres = [(*c.position_m, _marker_id(c), 0, *_colour(c)) for c in touching] + [
+            (0.0, 0.0, 0.0, _marker_id(c), 2, *_colour(c))  # Marker.DELETE
             for c in contacts
             if c.state == "end"
         ]

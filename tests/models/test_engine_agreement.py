@@ -9,12 +9,8 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from skinloc.geometry.mesh import cone_skin, nearest_on_surface, surface_points
-from skinloc.models.inference import (
-    FastLocalizer,
-    InferenceSpec,
-    SnapIndex,
-    closest_on_triangles,
-)
+from skinloc.geometry.snap import SnapIndex, closest_on_triangles
+from skinloc.models.engine import ModelSpec, load_engine
 from skinloc.models.localizer import ContactLocalizer
 from tests._live import calibration, model_path
 
@@ -38,7 +34,7 @@ def same_on_surface(a: np.ndarray, b: np.ndarray, raw: np.ndarray, tol_m: float 
 @pytest.mark.parametrize("kind", ["map", "mlp", "paper", "gelu"])
 def test_fast_path_matches_predict_full(kind):
     model = ContactLocalizer.load(model_path(kind))
-    fast = FastLocalizer.from_model(model)
+    fast = load_engine(model)
     X = calibration().deltas.reshape(-1, 64)
     ref = model.predict_full(X)
     points, raw, spread = fast.predict_batch(X.astype(np.float32))
@@ -58,7 +54,7 @@ def test_fast_path_matches_predict_full(kind):
 
 def test_batches_larger_than_a_block_give_the_same_rows():
     # predict_batch runs networks in blocks of 65,536 rows: the block edge must not show
-    fast = FastLocalizer.from_model(ContactLocalizer.load(model_path("mlp")))
+    fast = load_engine(ContactLocalizer.load(model_path("mlp")))
     X = calibration().deltas.reshape(-1, 64).astype(np.float32)
     big = np.tile(X, (70_000 // len(X) + 1, 1))[:70_000]
     points, raw, spread = fast.predict_batch(big)
@@ -73,15 +69,15 @@ def test_batches_larger_than_a_block_give_the_same_rows():
 
 def test_spec_from_file_equals_spec_from_model():
     path = model_path("mlp")
-    a = InferenceSpec.load(path)
-    b = InferenceSpec.from_localizer(ContactLocalizer.load(path))
+    a = ModelSpec.load(path)
+    b = ModelSpec.from_localizer(ContactLocalizer.load(path))
     for W, V in zip(a.weights, b.weights, strict=True):
         np.testing.assert_array_equal(W, V)
     assert a.layer_sizes == [64, 24, 16, 3] and a.n_members == 3
 
 
 def test_spec_rejects_layers_that_do_not_chain():
-    spec = InferenceSpec.load(model_path("paper"))
+    spec = ModelSpec.load(model_path("paper"))
     with pytest.raises(ValueError, match="do not chain"):
         type(spec)(**{**spec.__dict__, "weights": [spec.weights[1], spec.weights[0]]})
 
@@ -112,7 +108,7 @@ def test_closest_on_triangles_matches_trimesh(seed):
 
 def test_project_and_none_constraints():
     model = ContactLocalizer.load(model_path("mlp"))
-    spec = InferenceSpec.from_localizer(model)
+    spec = ModelSpec.from_localizer(model)
     X = calibration().touch_means.astype(np.float32)
     raw = spec.engine("none").predict_batch(X)[0]
     proj = spec.engine("project").predict_batch(X)[0]

@@ -1,7 +1,7 @@
-"""One skin of a runner and the frame source it names.
+"""One skin of a runner: ``SkinConfig`` (model, source, sinks, settings, pose on the robot).
 
-``SkinSpec``: model, source, sinks, settings and pose on the robot; ``open_source``: the
-``FrameSource`` of a spec that the runner's loop does not read itself.
+The runner opens the skin's frame source through the one factory
+(``skinloc.sources.base.make_source``) with the options ``SkinConfig.source_options`` gives.
 """
 
 from __future__ import annotations
@@ -12,27 +12,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from skinloc.errors import SkinlocError
 from skinloc.live.config import PipelineConfig, settings_from_dict
 from skinloc.live.gestures import GestureConfig
-from skinloc.live.scripted import ScriptedFinger
 from skinloc.live.sinks.base import SkinInfo
-from skinloc.sources.base import FrameSource
+from skinloc.sources.base import SourceKind, SourceOptions, source_kind
 
 if TYPE_CHECKING:
-    import numpy as np
-
-    from skinloc.live.contact import Contact
     from skinloc.live.core import SkinCore
-    from skinloc.live.sinks.base import Sink
 
-__all__ = ["SkinSpec", "open_source", "record_frames", "skin_info"]
-
-_RECORDING_SUFFIXES = (".h5", ".hdf5", ".mat", ".mcap")
+__all__ = ["SkinConfig", "skin_info"]
 
 
 @dataclass
-class SkinSpec:
+class SkinConfig:
     """One skin of a ``Runner``: model, source, sinks and settings.
 
     Attributes
@@ -128,6 +120,31 @@ class SkinSpec:
         """The skin frame's pose in ``parent_frame``: translation (m), quaternion ``xyzw``."""
         return self._mount
 
+    def source_options(self, core: SkinCore) -> SourceOptions:
+        """The options of this skin's frame source (``source`` a name, not a ``FrameSource``).
+
+        The grid is the one given, else the core's; the simulated skin's default keeps 8 TX
+        lines and fits the RX lines to the model's sensors.
+        """
+        text = str(self.source)
+        n_tx, n_rx = self.n_tx or core.n_tx, self.n_rx or core.n_rx
+        if source_kind(text) is SourceKind.SIM:
+            n_tx = self.n_tx or 8
+            n_rx = self.n_rx or max(core.n_sensors // n_tx, 1)
+        return SourceOptions(
+            text,
+            n_tx=n_tx,
+            n_rx=n_rx,
+            baud=self.baud,
+            format=self.wire_format,
+            tx_mask=self.tx_mask,
+            rx_mask=self.rx_mask,
+            rate_hz=self.rate_hz,
+            realtime=self.realtime,
+            loop=self.loop,
+            skin=self.name,
+        )
+
 
 def _vector(value: Any, n: int, what: str) -> tuple[float, ...]:
     try:
@@ -140,22 +157,22 @@ def _vector(value: Any, n: int, what: str) -> tuple[float, ...]:
 
 
 def _mount_pose(
-    spec: SkinSpec,
+    skin: SkinConfig,
 ) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
-    """Check and normalise a spec's mounting pose (translation m, unit quaternion xyzw)."""
-    if spec.parent_frame is not None and (
-        not isinstance(spec.parent_frame, str) or not spec.parent_frame.strip()
+    """Check and normalise a skin's mounting pose (translation m, unit quaternion xyzw)."""
+    if skin.parent_frame is not None and (
+        not isinstance(skin.parent_frame, str) or not skin.parent_frame.strip()
     ):
-        raise ValueError(f"parent_frame must be a frame name, not {spec.parent_frame!r}")
-    t = _vector(spec.translation, 3, "translation")
-    if spec.rotation is not None and spec.rpy is not None:
+        raise ValueError(f"parent_frame must be a frame name, not {skin.parent_frame!r}")
+    t = _vector(skin.translation, 3, "translation")
+    if skin.rotation is not None and skin.rpy is not None:
         raise ValueError("give rotation (quaternion x, y, z, w) or rpy (rad), not both")
-    if spec.rpy is not None:
+    if skin.rpy is not None:
         from skinloc.live.sinks.ros2.sink import quaternion_from_rpy
 
-        q = quaternion_from_rpy(*_vector(spec.rpy, 3, "rpy"))
-    elif spec.rotation is not None:
-        q = _vector(spec.rotation, 4, "rotation (quaternion x, y, z, w)")
+        q = quaternion_from_rpy(*_vector(skin.rpy, 3, "rpy"))
+    elif skin.rotation is not None:
+        q = _vector(skin.rotation, 4, "rotation (quaternion x, y, z, w)")
         norm = math.sqrt(sum(v * v for v in q))
         if abs(norm - 1.0) > 1e-3:
             raise ValueError(f"rotation must be a unit quaternion x, y, z, w (norm {norm:.4g})")
@@ -165,82 +182,17 @@ def _mount_pose(
     return (t[0], t[1], t[2]), (q[0], q[1], q[2], q[3])
 
 
-def _is_recording(source: str) -> bool:
-    p = Path(source)
-    return p.suffix.lower() in _RECORDING_SUFFIXES
-
-
-def open_source(spec: SkinSpec, n_sensors: int) -> FrameSource:
-    """The ``FrameSource`` for a spec whose source is not read through the selector loop."""
-    src = spec.source
-    if isinstance(src, FrameSource):
-        return src
-    text = str(src)
-    if text == "sim" or text.startswith("sim:"):
-        from skinloc.sim.skin import SimulatedSkin
-
-        seed = int(text.partition(":")[2] or 0) if text != "sim" else 0
-        n_tx, n_rx = spec.n_tx or 8, spec.n_rx or max(n_sensors // (spec.n_tx or 8), 1)
-        skin = SimulatedSkin(
-            n_tx=n_tx, n_rx=n_rx, random_state=seed, rate_hz=spec.rate_hz, realtime=spec.realtime
-        )
-        return ScriptedFinger(skin, random_state=seed)
-    if _is_recording(text):
-        if not Path(text).is_file():
-            raise SkinlocError(f"recording not found: {text}")
-        if Path(text).suffix.lower() == ".mcap":
-            from skinloc.sources.mcap_ros2 import McapReplaySource
-
-            return McapReplaySource(text, skin=spec.name, loop=spec.loop)
-        from skinloc.sources.replay import ReplaySource
-
-        return ReplaySource(text, loop=spec.loop)
-    from skinloc.hardware.serial import SerialSource, SerialSourceConfig
-
-    return SerialSource(
-        SerialSourceConfig(
-            text,
-            baud=spec.baud,
-            n_tx=spec.n_tx or 8,
-            n_rx=spec.n_rx or 8,
-            tx_mask=spec.tx_mask,
-            rx_mask=spec.rx_mask,
-            format=spec.wire_format,
-        )
-    )
-
-
-def skin_info(spec: SkinSpec, core: SkinCore) -> SkinInfo:
+def skin_info(skin: SkinConfig, core: SkinCore) -> SkinInfo:
     """What the sinks learn of a skin: name, mesh (the model's), grid and pose on the robot."""
-    translation, rotation = spec.mount
+    translation, rotation = skin.mount
     return SkinInfo(
-        spec.name,
-        core.fast.spec.vertices,
-        core.fast.spec.faces,
+        skin.name,
+        core.engine.spec.vertices,
+        core.engine.spec.faces,
         n_tx=core.n_tx,
         n_rx=core.n_rx,
-        parent_frame=spec.parent_frame,
+        parent_frame=skin.parent_frame,
         translation_m=translation,
         rotation_xyzw=rotation,
         max_contacts=core.max_contacts,
     )
-
-
-def record_frames(core: SkinCore, sinks: Sequence[Sink]) -> None:
-    """Hand every raw frame of ``core`` to ``sinks`` (``emit_frame``) before processing.
-
-    The instance's ``process_frame`` is wrapped, so frames parsed from a serial port's
-    bytes (``SkinCore.feed``) are recorded as well as frames from thread-fed sources;
-    skins without a recording sink keep the unwrapped method.
-    """
-    process = core.process_frame
-    name = core.name
-
-    def recording_process(
-        values: np.ndarray, timestamp_s: float, index: int = -1, t_in: float | None = None
-    ) -> Sequence[Contact]:
-        for sink in sinks:
-            sink.emit_frame(name, values, timestamp_s, index)
-        return process(values, timestamp_s, index, t_in)
-
-    core.process_frame = recording_process  # type: ignore[method-assign]

@@ -7,7 +7,7 @@ names live now::
     git show 1c8a43e:src/skinloc/models/contact_search.py \
         | sed 's/multi_contact import/multi_contact.contacts import/' > /tmp/contact_search_old.py
 
- The model is trained on ``--train``; the frames are touches of
+The model is trained on ``--train``; the frames are touches of
 ``--test``: single frames, sums of two frames of different point logs, sums of three. First
 both searches' answers are compared frame by frame (count, positions to 1e-9 m, strengths and
 uncertainties to rel 1e-9, the search statistics to rel 1e-12), then ``Engine.contacts`` is

@@ -17,7 +17,7 @@
  *                 counts, TX-major by the skin's TX line (skinloc's Python side serves its
  *                 simulated skin there). Host lines "touch X Y Z" and "lift" are a bench
  *                 finger, not board commands: they go to the socket as "T<line>\n" and not
- *                 to the AVR.
+ *                 to the AVR. A reset of the board is announced as "R".
  *   (default)     a built-in pattern that says where each value comes from:
  *                 value(tx, rx) = (scan & 0xFF) << 8 | (tx * 12 + rx).
  *
@@ -391,6 +391,8 @@ static void reset_board(void) {
     S.line_len = 0;
     S.line_mode = 0;
     S.resets++;
+    /* the feed's frames count from here: the firmware's frame k is the k-th scan after this */
+    if (S.feed_fd >= 0 && write_full(S.feed_fd, "R", 1)) stop_requested = 1;
 }
 
 /* Move bytes between the pty and the AVR; returns whether a host is there. */

@@ -55,7 +55,9 @@ static bool ft_read(uint8_t reg, uint8_t n) {
   return Wire.requestFrom((uint8_t)FT_ADDR, n) == n;
 }
 
-// Is anything at 0x38, and does it take test mode? (Also the re-initialisation of `c`.)
+static ft_status ft_scan();
+
+// Is anything at 0x38, does it take test mode, and does it scan? (Also the `c` command.)
 static ft_status ft_begin(uint8_t gain) {
   Wire.beginTransmission(FT_ADDR);
   if (Wire.endTransmission() != 0) return FT_MISSING;
@@ -63,7 +65,7 @@ static ft_status ft_begin(uint8_t gain) {
   delay(1);
   if (!ft_read(FT_REG_MODE, 1) || (Wire.read() & 0x70) != FT_MODE_TEST) return FT_SILENT;
   if (!ft_write(FT_REG_GAIN, gain)) return FT_MISSING;
-  return FT_OK;
+  return ft_scan();  // a trial scan: a controller that acknowledges but never scans is no use
 }
 
 // Set the analog gain (the caller keeps it in FT_GAIN_MIN..FT_GAIN_MAX).

@@ -72,6 +72,7 @@ typedef struct {
     int scanning;
     uint32_t scan_us;
     avr_cycle_count_t tx_selected_at;
+    int tx_settling; /* a TX line was selected: the next transfer must wait 50 us */
     /* counters */
     uint64_t scans, raw_reads, early_reads, bad_tx, reads_while_scanning, gain_writes;
     uint64_t naks;
@@ -103,6 +104,8 @@ static struct {
     uint16_t min_sp;
     uint64_t bytes_out, bytes_in, bytes_dropped, host_opens, resets, finger_lines;
     uint64_t out_stalls;
+    avr_cycle_count_t paced_from; /* pacing: emulated cycle and wall time it started from */
+    double paced_start;
     const char *fault;
 } S;
 
@@ -197,6 +200,7 @@ static void ft_write_reg(ft5x06_t *ft, uint8_t reg, uint8_t v) {
     if (reg == 0x01) {
         if (v >= N_TX) ft->bad_tx++;
         ft->tx_selected_at = ft->avr->cycle;
+        ft->tx_settling = 1;
     }
     if (reg == 0x07) {
         ft->gain_writes++;
@@ -213,9 +217,6 @@ static uint8_t ft_read_reg(ft5x06_t *ft, uint8_t reg) {
         if (reg == 0x10) {
             ft->raw_reads++;
             if (ft->scanning) ft->reads_while_scanning++;
-            /* the firmware must let a selected TX line settle 50 us before reading it */
-            if (ft->avr->cycle - ft->tx_selected_at < avr_usec_to_cycles(ft->avr, 50))
-                ft->early_reads++;
         }
         uint16_t v = ft->raw[tx][rx];
         return (reg & 1) ? (uint8_t)(v & 0xFF) : (uint8_t)(v >> 8); /* big-endian */
@@ -229,7 +230,7 @@ static void ft_twi_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
     avr_twi_msg_irq_t v;
     v.u.v = value;
     if (S.trace_twi)
-        fprintf(stderr, "twi msg %02x addr %02x data %02x\n", v.u.twi.msg, v.u.twi.addr,
+        fprintf(stderr, "%.1f us twi msg %02x addr %02x data %02x\n", ft->avr->cycle / 16.0, v.u.twi.msg, v.u.twi.addr,
                 v.u.twi.data);
     if (v.u.twi.msg & TWI_COND_STOP) {
         ft->selected = 0;
@@ -244,6 +245,11 @@ static void ft_twi_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
             }
             ft->selected = 1;
             ft->reading = v.u.twi.addr & 1;
+            /* the firmware must let a selected TX line settle 50 us before reading it */
+            if (ft->tx_settling &&
+                ft->avr->cycle - ft->tx_selected_at < avr_usec_to_cycles(ft->avr, 50))
+                ft->early_reads++;
+            ft->tx_settling = 0;
             avr_raise_irq(ft->irq + TWI_IRQ_INPUT, avr_twi_irq_msg(TWI_COND_ACK, v.u.twi.addr, 1));
         }
     }
@@ -407,6 +413,7 @@ static void service_pty(int timeout_ms) {
         S.host = 1;
         S.host_opens++;
         S.out_len = 0;
+        S.paced_from = S.avr->cycle, S.paced_start = now_s();
         if (S.reset_on_open) reset_board();
         return;
     }
@@ -526,8 +533,7 @@ int main(int argc, char **argv) {
 
     const double start = now_s();
     const avr_cycle_count_t slice = 16000; /* 1 ms of emulated time between pty services */
-    avr_cycle_count_t paced_from = 0;
-    double paced_start = start;
+    S.paced_from = 0, S.paced_start = start;
     int state = cpu_Running;
     while (!stop_requested) {
         if (S.seconds > 0 && now_s() - start > S.seconds) break;
@@ -536,7 +542,7 @@ int main(int argc, char **argv) {
             /* the host reads slower than the firmware writes: wait for it, AVR stopped */
             S.out_stalls++;
             service_pty(5);
-            paced_from = S.avr->cycle, paced_start = now_s();
+            S.paced_from = S.avr->cycle, S.paced_start = now_s();
             continue;
         }
         if (!S.host) {
@@ -563,8 +569,14 @@ int main(int argc, char **argv) {
             break;
         }
         if (S.speed > 0) {
-            double ahead = (S.avr->cycle - paced_from) / 16e6 / S.speed - (now_s() - paced_start);
-            if (ahead > 0.002) service_pty((int)(ahead * 1000));
+            double ahead =
+                (S.avr->cycle - S.paced_from) / 16e6 / S.speed - (now_s() - S.paced_start);
+            if (ahead > 0.01) ahead = 0.01; /* wait in short steps: a host may arrive */
+            if (ahead < -0.1) /* fell behind (a busy machine): go on from now, no burst */
+                S.paced_from = S.avr->cycle, S.paced_start = now_s();
+            /* poll() returns at once while no host holds the port (POLLHUP): sleep then */
+            if (ahead > 0.002 && S.host) service_pty((int)(ahead * 1000));
+            else if (ahead > 0.002) usleep((useconds_t)(ahead * 1e6));
         }
     }
     /* hand the host what the firmware already sent (at most 1 s) */

@@ -8,12 +8,15 @@ with a banner that says so: a skip here means the firmware was not tested.
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import pytest
 
 from skinloc.sim.emulated_board import PACKAGES, build_firmware, missing_tools
 
 _SKIPPED: list[str] = []
+#: Why scripts/ensure-packages.sh (make test) could not install the packages, when it could not.
+STATUS = Path(__file__).resolve().parents[2] / "build" / "firmware-status.txt"
 
 
 @pytest.fixture(scope="session")
@@ -25,6 +28,8 @@ def fw_build(tmp_path_factory):
     missing = missing_tools()
     if missing:
         why = f"missing {', '.join(missing)} (apt-get install {' '.join(PACKAGES)})"
+        if STATUS.is_file():
+            why += f"; {STATUS.read_text().strip()}"
         _SKIPPED.append(why)
         pytest.skip(f"firmware-in-the-loop tests: {why}")
     return build_firmware(tmp_path_factory.mktemp("firmware-build"))

@@ -34,6 +34,7 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <poll.h>
+#include <sys/inotify.h>
 #include <signal.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -85,6 +86,8 @@ static struct {
     int master; /* pty master */
     char slave_name[64];
     int host;   /* a host holds the port open */
+    int inotify; /* open/close events of the pty's slave: who holds the port */
+    int n_open;  /* how many hold it open now */
     int reset_on_open;
     uint8_t out[OUT_CAP];
     size_t out_head, out_len;
@@ -385,7 +388,10 @@ static void make_pty(void) {
     tcgetattr(slave, &tio);
     cfmakeraw(&tio);
     tcsetattr(slave, TCSANOW, &tio);
-    close(slave); /* POLLHUP on the master now means: no host */
+    close(slave);
+    S.inotify = inotify_init1(IN_NONBLOCK | IN_CLOEXEC);
+    if (S.inotify < 0 || inotify_add_watch(S.inotify, S.slave_name, IN_OPEN | IN_CLOSE) < 0)
+        die("cannot watch the pty");
     fcntl(S.master, F_SETFL, fcntl(S.master, F_GETFL) | O_NONBLOCK);
 }
 
@@ -401,23 +407,35 @@ static void reset_board(void) {
     if (S.feed_fd >= 0 && write_full(S.feed_fd, "R", 1)) stop_requested = 1;
 }
 
-/* Move bytes between the pty and the AVR; returns whether a host is there. */
+/* Move bytes between the pty and the AVR. Who holds the port comes from inotify: a host that
+ * closes and reopens the port at once is a new session (an Uno resets on it), which polling
+ * the master for POLLHUP would miss. */
 static void service_pty(int timeout_ms) {
     struct pollfd p = {.fd = S.master, .events = POLLIN | (S.out_len ? POLLOUT : 0)};
-    int r = poll(&p, 1, timeout_ms);
-    if (r < 0) return;
-    int present = !(p.revents & POLLHUP);
-    if (present && !S.host) {
+    if (S.host) poll(&p, 1, timeout_ms);
+    int opened = 0;
+    char ev[1024] __attribute__((aligned(__alignof__(struct inotify_event))));
+    ssize_t k;
+    while ((k = read(S.inotify, ev, sizeof ev)) > 0) {
+        for (char *e = ev; e < ev + k; e += sizeof(struct inotify_event) + ((struct inotify_event *)e)->len) {
+            uint32_t mask = ((struct inotify_event *)e)->mask;
+            if (mask & IN_OPEN) S.n_open++, opened = 1;
+            if (mask & (IN_CLOSE_WRITE | IN_CLOSE_NOWRITE)) S.n_open--;
+        }
+    }
+    if (opened && S.n_open > 0) {
         /* give the host 50 ms to set the port up, then reset the board as DTR would */
         usleep(50000);
         S.host = 1;
         S.host_opens++;
         S.out_len = 0;
+        /* what an earlier host left unread is not this host's: a new USB session starts empty */
+        tcflush(S.master, TCIOFLUSH);
         S.paced_from = S.avr->cycle, S.paced_start = now_s();
         if (S.reset_on_open) reset_board();
         return;
     }
-    if (!present && S.host) {
+    if (S.n_open <= 0 && S.host) {
         S.host = 0;
         S.bytes_dropped += S.out_len;
         S.out_len = 0;
@@ -574,7 +592,6 @@ int main(int argc, char **argv) {
             if (ahead > 0.01) ahead = 0.01; /* wait in short steps: a host may arrive */
             if (ahead < -0.1) /* fell behind (a busy machine): go on from now, no burst */
                 S.paced_from = S.avr->cycle, S.paced_start = now_s();
-            /* poll() returns at once while no host holds the port (POLLHUP): sleep then */
             if (ahead > 0.002 && S.host) service_pty((int)(ahead * 1000));
             else if (ahead > 0.002) usleep((useconds_t)(ahead * 1e6));
         }

@@ -19,11 +19,15 @@
  *   c                 recalibrate: look for the controller again and re-initialise it
  *   ?                 list the commands
  *
+ * The gain and the lines are kept in EEPROM: they survive the reset that opening the port
+ * causes on an Uno, so a host can set them once and then open the port to stream.
+ *
  * Replies are single text lines ("ok ...", "error ..."); the host skips them in both formats.
  * Memory: no heap; one static frame buffer for the whole 21 x 12 grid; strings in flash.
  */
 #include <Arduino.h>
 #include <Wire.h>
+#include <avr/eeprom.h>
 #include <avr/pgmspace.h>
 
 #include "ft5x06.h"
@@ -71,6 +75,24 @@ static uint16_t counter;
 static char cmd[48];  // the longest command, "l" + 21 + 12 mask digits, is 36 characters
 static uint8_t cmd_len;
 static bool cmd_overlong;
+
+// The settings kept in EEPROM, with a check that they were written by this sketch.
+struct settings {
+  uint8_t magic;  // SETTINGS_MAGIC
+  uint8_t gain;
+  uint32_t tx_mask;
+  uint16_t rx_mask;
+  uint8_t check;  // sum of the bytes above, plus 1
+};
+#define SETTINGS_MAGIC 0x5C
+static settings EEMEM saved;
+
+static uint8_t settings_check(const settings *s) {
+  const uint8_t *b = (const uint8_t *)s;
+  uint8_t sum = 1;
+  for (uint8_t i = 0; i < offsetof(settings, check); i++) sum += b[i];
+  return sum;
+}
 
 static void serial_write(const uint8_t *data, size_t len, void *ctx) {
   (void)ctx;
@@ -135,6 +157,29 @@ static void set_lines(uint32_t tx, uint16_t rx) {
   n_rx = count_bits(rx);
 }
 
+static void save_settings() {
+  settings s = {SETTINGS_MAGIC, gain, tx_mask, rx_mask, 0};
+  s.check = settings_check(&s);
+  eeprom_update_block(&s, &saved, sizeof s);  // writes only the bytes that changed
+}
+
+// The saved gain and lines, if they are valid; the build's defaults otherwise.
+static void load_settings() {
+  settings s;
+  eeprom_read_block(&s, &saved, sizeof s);
+  const bool ok = s.magic == SETTINGS_MAGIC && s.check == settings_check(&s) &&
+                  s.gain >= FT_GAIN_MIN && s.gain <= FT_GAIN_MAX && s.tx_mask != 0 &&
+                  s.tx_mask < (1UL << SKW_MAX_TX) && s.rx_mask != 0 &&
+                  s.rx_mask < (1u << SKW_MAX_RX);
+  if (ok) {
+    gain = s.gain;
+    set_lines(s.tx_mask, s.rx_mask);
+  } else {
+    gain = SKINLOC_GAIN;
+    set_lines((1UL << SKINLOC_TX_LINES) - 1, (uint16_t)((1u << SKINLOC_RX_LINES) - 1));
+  }
+}
+
 static void command_lines(const char *line) {
   uint32_t tx = 0, rx = 0;
   const char *rest = line[1] == ' ' ? parse_mask(line + 2, SKW_MAX_TX, &tx) : NULL;
@@ -145,6 +190,7 @@ static void command_lines(const char *line) {
     return;
   }
   set_lines(tx, (uint16_t)rx);
+  save_settings();
   Serial.print(F("ok lines "));
   Serial.print(n_tx);
   Serial.print('x');
@@ -165,6 +211,7 @@ static void command_gain(const char *line) {
     return;
   }
   gain = (uint8_t)g;
+  save_settings();
   if (controller == FT_OK) set_controller(ft_set_gain(gain));
   Serial.print(F("ok gain "));
   Serial.println(gain);
@@ -267,7 +314,7 @@ void setup() {
   Wire.begin();
   Wire.setClock(SKINLOC_I2C_HZ);
   Wire.setWireTimeout(25000, true);  // a stuck bus must not hang the sketch
-  set_lines((1UL << SKINLOC_TX_LINES) - 1, (uint16_t)((1u << SKINLOC_RX_LINES) - 1));
+  load_settings();
   start_controller();
   if (controller == FT_OK) Serial.println(F(SKINLOC_VERSION " ready"));
 }

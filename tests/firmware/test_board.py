@@ -308,3 +308,20 @@ def test_no_controller_is_reported_not_silent(fw_build, controller, error):
         link.close()
         stats = stop_clean(board)
     assert stats["scans"] == 0 and stats["raw_reads"] == 0
+
+
+def test_gain_and_lines_survive_the_reset_of_opening_the_port(fw_build):
+    """A host sets them, closes the port; opening it again resets the board, which keeps them."""
+    board = EmulatedBoard(fw_build, speed=0)
+    board.start()
+    try:
+        link, model = boot(board)
+        run(link, model, [b"g 5", b"l 0011 101", b"f text"], n_frames=2)
+        link.close()
+        # the format is not kept: the board starts in binary again
+        link, model = boot(board, BoardModel(tx_lines=[2, 3], rx_lines=[0, 2], gain=5))
+        run(link, model, [b"v"], n_frames=2)
+        link.close()
+    finally:
+        stats = stop_clean(board)
+    assert stats["resets"] == 2 and stats["gain"] == 5

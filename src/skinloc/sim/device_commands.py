@@ -11,7 +11,7 @@ from skinloc.hardware.wire import WireFormat
 __all__ = ["FIRMWARE_VERSION", "answer_command"]
 
 #: Version string the virtual device reports, the same as the firmware it imitates.
-FIRMWARE_VERSION = "skinloc_muca 1.0.0"
+FIRMWARE_VERSION = "skinloc_muca 1.1.0"
 
 
 def answer_command(dev: Any, line: str) -> str:
@@ -25,7 +25,7 @@ def answer_command(dev: Any, line: str) -> str:
         if cmd in ("v", "version"):
             return (
                 f"{FIRMWARE_VERSION} grid {skin.n_tx}x{skin.n_rx} format {dev.fmt.value} "
-                f"gain {dev.gain} rate {dev.rate_hz:g} virtual"
+                f"gain {dev.gain} controller ok rate {dev.rate_hz:g} virtual"
             )
         if cmd == "f" and args and args[0] in ("text", "binary"):
             dev._flush_pending()
@@ -33,8 +33,8 @@ def answer_command(dev: Any, line: str) -> str:
             return f"ok format {dev.fmt.value}"
         if cmd == "g" and args:
             gain = int(args[0])
-            if not 0 <= gain <= 255:
-                return "error gain must be 0-255"
+            if not 1 <= gain <= 31:  # the FT5x06's range, as the firmware checks it
+                return "error gain must be 1-31"
             dev.gain = gain
             return f"ok gain {gain}"
         if cmd == "l" and len(args) == 2:

@@ -13,6 +13,7 @@ from typing import Annotated, Any
 import numpy as np
 import typer
 
+from skinloc.cli.board_setup import GainOpt, LinesOpt
 from skinloc.cli.common import (
     Units,
     WireChoice,
@@ -68,11 +69,22 @@ SourceOpt = Annotated[
     SourceChoice, typer.Option("--source", help="'sim' reads the simulated skin instead.")
 ]
 BaudOpt = Annotated[
-    int, typer.Option(min=50, help="Baud rate (text firmware 115200, skinloc binary 1000000).")
+    int | None,
+    typer.Option(
+        min=50,
+        help="Baud rate; default: found by asking the board (skinloc's firmware 1000000, the "
+        "paper's text firmware 115200).",
+    ),
 ]
 FormatOpt = Annotated[WireChoice, typer.Option("--format", help="Wire format of the port.")]
-TxOpt = Annotated[int, typer.Option(min=1, max=21, help="TX lines the device sends.")]
-RxOpt = Annotated[int, typer.Option(min=1, max=12, help="RX lines the device sends.")]
+TxOpt = Annotated[
+    int | None,
+    typer.Option(min=1, max=21, help="TX lines the device sends (default: the board's, or 8)."),
+]
+RxOpt = Annotated[
+    int | None,
+    typer.Option(min=1, max=12, help="RX lines the device sends (default: the board's, or 8)."),
+]
 TxMaskOpt = Annotated[
     str | None, typer.Option(help="TX lines to keep, e.g. 11111111000 (default: all).")
 ]
@@ -85,21 +97,30 @@ def _open_source(
     port: str | None,
     source: SourceChoice,
     *,
-    baud: int = 115200,
+    baud: int | None = None,
     fmt: WireChoice = WireChoice.auto,
-    tx: int = 8,
-    rx: int = 8,
+    tx: int | None = None,
+    rx: int | None = None,
     tx_mask: str | None = None,
     rx_mask: str | None = None,
     realtime: bool = False,
     seed: int = 0,
     mesh: Any = None,
     allow_url: bool = False,
+    gain: int | None = None,
+    lines: str | None = None,
 ):
-    """Build (not connect) the frame source the options describe."""
+    """Build (not connect) the frame source the options describe.
+
+    A serial port's board is asked first (``cli.board_setup.prepare_port``): its baud and grid
+    unless given, its controller, and ``gain`` / ``lines`` set.
+    """
     if source is SourceChoice.sim:
         if port is not None:
             raise ValueError("give either --port or --source sim, not both")
+        if gain is not None or lines is not None:
+            raise ValueError("--gain and --lines set a board: give --port, not --source sim")
+        tx, rx = tx or 8, rx or 8
         from skinloc.sim.skin import SimulatedSkin
 
         return SimulatedSkin(mesh, n_tx=tx, n_rx=rx, random_state=seed, realtime=realtime)
@@ -111,11 +132,16 @@ def _open_source(
     from skinloc.hardware.serial import SerialSource, SerialSourceConfig
 
     check_source(port, allow_urls=allow_url, allow_sim=False, opt_in="pass --allow-url")
+    from skinloc.cli.board_setup import prepare_port
+
+    ready = prepare_port(port, baud=baud, gain=gain, lines=lines, n_tx=tx, n_rx=rx)
+    if ready.description:
+        err_console.print(f"{port}: {ready.description}", highlight=False)
     cfg = SerialSourceConfig(
         port=port,
-        baud=baud,
-        n_tx=tx,
-        n_rx=rx,
+        baud=ready.baud,
+        n_tx=ready.n_tx or 8,
+        n_rx=ready.n_rx or 8,
         tx_mask=tx_mask,
         rx_mask=rx_mask,
         format=fmt.value,
@@ -193,10 +219,12 @@ def register(app: typer.Typer) -> None:
     def monitor(
         port: PortOpt = None,
         source: SourceOpt = SourceChoice.serial,
-        baud: BaudOpt = 115200,
+        baud: BaudOpt = None,
         fmt: FormatOpt = WireChoice.auto,
-        tx: TxOpt = 8,
-        rx: RxOpt = 8,
+        tx: TxOpt = None,
+        rx: RxOpt = None,
+        gain: GainOpt = None,
+        lines: LinesOpt = None,
         tx_mask: TxMaskOpt = None,
         rx_mask: RxMaskOpt = None,
         seconds: Annotated[
@@ -228,6 +256,8 @@ def register(app: typer.Typer) -> None:
             realtime=True,
             seed=seed,
             allow_url=allow_url,
+            gain=gain,
+            lines=lines,
         )
 
         def render(values: np.ndarray, baseline: np.ndarray | None, n: int) -> Table:
@@ -289,10 +319,12 @@ def register(app: typer.Typer) -> None:
         baseline_frames: Annotated[
             int, typer.Option(min=2, help="No-touch frames captured first.")
         ] = 50,
-        baud: BaudOpt = 115200,
+        baud: BaudOpt = None,
         fmt: FormatOpt = WireChoice.auto,
-        tx: TxOpt = 8,
-        rx: RxOpt = 8,
+        tx: TxOpt = None,
+        rx: RxOpt = None,
+        gain: GainOpt = None,
+        lines: LinesOpt = None,
         tx_mask: TxMaskOpt = None,
         rx_mask: RxMaskOpt = None,
         mesh: Annotated[
@@ -329,6 +361,8 @@ def register(app: typer.Typer) -> None:
             seed=seed,
             mesh=surface if source is SourceChoice.sim else None,
             allow_url=allow_url,
+            gain=gain,
+            lines=lines,
         )
         frames, times, index = [], [], []
         with src, progress_steps() as step:

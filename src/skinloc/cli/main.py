@@ -16,6 +16,7 @@ from rich.table import Table
 from skinloc.cli import app as app_cli
 from skinloc.cli import bench as cli_bench
 from skinloc.cli import collect as cli_collect
+from skinloc.cli import doctor as cli_doctor
 from skinloc.cli import hardware as cli_hardware
 from skinloc.cli import live as cli_live
 from skinloc.cli import predict as cli_predict
@@ -371,6 +372,7 @@ def _register_groups() -> None:
     cli_bench.register(app)  # skinloc bench
     cli_hardware.register(app)  # ports, record, calibrate, virtual-skin, ...
     cli_collect.register(app)  # collect
+    cli_doctor.register(app)  # doctor
     app_cli.register(app)  # skinloc app
     cli_live.register(app)  # skinloc run, export
     cli_skin.register(app)  # skinloc sensors, coverage

@@ -5,8 +5,8 @@
  *   skinloc_avrsim FIRMWARE.elf [options]
  *
  * prints "pty /dev/pts/N" on stdout; skinloc reads that port as it would a real board's
- * (`skinloc monitor --port /dev/pts/N`). On SIGINT/SIGTERM it stops and prints one line of
- * JSON with its counters, then exits 0, or 3 when the AVR faulted (invalid memory access or
+ * (`skinloc monitor --port /dev/pts/N`). SIGUSR1 prints one line of JSON with its counters;
+ * on SIGINT/SIGTERM it stops and prints that line, then exits 0, or 3 when the AVR faulted (invalid memory access or
  * the stack ran into the data).
  *
  * The emulated controller answers at I2C address 0x38 with the register map of
@@ -77,6 +77,7 @@ typedef struct {
     /* counters */
     uint64_t scans, raw_reads, early_reads, bad_tx, reads_while_scanning, gain_writes;
     uint64_t naks;
+    uint64_t bus_bytes; /* bytes on the bus (addresses and data), for the 400 kHz estimate */
     int gain;
 } ft5x06_t;
 
@@ -112,7 +113,11 @@ static struct {
     const char *fault;
 } S;
 
-static volatile sig_atomic_t stop_requested;
+static volatile sig_atomic_t stop_requested, stats_requested;
+static void on_usr1(int sig) {
+    (void)sig;
+    stats_requested = 1;
+}
 static void on_signal(int sig) {
     (void)sig;
     stop_requested = 1;
@@ -235,6 +240,7 @@ static void ft_twi_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
     if (S.trace_twi)
         fprintf(stderr, "%.1f us twi msg %02x addr %02x data %02x\n", ft->avr->cycle / 16.0, v.u.twi.msg, v.u.twi.addr,
                 v.u.twi.data);
+    if (v.u.twi.msg & (TWI_COND_START | TWI_COND_WRITE | TWI_COND_READ)) ft->bus_bytes++;
     if (v.u.twi.msg & TWI_COND_STOP) {
         ft->selected = 0;
     }
@@ -461,6 +467,29 @@ static void no_sleep(avr_t *avr, avr_cycle_count_t how_long) {
     (void)how_long; /* we pace the emulation ourselves */
 }
 
+/* One line of JSON with every counter (at exit, and on SIGUSR1). */
+static void print_stats(double start) {
+    printf("{\"cycles\": %llu, \"emulated_s\": %.6f, \"wall_s\": %.3f, \"scans\": %llu, "
+           "\"raw_reads\": %llu, \"early_reads\": %llu, \"bad_tx\": %llu, "
+           "\"reads_while_scanning\": %llu, \"gain_writes\": %llu, \"gain\": %d, \"naks\": %llu, "
+           "\"bus_bytes\": %llu, "
+           "\"bytes_out\": %llu, \"bytes_in\": %llu, \"bytes_dropped\": %llu, "
+           "\"bytes_unsent\": %zu, \"out_stalls\": %llu, \"host_opens\": %llu, "
+           "\"resets\": %llu, \"finger_lines\": %llu, \"data_end\": %u, \"min_sp\": %u, "
+           "\"stack_headroom\": %d, \"fault\": \"%s\"}\n",
+           (unsigned long long)S.avr->cycle, S.avr->cycle / 16e6, now_s() - start,
+           (unsigned long long)S.ft.scans, (unsigned long long)S.ft.raw_reads,
+           (unsigned long long)S.ft.early_reads, (unsigned long long)S.ft.bad_tx,
+           (unsigned long long)S.ft.reads_while_scanning, (unsigned long long)S.ft.gain_writes,
+           S.ft.gain, (unsigned long long)S.ft.naks, (unsigned long long)S.ft.bus_bytes,
+           (unsigned long long)S.bytes_out,
+           (unsigned long long)S.bytes_in, (unsigned long long)S.bytes_dropped, S.out_len,
+           (unsigned long long)S.out_stalls, (unsigned long long)S.host_opens,
+           (unsigned long long)S.resets, (unsigned long long)S.finger_lines, S.data_end,
+           S.min_sp, (int)S.min_sp - (int)S.data_end, S.fault);
+    fflush(stdout);
+}
+
 /* ------------------------------------------------------------------ main */
 static void usage(void) {
     fprintf(stderr,
@@ -546,6 +575,7 @@ int main(int argc, char **argv) {
     signal(SIGINT, on_signal);
     signal(SIGTERM, on_signal);
     signal(SIGPIPE, SIG_IGN);
+    signal(SIGUSR1, on_usr1);
     printf("pty %s\n", S.slave_name);
     fflush(stdout);
 
@@ -555,6 +585,7 @@ int main(int argc, char **argv) {
     int state = cpu_Running;
     while (!stop_requested) {
         if (S.seconds > 0 && now_s() - start > S.seconds) break;
+        if (stats_requested) stats_requested = 0, print_stats(start);
         service_pty(0);
         if (S.host && S.out_len >= OUT_HIGH) {
             /* the host reads slower than the firmware writes: wait for it, AVR stopped */
@@ -599,22 +630,7 @@ int main(int argc, char **argv) {
     /* hand the host what the firmware already sent (at most 1 s) */
     for (int k = 0; k < 200 && S.host && S.out_len; k++) service_pty(5);
 
-    printf("{\"cycles\": %llu, \"emulated_s\": %.6f, \"wall_s\": %.3f, \"scans\": %llu, "
-           "\"raw_reads\": %llu, \"early_reads\": %llu, \"bad_tx\": %llu, "
-           "\"reads_while_scanning\": %llu, \"gain_writes\": %llu, \"gain\": %d, \"naks\": %llu, "
-           "\"bytes_out\": %llu, \"bytes_in\": %llu, \"bytes_dropped\": %llu, "
-           "\"bytes_unsent\": %zu, \"out_stalls\": %llu, \"host_opens\": %llu, "
-           "\"resets\": %llu, \"finger_lines\": %llu, \"data_end\": %u, \"min_sp\": %u, "
-           "\"stack_headroom\": %d, \"fault\": \"%s\"}\n",
-           (unsigned long long)S.avr->cycle, S.avr->cycle / 16e6, now_s() - start,
-           (unsigned long long)S.ft.scans, (unsigned long long)S.ft.raw_reads,
-           (unsigned long long)S.ft.early_reads, (unsigned long long)S.ft.bad_tx,
-           (unsigned long long)S.ft.reads_while_scanning, (unsigned long long)S.ft.gain_writes,
-           S.ft.gain, (unsigned long long)S.ft.naks, (unsigned long long)S.bytes_out,
-           (unsigned long long)S.bytes_in, (unsigned long long)S.bytes_dropped, S.out_len,
-           (unsigned long long)S.out_stalls, (unsigned long long)S.host_opens,
-           (unsigned long long)S.resets, (unsigned long long)S.finger_lines, S.data_end,
-           S.min_sp, (int)S.min_sp - (int)S.data_end, S.fault);
+    print_stats(start);
     fflush(stdout);
     return strcmp(S.fault, "none") == 0 ? 0 : 3;
 }

@@ -224,6 +224,17 @@ class EmulatedBoard:
             raise RuntimeError(f"the emulator did not start: {err.strip()}")
         return self.path
 
+    def snapshot(self) -> dict[str, Any]:
+        """The harness's counters now, without stopping it."""
+        proc = self._proc
+        if proc is None or proc.stdout is None:
+            raise RuntimeError("the emulated board is not running")
+        proc.send_signal(signal.SIGUSR1)
+        for line in proc.stdout:
+            if line.startswith("{"):
+                return json.loads(line)
+        raise RuntimeError("the emulator stopped")
+
     def stop(self) -> dict[str, Any]:
         """Stop the emulator; returns (and keeps in ``stats``) its counters."""
         proc, self._proc = self._proc, None

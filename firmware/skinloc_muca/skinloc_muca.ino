@@ -23,7 +23,8 @@
  * causes on an Uno, so a host can set them once and then open the port to stream.
  *
  * Replies are single text lines ("ok ...", "error ..."); the host skips them in both formats.
- * Memory: no heap; one static frame buffer for the whole 21 x 12 grid; strings in flash.
+ * Memory: no heap; the only frame buffer is one TX line (12 values, the most RX lines there
+ * are), whatever the lines selected; strings in flash.
  */
 #include <Arduino.h>
 #include <Wire.h>
@@ -63,7 +64,7 @@
 #define SKINLOC_VERSION "skinloc_muca 1.1.0"
 #define RETRY_MS 1000  // how often a missing or silent controller is looked for again
 
-static uint16_t grid[SKW_MAX_TX * SKW_MAX_RX];  // the one frame buffer: 504 bytes
+static uint16_t row[SKW_MAX_RX];  // the one frame buffer: a TX line (the frame streams out)
 static uint32_t tx_mask;                         // bit t: TX line t is read
 static uint16_t rx_mask;                         // bit r: RX line r is kept
 static uint8_t n_tx, n_rx;
@@ -278,35 +279,46 @@ static void poll_commands() {
   }
 }
 
-// One raw scan of the selected lines into grid[]; the controller state says how it went.
-static bool read_frame() {
-  ft_status s = ft_scan();
-  uint16_t *out = grid;
-  for (uint8_t tx = 0; s == FT_OK && tx < SKW_MAX_TX; tx++) {
-    if (!(tx_mask & (1UL << tx))) continue;
-    s = ft_read_tx(tx, rx_mask, out);
-    out += n_rx;
+static void put_row(skw_encoder *enc, bool first_row) {
+  for (uint8_t r = 0; r < n_rx; r++) {
+    if (text_format) {  // the paper's format: "v0,v1,...,v(n-1)\r\n"
+      if (!first_row || r) Serial.write(',');
+      Serial.print(row[r]);
+    } else {
+      skw_put_value(enc, row[r]);
+    }
   }
-  set_controller(s);
-  return s == FT_OK;
 }
 
-static void send_frame() {
-  const uint16_t n = (uint16_t)n_tx * n_rx;
-  if (text_format) {  // the paper's format: "v0,v1,...,v(n-1)\r\n"
-    for (uint16_t i = 0; i < n; i++) {
-      if (i) Serial.write(',');
-      Serial.print(grid[i]);
-    }
-    Serial.println();
-  } else {
-    skw_encoder enc;
-    if (skw_begin(&enc, serial_write, NULL, n_tx, n_rx, counter) == 0) {
-      for (uint16_t i = 0; i < n; i++) skw_put_value(&enc, grid[i]);
-      skw_end(&enc);
-    }
+// One raw scan of the selected lines, sent as one frame. Each TX line goes out while the next
+// is read (the UART sends from its buffer by interrupt): the link and the I2C bus overlap.
+static void stream_frame() {
+  ft_status s = ft_scan();
+  if (s != FT_OK) {
+    set_controller(s);
+    return;
   }
-  counter++;
+  skw_encoder enc;
+  if (!text_format) skw_begin(&enc, serial_write, NULL, n_tx, n_rx, counter);
+  uint8_t done = 0;
+  for (uint8_t tx = 0; tx < SKW_MAX_TX; tx++) {
+    if (!(tx_mask & (1UL << tx))) continue;
+    s = ft_read_tx(tx, rx_mask, row);
+    if (s != FT_OK) break;
+    put_row(&enc, done == 0);
+    done++;
+  }
+  if (s == FT_OK) {
+    if (text_format) Serial.println();
+    else skw_end(&enc);
+    counter++;
+    return;
+  }
+  // The controller stopped answering mid-frame: send a frame every decoder drops (a short
+  // text line; a binary frame with a bad CRC), and keep the counter (nothing was delivered).
+  if (text_format) Serial.println();
+  else skw_end_bad(&enc, (uint16_t)(n_tx - done) * n_rx);
+  set_controller(s);
 }
 
 void setup() {
@@ -325,5 +337,5 @@ void loop() {
     if (millis() - last_retry_ms >= RETRY_MS) start_controller();
     return;
   }
-  if (read_frame()) send_frame();
+  stream_frame();
 }

@@ -72,12 +72,12 @@ def test_build_fails_over_the_ram_budget(fw_build):
             str(firmware_dir()),
             f"BUILD={fw_build.elf.parent}",
             "size",
-            "RAM_BUDGET=600",
+            "RAM_BUDGET=400",
         ],
         capture_output=True,
         text=True,
     )
-    assert res.returncode != 0 and "over the budget of 600 B" in res.stderr
+    assert res.returncode != 0 and "over the budget of 400 B" in res.stderr
 
 
 def test_firmware_uses_no_heap_and_keeps_strings_in_flash(fw_build):

@@ -133,8 +133,8 @@ class EmulatedBoard:
         The pseudo-terminal (``/dev/pts/N``), after ``start``.
     served : list of (n_tx * n_rx,) uint16
         With ``keep_frames``: the skin's frames served since the last reset (a host opening the
-        port resets the board), in order; the firmware's frame ``k`` after the reset is
-        ``served[k]``.
+        port resets the board), in order. ``served[0]`` is the firmware's trial scan at
+        start-up; its frame ``k`` after the reset is ``served[k + 1]``.
     stats : dict
         The harness's counters, after ``stop``.
     """

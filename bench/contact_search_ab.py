@@ -1,6 +1,6 @@
 """``Engine.contacts`` (K = 3) with an older multi-contact search against this one, in one process.
 
-The older search is a copy of its ``skinloc/models/contact_search.py`` (for instance
+The older search is a copy of its ``skinloc/models/multi_contact/search.py`` (for instance
 ``git show 1c8a43e:src/skinloc/models/contact_search.py > /tmp/contact_search_old.py``),
 imported beside this tree's. The model is trained on ``--train``; the frames are touches of
 ``--test``: single frames, sums of two frames of different point logs, sums of three. First

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from skinloc.hardware.wire import encode_binary, encode_text
+from skinloc.hardware.protocol import encode_binary, encode_text
 from skinloc.live.core import Contact, PipelineConfig, SkinCore, TouchState
 from tests._live import model_path, stream
 

@@ -162,7 +162,7 @@ def test_runner_errors(tmp_path):
 
 
 def test_serial_url_without_file_descriptor_uses_a_thread():
-    from skinloc.hardware.wire import encode_binary
+    from skinloc.hardware.protocol import encode_binary
 
     spec = SkinSpec(model_path("map"), source="loop://", wire_format="binary")
     runner = Runner([spec]).open()

@@ -16,8 +16,8 @@ from skinloc.cli.main import app
 from skinloc.data.recording import read_recording, write_recording
 from skinloc.geometry.mesh import cone_skin
 from skinloc.models.response_map import ResponseMap, shape_features
-from skinloc.sensors import joint as J
-from skinloc.sensors import positions as S
+from skinloc.sensors import joint_fit as J
+from skinloc.sensors import sensor_map as S
 from skinloc.sensors.coverage import coverage_map
 from skinloc.sim.skin import SimulatedSkin, SkinParams
 from tests.conftest import make_recording
@@ -228,7 +228,7 @@ def test_repeated_targets_measure_the_probing_floor(tmp_path):
 
 
 def test_whole_image_model_beats_the_per_crossing_fit(sim_path):
-    """All touches' images explain every crossing at once (sensors.joint)."""
+    """All touches' images explain every crossing at once (sensors.joint_fit)."""
     rec = read_recording(sim_path)
     truth = S.truth_sensor_positions(rec.meta)
     old = S.sensor_map_from_recordings([rec], n_boot=0, joint=False)

@@ -359,8 +359,8 @@ def register(app: typer.Typer) -> None:
 
 def bench_online(out: Path, as_json: bool) -> None:
     """``skinloc bench --online``: the live path's figures, written to ``out/online.json``."""
+    from skinloc.bench.online import online_bench
     from skinloc.cli.common import console, print_json, progress_steps
-    from skinloc.live.bench import online_bench
 
     out.mkdir(parents=True, exist_ok=True)
     with progress_steps() as step:

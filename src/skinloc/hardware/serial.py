@@ -24,7 +24,7 @@ import numpy as np
 from skinloc.errors import FrameTimeoutError, SourceNotConnectedError
 from skinloc.hardware.framing import ParserStats, make_parser
 from skinloc.hardware.ports import PortInfo, check_source, list_ports  # re-exported
-from skinloc.hardware.wire import MAX_RX, MAX_TX, WireFormat
+from skinloc.hardware.protocol import MAX_RX, MAX_TX, WireFormat
 from skinloc.sources.base import Frame, FrameSource
 
 log = logging.getLogger(__name__)
@@ -191,7 +191,7 @@ class SerialSource(FrameSource):
 
     Examples
     --------
-    >>> from skinloc.hardware.wire import encode_binary
+    >>> from skinloc.hardware.protocol import encode_binary
     >>> with SerialSource(SerialSourceConfig("loop://", n_tx=1, n_rx=2)) as src:
     ...     src.write(encode_binary([5, 6], 1, 2, counter=0))
     ...     src.read(timeout_s=2.0).values.tolist()

@@ -151,7 +151,7 @@ def _mount_pose(
     if spec.rotation is not None and spec.rpy is not None:
         raise ValueError("give rotation (quaternion x, y, z, w) or rpy (rad), not both")
     if spec.rpy is not None:
-        from skinloc.live.sinks.ros2 import quaternion_from_rpy
+        from skinloc.live.sinks.ros2.sink import quaternion_from_rpy
 
         q = quaternion_from_rpy(*_vector(spec.rpy, 3, "rpy"))
     elif spec.rotation is not None:

@@ -11,7 +11,7 @@ import numpy as np
 
 from skinloc._typing import Points
 from skinloc.evaluation.report import _pyplot, draw_mesh
-from skinloc.sensors.positions import SensorMap
+from skinloc.sensors.sensor_map import SensorMap
 
 __all__ = ["plot_coverage", "plot_sensor_map"]
 

@@ -83,8 +83,8 @@ class McapReplaySource(ArrayReplaySource):
         topic: str | None = None,
         loop: bool = False,
     ) -> None:
-        from skinloc.data.ros2_msgs import Image
-        from skinloc.data.ros2_names import topic_base
+        from skinloc.ros2.msgs import Image
+        from skinloc.ros2.names import topic_base
 
         self.path = Path(path)
         topics = image_topics(self.path)

@@ -1,0 +1,1 @@
+"""Multi-contact localisation: how many fingers touch one frame, and where (``contacts``)."""

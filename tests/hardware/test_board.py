@@ -12,7 +12,7 @@ from skinloc.hardware.board import (
     line_health,
     parse_lines,
 )
-from skinloc.hardware.wire import encode_binary, encode_text
+from skinloc.hardware.protocol import encode_binary, encode_text
 
 V = b"skinloc_muca 1.1.0 grid 8x8 format binary gain 8 controller ok\r\n"
 

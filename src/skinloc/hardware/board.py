@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from skinloc.hardware.wire import MAX_RX, MAX_TX
+from skinloc.hardware.protocol import MAX_RX, MAX_TX
 
 __all__ = [
     "BAUDS",
@@ -373,7 +373,7 @@ def line_health(frames: np.ndarray, n_tx: int, n_rx: int) -> LineHealth:
     n_tx, n_rx : int
         Grid.
     """
-    from skinloc.sensors.positions import NOISY_FACTOR
+    from skinloc.sensors.sensor_map import NOISY_FACTOR
 
     frames = np.asarray(frames, dtype=np.float64)
     if frames.ndim != 2 or frames.shape[1] != n_tx * n_rx or len(frames) < 10:

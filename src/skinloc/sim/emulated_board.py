@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from skinloc.hardware.wire import MAX_RX, MAX_TX
+from skinloc.hardware.protocol import MAX_RX, MAX_TX
 
 log = logging.getLogger(__name__)
 

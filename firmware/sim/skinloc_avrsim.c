@@ -6,8 +6,8 @@
  *
  * prints "pty /dev/pts/N" on stdout; skinloc reads that port as it would a real board's
  * (`skinloc monitor --port /dev/pts/N`). SIGUSR1 prints one line of JSON with its counters;
- * on SIGINT/SIGTERM it stops and prints that line, then exits 0, or 3 when the AVR faulted (invalid memory access or
- * the stack ran into the data).
+ * on SIGINT/SIGTERM it stops and prints that line, then exits 0, or 3 when the AVR faulted
+ * (an invalid memory access or opcode, or the stack ran into the data).
  *
  * The emulated controller answers at I2C address 0x38 with the register map of
  * firmware/skinloc_muca/ft5x06.h. Each raw scan (register 0x00 = 0xC0) takes --scan-us
@@ -24,7 +24,8 @@
  * The UART bridge never drops a byte while a host holds the port open: when the host reads
  * slower than the firmware writes, the emulation waits (the AVR's clock stops). While no host
  * has the port open the bytes are dropped and counted, and a host opening the port resets
- * the AVR, as the DTR line of an Uno does (--no-reset-on-open to keep it running).
+ * the AVR, as the DTR line of an Uno does (--no-reset-on-open to keep it running); who holds
+ * the port comes from inotify's open and close events on the pty.
  *
  * Options: --controller ok|missing|silent, --scan-us N (default 1000), --speed X (emulated
  * seconds per wall second, default 1; 0 runs as fast as it can), --dead-rx R and --dead-tx T
@@ -34,12 +35,12 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <poll.h>
-#include <sys/inotify.h>
 #include <signal.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/inotify.h>
 #include <termios.h>
 #include <time.h>
 #include <unistd.h>
@@ -238,8 +239,8 @@ static void ft_twi_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
     avr_twi_msg_irq_t v;
     v.u.v = value;
     if (S.trace_twi)
-        fprintf(stderr, "%.1f us twi msg %02x addr %02x data %02x\n", ft->avr->cycle / 16.0, v.u.twi.msg, v.u.twi.addr,
-                v.u.twi.data);
+        fprintf(stderr, "%.1f us twi msg %02x addr %02x data %02x\n", ft->avr->cycle / 16.0,
+                v.u.twi.msg, v.u.twi.addr, v.u.twi.data);
     if (v.u.twi.msg & (TWI_COND_START | TWI_COND_WRITE | TWI_COND_READ)) ft->bus_bytes++;
     if (v.u.twi.msg & TWI_COND_STOP) {
         ft->selected = 0;
@@ -273,7 +274,8 @@ static void ft_twi_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
     }
     if (v.u.twi.msg & TWI_COND_READ) {
         uint8_t data = ft_read_reg(ft, ft->ptr++);
-        avr_raise_irq(ft->irq + TWI_IRQ_INPUT, avr_twi_irq_msg(TWI_COND_READ, FT_ADDR << 1 | 1, data));
+        avr_raise_irq(ft->irq + TWI_IRQ_INPUT,
+                      avr_twi_irq_msg(TWI_COND_READ, FT_ADDR << 1 | 1, data));
     }
 }
 
@@ -423,8 +425,10 @@ static void service_pty(int timeout_ms) {
     char ev[1024] __attribute__((aligned(__alignof__(struct inotify_event))));
     ssize_t k;
     while ((k = read(S.inotify, ev, sizeof ev)) > 0) {
-        for (char *e = ev; e < ev + k; e += sizeof(struct inotify_event) + ((struct inotify_event *)e)->len) {
-            uint32_t mask = ((struct inotify_event *)e)->mask;
+        for (char *e = ev; e < ev + k;) {
+            const struct inotify_event *event = (const struct inotify_event *)e;
+            const uint32_t mask = event->mask;
+            e += sizeof(struct inotify_event) + event->len;
             if (mask & IN_OPEN) S.n_open++, opened = 1;
             if (mask & (IN_CLOSE_WRITE | IN_CLOSE_NOWRITE)) S.n_open--;
         }

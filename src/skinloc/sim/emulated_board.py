@@ -325,7 +325,14 @@ def main(argv: list[str] | None = None) -> int:
             f"error: missing {', '.join(missing)} (apt-get install {' '.join(PACKAGES)})\n"
         )
         return 1
-    build = build_firmware()
+    if not (firmware_dir() / "Makefile").is_file():
+        sys.stderr.write("error: the emulated board needs a source checkout (its firmware/)\n")
+        return 1
+    try:
+        build = build_firmware()
+    except RuntimeError as exc:
+        sys.stderr.write(f"error: {exc}\n")
+        return 1
     skin = None
     if not args.pattern:
         from skinloc.sim.skin import SimulatedSkin

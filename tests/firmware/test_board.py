@@ -15,7 +15,7 @@ import pytest
 
 from skinloc.sim.emulated_board import EmulatedBoard, firmware_dir
 
-from ._link import HELP, VERSION, BoardModel, Link
+from ._link import HELP, VERSION, BoardModel, Item, Link
 
 
 def stop_clean(board: EmulatedBoard) -> dict:
@@ -325,3 +325,28 @@ def test_gain_and_lines_survive_the_reset_of_opening_the_port(fw_build):
     finally:
         stats = stop_clean(board)
     assert stats["resets"] == 2 and stats["gain"] == 5
+
+
+def test_the_virtual_skin_answers_as_the_firmware_does():
+    """`skinloc virtual-skin` imitates the firmware in Python: word for word the replies of the
+    model the real firmware is checked against above (its `v` adds `rate HZ virtual`, its `?`
+    the scripted finger's commands, and its grid stays as it is after `l`)."""
+    from skinloc.sim.virtual_device import VirtualSkin
+
+    dev = VirtualSkin()
+    model = BoardModel()
+    good = [b"v", b"?", b"g 1", b"g 31", b"c", b"l 1101 011", b"f text", b"f binary", b"v"]
+    for line in good + [x for x in BAD if x.isascii() and b"\0" not in x]:
+        model.expect(line)
+        want, effect = model.pending[0]
+        if effect is not None and effect[0] == "v":
+            want = model.version_line()
+        got = dev.handle_command(line.decode())
+        if line == b"v":
+            grid = f"grid {len(model.tx_lines)}x{len(model.rx_lines)}"
+            assert got.startswith(want.replace(grid, "grid 8x8") + " rate ")
+        elif line == b"?":
+            assert got.startswith(want)
+        else:
+            assert got == want, line
+        model.check([Item("line", line=want)])  # the command's effect on the model

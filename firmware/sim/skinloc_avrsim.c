@@ -627,8 +627,8 @@ int main(int argc, char **argv) {
             if (ahead > 0.01) ahead = 0.01; /* wait in short steps: a host may arrive */
             if (ahead < -0.1) /* fell behind (a busy machine): go on from now, no burst */
                 S.paced_from = S.avr->cycle, S.paced_start = now_s();
-            if (ahead > 0.002 && S.host) service_pty((int)(ahead * 1000));
-            else if (ahead > 0.002) usleep((useconds_t)(ahead * 1e6));
+            /* sleep, not poll: poll returns at once while output waits (POLLOUT) */
+            if (ahead > 0.002) usleep((useconds_t)(ahead * 1e6));
         }
     }
     /* hand the host what the firmware already sent (at most 1 s) */

@@ -65,8 +65,8 @@
 #define RETRY_MS 1000  // how often a missing or silent controller is looked for again
 
 static uint16_t row[SKW_MAX_RX];  // the one frame buffer: a TX line (the frame streams out)
-static uint32_t tx_mask;                         // bit t: TX line t is read
-static uint16_t rx_mask;                         // bit r: RX line r is kept
+static uint32_t tx_mask;          // bit t: TX line t is read
+static uint16_t rx_mask;          // bit r: RX line r is kept
 static uint8_t n_tx, n_rx;
 static uint8_t gain = SKINLOC_GAIN;
 static bool text_format = SKINLOC_DEFAULT_FORMAT_TEXT;

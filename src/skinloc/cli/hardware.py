@@ -1,4 +1,4 @@
-"""Commands for a skin on a serial port: ports, monitor, record, virtual-skin."""
+"""Commands for a skin on a serial port: monitor, record, virtual-skin (ports: ``cli.board``)."""
 
 from __future__ import annotations
 
@@ -180,59 +180,6 @@ def _stats_line(src) -> str:
 
 def register(app: typer.Typer) -> None:
     """Add the hardware commands to the main ``skinloc`` app."""
-
-    # -------------------------------------------------------------------------------- ports
-    @app.command()
-    @friendly_errors
-    def ports(
-        as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
-        ask: Annotated[
-            bool,
-            typer.Option(
-                "--ask/--no-ask",
-                help="Ask each likely board 'v' (opening the port restarts an Uno).",
-            ),
-        ] = True,
-    ) -> None:
-        """List serial ports; the likely Arduino is marked, running virtual skins are listed.
-
-        A likely board is asked 'v': one running skinloc's firmware says what it is.
-
-        Example: skinloc ports
-        """
-        import json
-
-        from skinloc.hardware.board import BoardError, detect
-        from skinloc.hardware.ports import list_ports
-
-        found = list_ports()
-        boards: dict[str, str] = {}
-        for p in found if ask else []:
-            if p.likely_arduino or p.virtual:
-                try:
-                    boards[p.device] = detect(p.device, timeout_s=2.5).describe()
-                except BoardError as exc:
-                    boards[p.device] = f"no skinloc firmware: {str(exc).split(':', 1)[-1].strip()}"
-        if as_json:
-            rows = [{**p.__dict__, "board": boards.get(p.device)} for p in found]
-            sys.stdout.write(json.dumps(rows, indent=2) + "\n")
-            return
-        if not found:
-            console.print(
-                "No serial port found. Plug the Arduino in (a data cable, not charge-only), "
-                "or start 'skinloc virtual-skin'."
-            )
-            return
-        from rich.table import Table
-
-        table = Table("", "port", "description", "hardware id", *(["board"] if boards else []))
-        for p in found:
-            mark = "* Arduino?" if p.likely_arduino else ("virtual" if p.virtual else "")
-            board = boards.get(p.device, "")
-            if board.startswith("skinloc_muca"):
-                mark = "* skinloc board" if not p.virtual else "virtual"
-            table.add_row(mark, p.device, p.description, p.hwid, *([board] if boards else []))
-        console.print(table)
 
     # -------------------------------------------------------------------------------- monitor
     @app.command()

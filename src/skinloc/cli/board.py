@@ -1,4 +1,7 @@
-"""``skinloc doctor``: walk a new board through its checks, each with what to do when it fails."""
+"""The commands that ask a board about itself: ``skinloc ports`` and ``skinloc doctor``.
+
+``doctor`` walks a new board through its checks, each with what to do when it fails.
+"""
 
 from __future__ import annotations
 
@@ -130,8 +133,62 @@ def _mask_hint(health: Any, n_tx: int, n_rx: int) -> str:
 
 
 def register(app: typer.Typer) -> None:
-    """Add ``skinloc doctor`` to the main ``skinloc`` app."""
+    """Add ``skinloc ports`` and ``skinloc doctor`` to the main ``skinloc`` app."""
 
+    # -------------------------------------------------------------------------------- ports
+    @app.command()
+    @friendly_errors
+    def ports(
+        as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
+        ask: Annotated[
+            bool,
+            typer.Option(
+                "--ask/--no-ask",
+                help="Ask each likely board 'v' (opening the port restarts an Uno).",
+            ),
+        ] = True,
+    ) -> None:
+        """List serial ports; the likely Arduino is marked, running virtual skins are listed.
+
+        A likely board is asked 'v': one running skinloc's firmware says what it is.
+
+        Example: skinloc ports
+        """
+        import json
+
+        from skinloc.hardware.board import BoardError, detect
+        from skinloc.hardware.ports import list_ports
+
+        found = list_ports()
+        boards: dict[str, str] = {}
+        for p in found if ask else []:
+            if p.likely_arduino or p.virtual:
+                try:
+                    boards[p.device] = detect(p.device, timeout_s=2.5).describe()
+                except BoardError as exc:
+                    boards[p.device] = f"no skinloc firmware: {str(exc).split(':', 1)[-1].strip()}"
+        if as_json:
+            rows = [{**p.__dict__, "board": boards.get(p.device)} for p in found]
+            sys.stdout.write(json.dumps(rows, indent=2) + "\n")
+            return
+        if not found:
+            console.print(
+                "No serial port found. Plug the Arduino in (a data cable, not charge-only), "
+                "or start 'skinloc virtual-skin'."
+            )
+            return
+        from rich.table import Table
+
+        table = Table("", "port", "description", "hardware id", *(["board"] if boards else []))
+        for p in found:
+            mark = "* Arduino?" if p.likely_arduino else ("virtual" if p.virtual else "")
+            board = boards.get(p.device, "")
+            if board.startswith("skinloc_muca"):
+                mark = "* skinloc board" if not p.virtual else "virtual"
+            table.add_row(mark, p.device, p.description, p.hwid, *([board] if boards else []))
+        console.print(table)
+
+    # -------------------------------------------------------------------------------- doctor
     @app.command()
     @friendly_errors
     def doctor(

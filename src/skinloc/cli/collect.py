@@ -9,6 +9,7 @@ from typing import Annotated, Any
 import numpy as np
 import typer
 
+from skinloc.cli.board_setup import GainOpt, LinesOpt
 from skinloc.cli.common import (
     Units,
     WireChoice,
@@ -109,10 +110,12 @@ def register(app: typer.Typer) -> None:
                 help="Send 'touch x y z'/'lift' to the port (for 'skinloc virtual-skin').",
             ),
         ] = False,
-        baud: BaudOpt = 115200,
+        baud: BaudOpt = None,
         fmt: FormatOpt = WireChoice.auto,
-        tx: TxOpt = 8,
-        rx: RxOpt = 8,
+        tx: TxOpt = None,
+        rx: RxOpt = None,
+        gain: GainOpt = None,
+        lines: LinesOpt = None,
         tx_mask: TxMaskOpt = None,
         rx_mask: RxMaskOpt = None,
         allow_url: AllowUrlOpt = False,

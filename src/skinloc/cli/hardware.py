@@ -1,4 +1,4 @@
-"""Commands for a skin on a serial port: ports, monitor, record, virtual-skin."""
+"""Commands for a skin on a serial port: monitor, record, virtual-skin (ports: ``cli.board``)."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from typing import Annotated, Any
 import numpy as np
 import typer
 
+from skinloc.cli.board_setup import GainOpt, LinesOpt
 from skinloc.cli.common import (
     Units,
     WireChoice,
@@ -68,11 +69,22 @@ SourceOpt = Annotated[
     SourceChoice, typer.Option("--source", help="'sim' reads the simulated skin instead.")
 ]
 BaudOpt = Annotated[
-    int, typer.Option(min=50, help="Baud rate (text firmware 115200, skinloc binary 1000000).")
+    int | None,
+    typer.Option(
+        min=50,
+        help="Baud rate; default: found by asking the board (skinloc's firmware 1000000, the "
+        "paper's text firmware 115200).",
+    ),
 ]
 FormatOpt = Annotated[WireChoice, typer.Option("--format", help="Wire format of the port.")]
-TxOpt = Annotated[int, typer.Option(min=1, max=21, help="TX lines the device sends.")]
-RxOpt = Annotated[int, typer.Option(min=1, max=12, help="RX lines the device sends.")]
+TxOpt = Annotated[
+    int | None,
+    typer.Option(min=1, max=21, help="TX lines the device sends (default: the board's, or 8)."),
+]
+RxOpt = Annotated[
+    int | None,
+    typer.Option(min=1, max=12, help="RX lines the device sends (default: the board's, or 8)."),
+]
 TxMaskOpt = Annotated[
     str | None, typer.Option(help="TX lines to keep, e.g. 11111111000 (default: all).")
 ]
@@ -82,31 +94,50 @@ ForceOpt = Annotated[bool, typer.Option("--force", help="Replace an existing --o
 
 
 #: The shared source options every command that reads a skin declares, by parameter name.
-_SOURCE_PARAMS = ("port", "source", "baud", "fmt", "tx", "rx", "tx_mask", "rx_mask", "seed")
+_SOURCE_PARAMS = (
+    "port",
+    "source",
+    "baud",
+    "fmt",
+    "tx",
+    "rx",
+    "tx_mask",
+    "rx_mask",
+    "seed",
+    "gain",
+    "lines",
+)
 
 
 def open_cli_source(params: dict[str, Any], *, realtime: bool = False, mesh: Any = None):
     """Build (not connect) the frame source a command's options name.
 
     ``params`` is the command's ``locals()``: its ``--port``, ``--source``, ``--baud``,
-    ``--format``, ``--tx``, ``--rx``, masks, ``--seed`` and ``--allow-url`` under the parameter
-    names of ``PortOpt``, ``SourceOpt`` and the rest (a command without one gets the default).
-    The source is built by the one factory, ``skinloc.sources.base.make_source``; ``mesh`` is
-    the simulated skin's surface.
+    ``--format``, ``--tx``, ``--rx``, masks, ``--seed``, ``--gain``, ``--lines`` and
+    ``--allow-url`` under the parameter names of ``PortOpt``, ``SourceOpt`` and the rest (a
+    command without one gets the default). A serial port's board is asked first
+    (``cli.board_setup.prepare_port``): its baud and grid unless given, its controller, and
+    ``gain`` / ``lines`` set. The source is built by the one factory,
+    ``skinloc.sources.base.make_source``; ``mesh`` is the simulated skin's surface.
     """
     from skinloc.sources.base import SourceOptions, make_source
 
     p = {k: params[k] for k in _SOURCE_PARAMS if k in params}
     port, source = p.get("port"), p.get("source", SourceChoice.serial)
+    gain, lines = p.get("gain"), p.get("lines")
+    n_tx, n_rx, baud = p.get("tx"), p.get("rx"), p.get("baud")
     if source is SourceChoice.sim:
         if port is not None:
             raise ValueError("give either --port or --source sim, not both")
+        if gain is not None or lines is not None:
+            raise ValueError("--gain and --lines set a board: give --port, not --source sim")
         port = "sim"
     elif port is None:
         raise ValueError(
             "give --port (a serial port: see 'skinloc ports') or --source sim for the simulator"
         )
     else:
+        from skinloc.cli.board_setup import prepare_port
         from skinloc.hardware.ports import check_source
 
         check_source(
@@ -115,12 +146,16 @@ def open_cli_source(params: dict[str, Any], *, realtime: bool = False, mesh: Any
             allow_sim=False,
             opt_in="pass --allow-url",
         )
+        ready = prepare_port(port, baud=baud, gain=gain, lines=lines, n_tx=n_tx, n_rx=n_rx)
+        if ready.description:
+            err_console.print(f"{port}: {ready.description}", highlight=False)
+        baud, n_tx, n_rx = ready.baud, ready.n_tx, ready.n_rx
     fmt = p.get("fmt", WireChoice.auto)
     options = SourceOptions(
         port,
-        n_tx=p.get("tx", 8),
-        n_rx=p.get("rx", 8),
-        baud=p.get("baud", 115200),
+        n_tx=n_tx or 8,
+        n_rx=n_rx or 8,
+        baud=baud or 115200,
         format=fmt.value,
         tx_mask=p.get("tx_mask"),
         rx_mask=p.get("rx_mask"),
@@ -162,48 +197,18 @@ def _stats_line(src) -> str:
 def register(app: typer.Typer) -> None:
     """Add the hardware commands to the main ``skinloc`` app."""
 
-    # -------------------------------------------------------------------------------- ports
-    @app.command()
-    @friendly_errors
-    def ports(
-        as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
-    ) -> None:
-        """List serial ports; the likely Arduino is marked, running virtual skins are listed.
-
-        Example: skinloc ports
-        """
-        import json
-
-        from skinloc.hardware.ports import list_ports
-
-        found = list_ports()
-        if as_json:
-            sys.stdout.write(json.dumps([p.__dict__ for p in found], indent=2) + "\n")
-            return
-        if not found:
-            console.print(
-                "No serial port found. Plug the Arduino in (a data cable, not charge-only), "
-                "or start 'skinloc virtual-skin'."
-            )
-            return
-        from rich.table import Table
-
-        table = Table("", "port", "description", "hardware id")
-        for p in found:
-            mark = "* Arduino?" if p.likely_arduino else ("virtual" if p.virtual else "")
-            table.add_row(mark, p.device, p.description, p.hwid)
-        console.print(table)
-
     # -------------------------------------------------------------------------------- monitor
     @app.command()
     @friendly_errors
     def monitor(
         port: PortOpt = None,
         source: SourceOpt = SourceChoice.serial,
-        baud: BaudOpt = 115200,
+        baud: BaudOpt = None,
         fmt: FormatOpt = WireChoice.auto,
-        tx: TxOpt = 8,
-        rx: RxOpt = 8,
+        tx: TxOpt = None,
+        rx: RxOpt = None,
+        gain: GainOpt = None,
+        lines: LinesOpt = None,
         tx_mask: TxMaskOpt = None,
         rx_mask: RxMaskOpt = None,
         seconds: Annotated[
@@ -284,10 +289,12 @@ def register(app: typer.Typer) -> None:
         baseline_frames: Annotated[
             int, typer.Option(min=2, help="No-touch frames captured first.")
         ] = 50,
-        baud: BaudOpt = 115200,
+        baud: BaudOpt = None,
         fmt: FormatOpt = WireChoice.auto,
-        tx: TxOpt = 8,
-        rx: RxOpt = 8,
+        tx: TxOpt = None,
+        rx: RxOpt = None,
+        gain: GainOpt = None,
+        lines: LinesOpt = None,
         tx_mask: TxMaskOpt = None,
         rx_mask: RxMaskOpt = None,
         mesh: Annotated[

@@ -13,6 +13,7 @@ from typing import Annotated, Any
 
 import typer
 
+from skinloc.cli.board_setup import GainOpt, LinesOpt
 from skinloc.cli.common import WireChoice
 
 log = logging.getLogger(__name__)
@@ -74,6 +75,31 @@ def _sink_files(sink: str) -> list[Path]:
     return []
 
 
+def _prepare_board(
+    source: str,
+    baud: int | None,
+    gain: int | None,
+    lines: str | None,
+    tx: int | None,
+    rx: int | None,
+    allow_url: bool,
+) -> tuple[int, int | None, int | None]:
+    """The baud and grid of ``source`` when it is a serial port (asked, set up); else as given."""
+    from skinloc.cli.board_setup import prepare_port
+    from skinloc.cli.common import err_console
+    from skinloc.live.runner import _is_recording
+
+    serial_port = source != "sim" and not source.startswith("sim:") and not _is_recording(source)
+    if not serial_port or ("://" in source and not allow_url):
+        if gain is not None or lines is not None:
+            raise ValueError("--gain and --lines set a board: give its serial port as --source")
+        return baud or 115200, tx, rx
+    ready = prepare_port(source, baud=baud, gain=gain, lines=lines, n_tx=tx, n_rx=rx)
+    if ready.description:
+        err_console.print(f"{source}: {ready.description}", highlight=False)
+    return ready.baud, ready.n_tx, ready.n_rx
+
+
 def register(app: typer.Typer) -> None:
     """Add ``run`` and ``export`` to the main ``skinloc`` app."""
     from skinloc.cli.common import check_output, err_console, friendly_errors
@@ -110,7 +136,16 @@ def register(app: typer.Typer) -> None:
             bool, typer.Option("--fast", help="Replay a recording as fast as possible.")
         ] = False,
         loop: Annotated[bool, typer.Option("--loop", help="Replay a recording forever.")] = False,
-        baud: Annotated[int, typer.Option(min=50, help="Baud rate of a serial port.")] = 115200,
+        baud: Annotated[
+            int | None,
+            typer.Option(
+                min=50,
+                help="Baud rate of a serial port; default: found by asking the board "
+                "(1000000 when it is not plugged in yet).",
+            ),
+        ] = None,
+        gain: GainOpt = None,
+        lines: LinesOpt = None,
         wire_format: Annotated[
             WireChoice, typer.Option("--format", help="Wire format of a serial port.")
         ] = WireChoice.auto,
@@ -194,6 +229,8 @@ def register(app: typer.Typer) -> None:
 
             if model is not None:
                 raise ValueError("give either --config (many skins) or --model, not both")
+            if gain is not None or lines is not None:
+                raise ValueError("--gain and --lines set one board: use them without --config")
             skin_cfgs, global_sinks = load_skins(config)
             _check_sources(skin_cfgs, allow_url, wait)
             runner = Runner(skin_cfgs, sinks=[*global_sinks, *(sink or [])] or ["jsonl"])
@@ -216,7 +253,7 @@ def register(app: typer.Typer) -> None:
                 source=source,
                 name=name,
                 config=cfg,
-                baud=baud,
+                baud=baud or 115200,
                 wire_format=wire_format.value,
                 n_tx=tx,
                 n_rx=rx,
@@ -225,6 +262,9 @@ def register(app: typer.Typer) -> None:
                 baseline=baseline,
             )
             _check_sources([skin_cfg], allow_url, wait)
+            skin_cfg.baud, skin_cfg.n_tx, skin_cfg.n_rx = _prepare_board(
+                source, baud, gain, lines, tx, rx, allow_url
+            )
             runner = Runner([skin_cfg], sinks=sinks)
         previous = _sigterm_as_interrupt()
         t0 = time.monotonic()

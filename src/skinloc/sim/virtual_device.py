@@ -287,7 +287,7 @@ class VirtualSkin:
         while b"\n" in self._cmd_buf:
             line, _, rest = bytes(self._cmd_buf).partition(b"\n")
             self._cmd_buf = bytearray(rest)
-            reply = self.handle_command(line.decode("ascii", "replace").strip())
+            reply = self.handle_command(line.decode("ascii", "replace"))
             if reply:
                 self._flush_pending()
                 self._write(reply.encode("ascii") + b"\r\n")

@@ -41,6 +41,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/inotify.h>
+#include <sys/prctl.h>
 #include <termios.h>
 #include <time.h>
 #include <unistd.h>
@@ -543,6 +544,9 @@ int main(int argc, char **argv) {
         }
     }
     if (!elf) usage();
+    /* An emulator left behind by a killed test would spin a core forever: die with the parent. */
+    prctl(PR_SET_PDEATHSIG, SIGTERM);
+    if (getppid() == 1) return 2;
 
     elf_firmware_t fw;
     memset(&fw, 0, sizeof fw);

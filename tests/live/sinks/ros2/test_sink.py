@@ -806,6 +806,79 @@ def test_skinloc_run_publishes_to_a_subscriber_in_another_process(tmp_path, doma
     assert mesh.got[-1].header.frame_id == "skin/arm"
 
 
+def _scaled(timeout_s: float) -> float:
+    """``timeout_s`` stretched by the load per core (1x to 8x): a shared machine is slower."""
+    try:
+        load = os.getloadavg()[0] / (os.cpu_count() or 1)
+    except OSError:
+        load = 1.0
+    return timeout_s * min(max(load, 1.0), 8.0)
+
+
+def test_a_touch_held_when_skinloc_run_stops_ends_for_a_subscriber_in_another_process(domain):
+    """Ctrl-C with a finger down: the subscriber gets the empty PoseArray and the DELETEs.
+
+    Without them a node that follows the touches believes the skin is touched forever.
+    """
+    import signal
+    import subprocess
+    import sys
+
+    from cyclonedds.domain import DomainParticipant
+
+    from tests._live import held_recording, model_path
+
+    env = {
+        **os.environ,
+        "ROS_DOMAIN_ID": str(domain),
+        "PYTHONPATH": os.pathsep.join([str(SRC), os.environ.get("PYTHONPATH", "")]),
+    }
+    dp = DomainParticipant(domain)
+    poses = _Sub(dp, "/skinloc/skin/contacts", PA)
+    markers = _Sub(dp, "/skinloc/skin/markers", MkA)
+
+    def touched() -> bool:
+        markers.take()
+        return any(m.poses for m in poses.take() if isinstance(m, PA))
+
+    def ctrl_c_default() -> None:  # a job started in the background inherits SIGINT ignored
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "skinloc", "run", "--model", str(model_path("map")),
+         "--source", str(held_recording(300.0)), "--sink", "ros2", "--duration", "600"],
+        env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, preexec_fn=ctrl_c_default,
+    )  # fmt: skip
+    try:
+        got = _wait(touched, _scaled(180.0))  # ends as soon as the finger is seen
+    finally:
+        proc.send_signal(signal.SIGINT)  # one Ctrl-C, the finger still down
+        try:
+            _, err = proc.communicate(timeout=_scaled(90.0))
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            raise AssertionError("skinloc run --sink ros2 did not stop on one Ctrl-C") from None
+    assert got, f"no touch received from skinloc run; its stderr: {err.decode()[-2000:]}"
+    assert proc.returncode == 0 and "Traceback" not in err.decode(), err.decode()[-2000:]
+
+    def data(sub: _Sub, cls: type) -> list:
+        """The messages taken (a writer that goes away also leaves samples without data)."""
+        return [m for m in sub.take() if isinstance(m, cls)]
+
+    def ended() -> bool:
+        markers.take()
+        got = data(poses, PA)
+        return bool(got) and not got[-1].poses
+
+    # what was published before the publisher ended is delivered (reliable): take it all
+    assert _wait(ended, _scaled(30.0)), "the last PoseArray still holds a finger"
+    last_action: dict[int, int] = {}
+    for msg in data(markers, MkA):
+        for m in msg.markers:
+            last_action[m.id] = m.action
+    assert last_action and set(last_action.values()) == {2}  # every sphere DELETEd
+
+
 def test_bench_functions_with_the_ros2_sink_run_small(domain):
     from skinloc.bench.online import many_skins
     from skinloc.bench.sinks import sink_cost

@@ -747,6 +747,45 @@ def test_dds_sink_close_leaves_no_thread_and_no_process(domain):
     assert threads() <= before
 
 
+def test_a_frame_that_ends_a_track_waits_for_room_in_a_full_pipe(domain, monkeypatch):
+    """Other frames are dropped when the publisher lags; an end is not (bounded wait)."""
+    import signal
+    import threading
+
+    from skinloc.live.sinks.ros2 import sink as ros2_sink
+
+    monkeypatch.setattr(ros2_sink, "_END_WAIT_S", _scaled(60.0))  # a loaded machine
+    sink = ros2_sink.Ros2Sink(domain_id=domain, backend="dds", queue_frames=16)
+    sink.open([SkinInfo("a")])
+    waiting = threading.Event()
+    wait_for_room = sink._wait_for_room
+
+    def wait_and_tell(n: int, timeout_s: float) -> None:
+        waiting.set()
+        wait_for_room(n, timeout_s)
+
+    monkeypatch.setattr(sink, "_wait_for_room", wait_and_tell)
+    pid = sink._proc.pid
+    os.kill(pid, signal.SIGSTOP)  # the publisher lags: the pipe fills
+    try:
+        for k in range(10_000):
+            sink.emit(_contact("move", k, skin="a"))
+            if sink.n_dropped:
+                break
+        dropped = sink.n_dropped
+        assert dropped == 1
+        end = threading.Thread(target=sink.emit, args=(_contact("end", k + 1, skin="a"),))
+        end.start()
+        assert waiting.wait(_scaled(30.0))
+    finally:
+        os.kill(pid, signal.SIGCONT)
+    end.join(_scaled(60.0))
+    assert not end.is_alive()
+    sink.close()
+    assert sink.n_dropped == dropped  # the end went through once there was room
+    assert sink.stats()["sent"] == sink.n_put - dropped
+
+
 def test_an_encoder_mismatch_is_one_clear_error(monkeypatch):
     from skinloc.ros2 import cdr as ros2_cdr
 

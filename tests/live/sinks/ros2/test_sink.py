@@ -747,6 +747,31 @@ def test_dds_sink_close_leaves_no_thread_and_no_process(domain):
     assert threads() <= before
 
 
+def test_a_bag_recorded_when_the_run_stops_mid_touch_ends_with_the_finger_lifted(tmp_path):
+    """``close`` with a finger down (Ctrl-C, SIGTERM, ``--duration``): the bag has the end."""
+    from skinloc.live.runner import Pipeline
+    from tests._live import held_recording, model_path
+
+    bag = tmp_path / "held.mcap"
+    seen = []
+    pipeline = Pipeline(
+        model_path("map"), str(held_recording(300.0)), sinks=[f"mcap-ros2:{bag}"], name="arm"
+    )
+    pipeline.start(seen.append)
+    try:
+        assert _wait(lambda: any(c.state == "move" for c in seen), _scaled(120.0))
+    finally:
+        pipeline.close()
+    topics = _read_bag(bag)
+    poses = [m for _, _, m in topics["/skinloc/arm/contacts"]]
+    assert any(p.poses for p in poses) and not poses[-1].poses
+    last_action = {}
+    for _, _, msg in topics["/skinloc/arm/markers"]:
+        for m in msg.markers:
+            last_action[m.id] = m.action
+    assert last_action and set(last_action.values()) == {2}  # every sphere DELETEd
+
+
 def test_a_frame_that_ends_a_track_waits_for_room_in_a_full_pipe(domain, monkeypatch):
     """Other frames are dropped when the publisher lags; an end is not (bounded wait)."""
     import signal

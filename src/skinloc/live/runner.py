@@ -212,13 +212,18 @@ class Runner:
         self._wake()
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(10.0)
-        running = self._thread is not None and self._thread.is_alive()
+        # a loop still running on another thread owns the cores (its join above timed out)
+        running = (
+            self._thread is not None
+            and self._thread.is_alive()
+            and self._thread is not threading.current_thread()
+        )
         self._thread = None
         for feed in self._threads:
             feed.close()
         for port in self._ports:
             port.close()
-        if self._opened and not running:  # a loop still running owns the cores: leave them
+        if self._opened and not running:
             self._end_touches(time.monotonic())
         for sink in [*self.global_sinks, *(s for sinks in self.skin_sinks for s in sinks)]:
             try:

@@ -27,7 +27,7 @@ def load_skin_input(paths: list[Path]) -> tuple[str, Any]:
     """
     import h5py
 
-    from skinloc.data.recording import read_recording
+    from skinloc.cli.common import read_recordings
     from skinloc.models.localizer import ContactLocalizer
 
     def is_model(p: Path) -> bool:
@@ -42,7 +42,7 @@ def load_skin_input(paths: list[Path]) -> tuple[str, Any]:
         if len(paths) > 1:
             raise ValueError("give one model file, or one or more recordings, not both")
         return "model", ContactLocalizer.load(models[0])
-    return "recordings", [read_recording(p) for p in paths]
+    return "recordings", read_recordings(paths, calibration=True)
 
 
 def _check_out(out: Path, inputs: list[Path], names: tuple[str, ...]) -> None:

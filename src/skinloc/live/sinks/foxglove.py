@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from skinloc._lazy import require_extra
 from skinloc.live.sinks.base import Sink, SkinInfo, gesture_json
 
 if TYPE_CHECKING:
@@ -44,14 +45,7 @@ TRACK_COLOURS = (
 
 
 def _require_foxglove() -> Any:
-    try:
-        import foxglove
-    except ImportError:
-        raise ImportError(
-            "the Foxglove sink needs foxglove-sdk: pip install 'skinloc[live]' "
-            "(or pip install foxglove-sdk)"
-        ) from None
-    return foxglove
+    return require_extra("foxglove", "the Foxglove sink")
 
 
 class FoxgloveSink(Sink):

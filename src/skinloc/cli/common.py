@@ -23,6 +23,7 @@ from rich.markup import escape
 
 from skinloc._lazy import EXTRAS, missing_extra_message
 from skinloc.errors import RecordingError, SkinlocError
+from skinloc.files import os_error_line
 
 
 def _flags_read_as_flags() -> None:
@@ -176,9 +177,11 @@ def friendly_errors(fn: F) -> F:
             try:
                 return fn(*args, **kwargs)
             except (SkinlocError, ValueError, OSError) as exc:
+                # HDF5's errors (a full disk) are many lines: one line, file and reason
+                text = os_error_line(exc) if isinstance(exc, OSError) else str(exc)
                 # escaped: a message may hold brackets (pip install 'skinloc[nets]', paths)
                 err_console.print(
-                    f"[bold red]error:[/] {escape(str(exc))}", highlight=False, soft_wrap=True
+                    f"[bold red]error:[/] {escape(text)}", highlight=False, soft_wrap=True
                 )
                 raise typer.Exit(1) from None
             except ModuleNotFoundError as exc:

@@ -77,6 +77,7 @@ CASES = [
     (["run", "--model", "{model}", "--sink", "mcap:"], "needs a file name"),
     (["run", "--model", "{model}", "--sink", "bogus"], "unknown sink"),
     (["run", "--model", "{model}", "--sink", "ws://127.0.0.1:99999"], "bad port"),
+    (["run", "--model", "{model}", "--sink", "udp://nohost.invalid:9870"], "cannot resolve"),
     (["run", "--model", "{model}", "--source", "{bag}"], LIVE),
     # commands whose extra is missing
     (["train", "{rec}", "--arch", "paper", "--out", "{out}/m.h5"], "pip install 'skinloc[nets]'"),

@@ -10,7 +10,7 @@ from typing import Annotated, Any
 
 import typer
 
-from skinloc.files import atomic_write
+from skinloc.files import atomic_write, cannot_write
 
 __all__ = ["register", "load_skin_input"]
 
@@ -79,7 +79,10 @@ def _report(
         out.mkdir(parents=True, exist_ok=True)
         text = json.dumps(result, indent=1) + "\n"
         atomic_write(out / names[0], lambda tmp: tmp.write_text(text))
-        plot(out / names[1])
+        try:
+            plot(out / names[1])
+        except OSError as exc:  # a full disk: name the figure
+            raise cannot_write(out / names[1], exc) from None
     if as_json:
         sys.stdout.write(json.dumps(result, indent=1) + "\n")
         return None

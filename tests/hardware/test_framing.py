@@ -14,7 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from skinloc.hardware.framing import AutoParser, BinaryParser, TextParser, make_parser
-from skinloc.hardware.wire import (
+from skinloc.hardware.protocol import (
     MAX_LINE_BYTES,
     WireFormat,
     binary_frame_size,

@@ -9,14 +9,14 @@ import numpy as np
 import pytest
 
 from skinloc.errors import FrameTimeoutError, SourceAlreadyConnectedError, SourceNotConnectedError
+from skinloc.hardware.protocol import encode_binary, encode_text
 from skinloc.hardware.serial import (
     SerialSource,
     SerialSourceConfig,
     list_ports,
     parse_line_mask,
 )
-from skinloc.hardware.wire import encode_binary, encode_text
-from skinloc.sources import make_source
+from skinloc.sources import SourceOptions, make_source
 
 
 def loop_source(**kw) -> SerialSource:
@@ -152,10 +152,10 @@ def test_parse_line_mask_sequences():
 
 
 def test_make_source_builds_serial_and_replay(tmp_path):
-    src = make_source("serial", port="loop://", n_tx=21, n_rx=12)
+    src = make_source(SourceOptions("loop://", n_tx=21, n_rx=12))
     assert isinstance(src, SerialSource) and src.n_sensors == 252
     with pytest.raises(ValueError, match="n_tx"):
-        make_source("serial", port="loop://", n_tx=30)
+        make_source(SourceOptions("loop://", n_tx=30))
 
 
 def test_frames_stream_and_text_index():

@@ -32,8 +32,8 @@ from skinloc.cli.hardware import (
     TxOpt,
     _first_frame,
     _load_surface,
-    _open_source,
     _stats_line,
+    open_cli_source,
 )
 
 log = logging.getLogger(__name__)
@@ -151,19 +151,9 @@ def register(app: typer.Typer) -> None:
             from skinloc.data.recording import read_recording
 
             sim_mesh = read_recording(out).mesh if resume else surface
-            src = _open_source(None, source, tx=tx, rx=rx, seed=seed, mesh=sim_mesh)
+            src = open_cli_source({**locals(), "port": None}, mesh=sim_mesh)
         else:
-            src = _open_source(
-                port,
-                source,
-                baud=baud,
-                fmt=fmt,
-                tx=tx,
-                rx=rx,
-                tx_mask=tx_mask,
-                rx_mask=rx_mask,
-                allow_url=allow_url,
-            )
+            src = open_cli_source(locals())
         with src:
             _first_frame(src, 1.0)
             if resume:

@@ -81,46 +81,53 @@ SeedOpt = Annotated[int, typer.Option(min=0, help="Seed of the simulated skin (-
 ForceOpt = Annotated[bool, typer.Option("--force", help="Replace an existing --out.")]
 
 
-def _open_source(
-    port: str | None,
-    source: SourceChoice,
-    *,
-    baud: int = 115200,
-    fmt: WireChoice = WireChoice.auto,
-    tx: int = 8,
-    rx: int = 8,
-    tx_mask: str | None = None,
-    rx_mask: str | None = None,
-    realtime: bool = False,
-    seed: int = 0,
-    mesh: Any = None,
-    allow_url: bool = False,
-):
-    """Build (not connect) the frame source the options describe."""
+#: The shared source options every command that reads a skin declares, by parameter name.
+_SOURCE_PARAMS = ("port", "source", "baud", "fmt", "tx", "rx", "tx_mask", "rx_mask", "seed")
+
+
+def open_cli_source(params: dict[str, Any], *, realtime: bool = False, mesh: Any = None):
+    """Build (not connect) the frame source a command's options name.
+
+    ``params`` is the command's ``locals()``: its ``--port``, ``--source``, ``--baud``,
+    ``--format``, ``--tx``, ``--rx``, masks, ``--seed`` and ``--allow-url`` under the parameter
+    names of ``PortOpt``, ``SourceOpt`` and the rest (a command without one gets the default).
+    The source is built by the one factory, ``skinloc.sources.base.make_source``; ``mesh`` is
+    the simulated skin's surface.
+    """
+    from skinloc.sources.base import SourceOptions, make_source
+
+    p = {k: params[k] for k in _SOURCE_PARAMS if k in params}
+    port, source = p.get("port"), p.get("source", SourceChoice.serial)
     if source is SourceChoice.sim:
         if port is not None:
             raise ValueError("give either --port or --source sim, not both")
-        from skinloc.sim.skin import SimulatedSkin
-
-        return SimulatedSkin(mesh, n_tx=tx, n_rx=rx, random_state=seed, realtime=realtime)
-    if port is None:
+        port = "sim"
+    elif port is None:
         raise ValueError(
             "give --port (a serial port: see 'skinloc ports') or --source sim for the simulator"
         )
-    from skinloc.hardware.ports import check_source
-    from skinloc.hardware.serial import SerialSource, SerialSourceConfig
+    else:
+        from skinloc.hardware.ports import check_source
 
-    check_source(port, allow_urls=allow_url, allow_sim=False, opt_in="pass --allow-url")
-    cfg = SerialSourceConfig(
-        port=port,
-        baud=baud,
-        n_tx=tx,
-        n_rx=rx,
-        tx_mask=tx_mask,
-        rx_mask=rx_mask,
+        check_source(
+            port,
+            allow_urls=params.get("allow_url", False),
+            allow_sim=False,
+            opt_in="pass --allow-url",
+        )
+    fmt = p.get("fmt", WireChoice.auto)
+    options = SourceOptions(
+        port,
+        n_tx=p.get("tx", 8),
+        n_rx=p.get("rx", 8),
+        baud=p.get("baud", 115200),
         format=fmt.value,
+        tx_mask=p.get("tx_mask"),
+        rx_mask=p.get("rx_mask"),
+        seed=p.get("seed", 0),
+        realtime=realtime,
     )
-    return SerialSource(cfg)
+    return make_source(options, mesh=mesh)
 
 
 #: Longest wait for a board's first frame, s: opening the port resets an Uno (DTR), and its
@@ -220,19 +227,7 @@ def register(app: typer.Typer) -> None:
         from rich.live import Live
         from rich.table import Table
 
-        src = _open_source(
-            port,
-            source,
-            baud=baud,
-            fmt=fmt,
-            tx=tx,
-            rx=rx,
-            tx_mask=tx_mask,
-            rx_mask=rx_mask,
-            realtime=True,
-            seed=seed,
-            allow_url=allow_url,
-        )
+        src = open_cli_source(locals(), realtime=True)
 
         def render(values: np.ndarray, baseline: np.ndarray | None, n: int) -> Table:
             img = values if raw or baseline is None else values - baseline
@@ -327,19 +322,7 @@ def register(app: typer.Typer) -> None:
             raise ValueError(f"--out must be an .h5 file, got {out}")
         check_output(out, option="--out", inputs=[mesh], force=force)
         surface = _load_surface(mesh, units)
-        src = _open_source(
-            port,
-            source,
-            baud=baud,
-            fmt=fmt,
-            tx=tx,
-            rx=rx,
-            tx_mask=tx_mask,
-            rx_mask=rx_mask,
-            seed=seed,
-            mesh=surface if source is SourceChoice.sim else None,
-            allow_url=allow_url,
-        )
+        src = open_cli_source(locals(), mesh=surface if source is SourceChoice.sim else None)
         side = side_path(out, "partial")
         buf: list[tuple[np.ndarray, float, int]] = []  # frames not yet on disk
         t_end = 0.0  # stream time of the last frame on disk, s

@@ -13,7 +13,6 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from skinloc.cli import app as app_cli
 from skinloc.cli import bench as cli_bench
 from skinloc.cli import collect as cli_collect
 from skinloc.cli import hardware as cli_hardware
@@ -21,6 +20,7 @@ from skinloc.cli import live as cli_live
 from skinloc.cli import predict as cli_predict
 from skinloc.cli import recordings as cli_recordings
 from skinloc.cli import skin as cli_skin
+from skinloc.cli import webapp as app_cli
 from skinloc.cli.common import (
     Arch,
     Constraint,

@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from skinloc.hardware.wire import WireFormat
+from skinloc.hardware.protocol import WireFormat
 
 __all__ = ["FIRMWARE_VERSION", "answer_command"]
 

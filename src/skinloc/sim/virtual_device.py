@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from skinloc.hardware.wire import WireFormat, encode_binary, encode_text
+from skinloc.hardware.protocol import WireFormat, encode_binary, encode_text
 from skinloc.sim.device_commands import FIRMWARE_VERSION, answer_command
 from skinloc.sim.device_faults import Fate, FaultConfig, Pending, TruthLog
 

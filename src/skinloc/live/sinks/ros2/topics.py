@@ -103,7 +103,7 @@ def ros2_available() -> bool:
 
 def _require_msgs() -> Any:
     """``skinloc.ros2.msgs`` (needs cyclonedds), or one clear ``MissingExtraError``."""
-    require_extra("cyclonedds.idl", "the ROS 2 sinks (message types and CDR)")
+    require_extra("cyclonedds.idl", "the ROS 2 sink")
     import skinloc.ros2.msgs as ros2_msgs
 
     return ros2_msgs

@@ -357,15 +357,22 @@ def register(app: typer.Typer) -> None:
             )
 
 
-def bench_online(out: Path, as_json: bool) -> None:
-    """``skinloc bench --online``: the live path's figures, written to ``out/online.json``."""
+def bench_online(out: Path, as_json: bool, archs: tuple[str, ...], left_out: list[str]) -> None:
+    """``skinloc bench --online``: the live path's figures, written to ``out/online.json``.
+
+    ``archs`` are the models to measure; ``left_out`` says what was left out before (networks
+    without PyTorch), and what the benchmark leaves out itself is added to it.
+    """
     from skinloc.bench.online import online_bench
-    from skinloc.cli.common import console, print_json, progress_steps
+    from skinloc.cli.common import console, err_console, print_json, progress_steps
 
     out.mkdir(parents=True, exist_ok=True)
     with progress_steps() as step:
-        res = online_bench(out=out, step=step)
+        res = online_bench(out=out, step=step, archs=archs)
+    res["left_out"] = [*left_out, *res["left_out"]]
     (out / "online.json").write_text(json.dumps(res, indent=2, default=float))
+    for why in res["left_out"]:
+        err_console.print(f"left out: {why}", highlight=False, soft_wrap=True)
     if as_json:
         print_json(res)
         return

@@ -6,7 +6,7 @@ from typing import Any
 
 from fastapi import FastAPI
 
-from skinloc.app.routes.bodies import FlagBody, IndexBody, ValidateBody
+from skinloc.app.routes.bodies import FlagBody, IndexBody, TrainBody, ValidateBody
 from skinloc.app.routes.common import OK, ClientHeader
 from skinloc.app.workspace import Workspace
 
@@ -57,9 +57,9 @@ def add_routes(app: FastAPI, workspace: Workspace) -> None:
         return OK
 
     @app.post("/api/train")
-    def train(client: str | None = ClientHeader) -> dict[str, Any]:
+    def train(body: TrainBody | None = None, client: str | None = ClientHeader) -> dict[str, Any]:
         workspace.require(client)
-        workspace.train()
+        workspace.train(body.exclude if body is not None else None)
         return OK
 
     @app.post("/api/live/start")

@@ -173,6 +173,9 @@ class SessionActions:
     def _close_session(self) -> None:
         self._stop_using_frames()
         self.mode = Mode.IDLE
+        # The scripted finger is switched on for one session: the next one must not start
+        # touching its targets by itself.
+        self.finger_on = False
         if self.active is not None:
             SessionFolder.unlock(self.active.lock_fd)
             self.active = None

@@ -9,8 +9,8 @@ const TRACK_STALE_MS = 500;
 const ARROWS = { up: "↑", down: "↓", left: "←", right: "→" };
 
 export class LivePage {
-  constructor(viewer, { $, esc, mm, later }) {
-    Object.assign(this, { viewer, $, esc, mm, later });
+  constructor(viewer, { $, esc, mm, later, mode }) {
+    Object.assign(this, { viewer, $, esc, mm, later, mode });
     this.tracks = new Map(); // by key: the newest contact, the colour, when it came
     this.gestures = []; // newest first
     setInterval(() => this.dropStale(), 200);
@@ -65,7 +65,10 @@ export class LivePage {
     const { $, mm } = this;
     const el = $("#live-state");
     const tracks = [...this.tracks.values()].sort((a, b) => a.colour - b.colour);
-    el.textContent = tracks.length ? `${tracks.length} contact${tracks.length > 1 ? "s" : ""}` : "not touched";
+    // Whether it runs at all, then what it sees.
+    const mode = this.mode?.();
+    el.textContent = tracks.length ? `${tracks.length} contact${tracks.length > 1 ? "s" : ""}`
+      : mode === "live" ? "not touched" : mode === "baseline" ? "Keep the skin untouched: baseline" : "Stopped: press Start";
     el.className = `big-state ${tracks.length ? "touch" : "idle"}`;
     // No stale rows from the last touch: only the tracks that last.
     $("#live-tracks tbody").innerHTML = tracks.map(({ contact: c, colour }) => {
@@ -73,7 +76,8 @@ export class LivePage {
       const unc = c.uncertainty_mm != null ? `± ${c.uncertainty_mm.toFixed(1)}` : "-";
       return `<tr><td><span class="swatch" style="background:${swatch}"></span>${c.track_id >= 0 ? c.track_id : "-"}</td>
         <td>${mm(c.position_m)}</td><td>${unc}</td><td>${c.strength != null ? c.strength.toFixed(0) : "-"}</td>
-        <td><div class="progress thin"><div style="width:${Math.round(100 * (c.confidence ?? 0))}%"></div></div></td></tr>`;
+        <td class="confidence"><div class="progress thin"><div style="width:${Math.round(100 * (c.confidence ?? 0))}%"></div></div>
+          <span>${c.confidence != null ? c.confidence.toFixed(2) : "-"}</span></td></tr>`;
     }).join("") || `<tr><td colspan="5" class="hint">No contact.</td></tr>`;
   }
 

@@ -748,3 +748,46 @@ def test_sessions_own_their_state_and_flagged_touches_are_gated(chromium, server
             raise AssertionError(page.evaluate("JSON.stringify(window.skinloc.state)")) from None
         browser.close()
     assert not errors, f"the page logged errors: {errors}"
+
+
+def test_heat_map_scale_is_steady_robust_and_lockable(chromium, server):
+    """Issue 22, section 2: the heat map's scale does not jump from frame to frame (one noisy
+    sensor does not set it), can be locked while a touch would raise it, and the outline
+    styles have a legend."""
+    url, app = server
+    from skinloc.app.device import SourceSpec
+
+    ws = app.state.workspace
+    ws.connect(SourceSpec(source="sim", rate_hz=200.0, seed=3))
+    errors: list[str] = []
+    scale = "() => document.querySelector('#heat-connect')._heat?.scale"
+    with sync_api.sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
+        page = browser.new_page(viewport={"width": 1440, "height": 900})
+        watch(page, errors)
+        page.goto(url)
+        page.click("#nav button[data-page=connect]")
+        page.wait_for_function(f"() => ({scale})() > 0")
+        page.wait_for_timeout(1000)
+        seen = []
+        for _ in range(20):  # untouched: one scale, whatever the noise draws
+            seen.append(page.evaluate(scale))
+            page.wait_for_timeout(100)
+        assert len(set(seen)) == 1, seen
+        key = page.locator("#page-connect .heat-key").first
+        for word in ("noisy", "weak", "dead", "line"):
+            assert word in key.inner_text()
+
+        page.locator("#heat-connect + .heat-controls .heat-lock").check()
+        locked = page.evaluate(scale)
+        ws.sim_touch(ws.default_mesh.vertices[len(ws.default_mesh.vertices) // 2].tolist())
+        page.wait_for_function(
+            "(s) => Math.max(...window.skinloc.frame.delta.map(Math.abs)) > 2 * s", arg=locked
+        )
+        page.wait_for_timeout(300)
+        assert page.evaluate(scale) == locked
+        page.locator("#heat-connect + .heat-controls .heat-lock").uncheck()
+        page.wait_for_function(f"(s) => ({scale})() > s", arg=locked)
+        ws.sim_touch(None)
+        browser.close()
+    assert not errors, f"the page logged errors: {errors}"

@@ -791,3 +791,38 @@ def test_heat_map_scale_is_steady_robust_and_lockable(chromium, server):
         ws.sim_touch(None)
         browser.close()
     assert not errors, f"the page logged errors: {errors}"
+
+
+def test_a_long_press_says_how_long_it_was_held(chromium, server):
+    """Issue 22, section 2: a long press is reported once held 0.6 s (its ``end_s`` is that
+    moment); the page follows its track and says how long the finger stayed, 3 s here."""
+    url, app = server
+    from skinloc.live.contact import Contact
+
+    sink = app.state.workspace.live_sink
+    errors: list[str] = []
+    with sync_api.sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
+        page = browser.new_page(viewport={"width": 1440, "height": 900})
+        watch(page, errors)
+        page.goto(url)
+        page.click("#nav button[data-page=live]")
+        page.wait_for_function("() => window.skinloc.state !== null")
+        p = (0.0, -0.05, 0.05)
+        for k in range(31):  # one still finger, 0 to 3 s of its clock
+            t = 0.1 * k
+            state = "start" if k == 0 else "end" if k == 30 else "move"
+            contact = Contact("skin", t, k, state, p, p, 0.9, 30.0, 4.0, 60.0, 5, 5, 0, 150.0)
+            sink.emit_contacts("skin", t, [contact])
+            if k == 6:
+                sink.emit_gesture(
+                    "skin",
+                    0.6,
+                    {"event": "gesture", "kind": "long_press", "direction": None,
+                     "start_s": 0.0, "end_s": 0.6, "timestamp_s": 0.6, "track_ids": [5]},
+                )  # fmt: skip
+            time.sleep(0.02)
+        row = page.locator("#live-gestures li", has_text="long press")
+        sync_api.expect(row).to_contain_text("held 3.00 s", timeout=30_000)
+        browser.close()
+    assert not errors, f"the page logged errors: {errors}"

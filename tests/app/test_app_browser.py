@@ -207,13 +207,15 @@ def test_full_session_in_the_browser(chromium, server, tmp_path):
         shot("05-validate")
         # The trained model's coverage map on the skin, with its colour scale and unit.
         vpanel.locator(".coverage").click()
-        vpanel.locator(".coverage-legend").get_by_text("expected error (mm)").wait_for()
-        page.wait_for_function(
-            "() => window.skinloc.viewer.groups.coverage.visible"
-            " && window.skinloc.viewer.groups.coverage.children.length > 100"
-        )
+        COVERAGE_DRAWN.wait(page)
+        legend = vpanel.locator(".coverage-legend")
+        for words in ("expected", "not measured", "validation: mean", "held-out touches"):
+            expect(legend).to_contain_text(words)
+        expect(page.locator("#viewer-legend")).to_contain_text("Coverage map")
+        shot("05b-coverage")
         vpanel.locator(".coverage").click()  # off
         page.wait_for_function("() => !window.skinloc.viewer.groups.coverage.visible")
+        expect(page.locator("#viewer-legend")).to_contain_text("Validation error")
 
         # Live: press on the skin with the mouse, see the live pipeline's contact and its trail.
         page.click("#nav button[data-page=live]")
@@ -465,6 +467,22 @@ GESTURES = [
         "track_ids": [97, 98],
     },
 ]
+
+
+class COVERAGE_DRAWN:  # noqa: N801 - a named wait
+    """The coverage map drawn as a colour on the skin (one mesh with a colour per vertex)."""
+
+    @staticmethod
+    def wait(page) -> None:
+        page.wait_for_function(
+            "() => { const g = window.skinloc.viewer.groups.coverage; if (!g.visible) return false;"
+            " const m = g.children.find((c) => c.name === 'coverage-surface');"
+            " if (!m) return false; const c = m.geometry.attributes.color;"
+            " const n = c.count; const s = new Set();"
+            " for (let i = 0; i < n; i += 7) s.add(c.getX(i).toFixed(2) + c.getY(i).toFixed(2));"
+            " return n === window.skinloc.viewer.skinGeometry.attributes.position.count"
+            " && s.size > 5; }"
+        )
 
 
 def watch(page, errors: list[str]) -> None:
@@ -724,6 +742,15 @@ def test_sessions_own_their_state_and_flagged_touches_are_gated(chromium, server
         expect(page.locator("#train-result")).to_contain_text("left out #7 (off-target)")
         expect(page.locator("#train-result .influence")).to_contain_text("cross-validated")
         page.screenshot(path=str(ARTIFACTS / "11-train-result.png"))
+
+        # The coverage map: a colour on the skin, set beside the measured (held-out) errors.
+        page.click("#nav button[data-page=validate]")
+        page.locator(".guided[data-kind=validate] .coverage").check()
+        COVERAGE_DRAWN.wait(page)
+        legend = page.locator(".guided[data-kind=validate] .coverage-legend")
+        for words in ("expected", "not measured", "held-out touches: mean"):
+            expect(legend).to_contain_text(words)
+        page.screenshot(path=str(ARTIFACTS / "12-coverage.png"))
 
         # After "Complete": Backspace takes nothing back, Z does, and every touch has Retake.
         page.click("#nav button[data-page=calibrate]")

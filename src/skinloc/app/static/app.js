@@ -1,5 +1,5 @@
 // The skinloc app in the browser: pages, the live stream, and the actions.
-import { Viewer } from "/static/viewer.js";
+import { Viewer, COVERAGE_STOPS } from "/static/viewer.js";
 import { LivePage } from "/static/live.js";
 import { drawHeat } from "/static/heatmap.js";
 
@@ -503,23 +503,43 @@ async function offerSessions(el) {
   $(".reopen-btn", el).disabled = !list.length;
 }
 
-// The coverage map (validate page): expected error of the trained model, GET /api/session/coverage.
+// The coverage map (validate page): expected error of the trained model, GET /api/session/coverage,
+// as a colour on the skin, its scale, and beside it the errors measured on touches.
+const VIEWER_LEGEND = $("#viewer-legend").innerHTML;
 async function toggleCoverage(on) {
   const legend = $(".coverage-legend", guidedPanel("validate"));
   app.coverageOn = on;
   app.viewer.clear("coverage");
   legend.classList.toggle("hidden", !on);
+  $("#viewer-legend").innerHTML = VIEWER_LEGEND;
   if (!on) { renderSession(); return; }
   legend.textContent = "computing the coverage map...";
   const r = await fetch("/api/session/coverage");
   const c = await r.json();
   if (!r.ok) { legend.textContent = c.detail || "no coverage map"; return; }
-  app.viewer.setCoverage(c.points, c.expected_mm);
+  app.viewer.setCoverage(c.points, c.expected_mm, c.scale_mm);
   const [lo, hi] = c.scale_mm;
   const e = c.expected_error_mm;
-  legend.innerHTML = `<div style="height:10px;border-radius:3px;background:linear-gradient(to right,hsl(119,80%,45%),hsl(60,80%,45%),hsl(0,80%,45%))"></div>
-    <div style="display:flex;justify-content:space-between"><span>${lo} mm</span><span>expected error (${c.unit})</span><span>${hi} ${c.unit} or more</span></div>
-    mean ${e.mean.toFixed(1)} mm, p90 ${e.p90.toFixed(1)} mm; ${(100 * c.blind_fraction).toFixed(0)} % above ${c.blind_threshold_mm} mm (blind spots).`;
+  const bar = `<div class="bar" style="background:linear-gradient(to right,${COVERAGE_STOPS.join(",")})"></div>
+    <div class="ticks"><span>≤ ${lo.toFixed(1)}</span><span>${((lo + hi) / 2).toFixed(1)}</span><span>≥ ${hi.toFixed(1)} mm</span></div>`;
+  // The 3D view's legend says what the colours are now: the coverage map, not validation errors.
+  $("#viewer-legend").innerHTML = `<div><b>Coverage map</b>: expected error, mm</div>${bar}
+    <div class="hint">predicted by the model at each place; the dots are the validation touches</div>`;
+  const m = c.measured || {};
+  const measured = [
+    m.holdout ? `held-out touches: mean ${m.holdout.mean_mm.toFixed(1)}, p95 ${m.holdout.p95_mm.toFixed(1)} mm` : "",
+    m.validation ? `validation: mean ${m.validation.mean_mm.toFixed(1)}, p95 ${m.validation.p95_mm.toFixed(1)} mm` : "",
+  ].filter(Boolean);
+  const worst = Math.max(...[m.holdout, m.validation].filter(Boolean).map((x) => x.p95_mm));
+  const compare = measured.length
+    ? `Measured on ${measured.join("; ")}. ${worst > 1.5 * e.p90
+      ? `The measured tail is ${(worst / e.p90).toFixed(1)} times the map's p90: the map ranks places (where the sensors see a touch poorly), it does not predict bad touches or how a finger presses; trust the measured errors for the figure.`
+      : "The map's p90 is close to the measured tail."}`
+    : "No measured error to compare with yet: validate.";
+  legend.innerHTML = `<div><b>Coverage map</b>: the trained model's <i>expected</i> error at each place on the skin, in mm
+    (predicted from its response map and the sensor noise, not measured).</div>${bar}
+    <div>Over the skin: mean ${e.mean.toFixed(1)} mm, p90 ${e.p90.toFixed(1)} mm; ${(100 * c.blind_fraction).toFixed(0)} % above ${c.blind_threshold_mm} mm by this prediction.</div>
+    <div class="measured">${esc(compare)}</div>`;
   renderSession();
 }
 
@@ -766,6 +786,7 @@ function renderState(prev) {
       app.coverageOn = false;
       $(".coverage", guidedPanel("validate")).checked = false;
       $(".coverage-legend", guidedPanel("validate")).classList.add("hidden");
+      $("#viewer-legend").innerHTML = VIEWER_LEGEND;
       app.viewer.clear("coverage");
     }
     app.live.clear(true);

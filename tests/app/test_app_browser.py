@@ -822,7 +822,8 @@ def test_heat_map_scale_is_steady_robust_and_lockable(chromium, server):
 
 def test_a_long_press_says_how_long_it_was_held(chromium, server):
     """Issue 22, section 2: a long press is reported once held 0.6 s (its ``end_s`` is that
-    moment); the page follows its track and says how long the finger stayed, 3 s here."""
+    moment); the page follows its track and says how long the finger stayed, 3 s here. The
+    state line says the view is stopped, and the confidence has its number."""
     url, app = server
     from skinloc.live.contact import Contact
 
@@ -835,8 +836,11 @@ def test_a_long_press_says_how_long_it_was_held(chromium, server):
         page.goto(url)
         page.click("#nav button[data-page=live]")
         page.wait_for_function("() => window.skinloc.state !== null")
+        sync_api.expect(page.locator("#live-state")).to_have_text("Stopped: press Start")
         p = (0.0, -0.05, 0.05)
         for k in range(31):  # one still finger, 0 to 3 s of its clock
+            if k == 15:  # its row: the confidence as a bar and a number
+                sync_api.expect(page.locator("#live-tracks td.confidence")).to_contain_text("0.90")
             t = 0.1 * k
             state = "start" if k == 0 else "end" if k == 30 else "move"
             contact = Contact("skin", t, k, state, p, p, 0.9, 30.0, 4.0, 60.0, 5, 5, 0, 150.0)

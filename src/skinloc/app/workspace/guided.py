@@ -203,9 +203,18 @@ class GuidedCapture:
             raise ValueError("nothing to retake: no touch recorded yet")
         device = self._need_device()
         if mode is Mode.CALIBRATE:
-            a.cal = sess = self._calibration_session(a, device)
+            sess = self._calibration_session(a, device)
         else:
-            a.val = sess = CalibrationSession.resume(device.source, path)
+            sess = CalibrationSession.resume(device.source, path)
+        if sess.recording.n_sensors != device.source.n_sensors:
+            raise RecordingError(
+                f"the session has {sess.recording.n_sensors} sensors but the skin "
+                f"has {device.source.n_sensors}"
+            )
+        if mode is Mode.CALIBRATE:
+            a.cal = sess
+        else:
+            a.val = sess
         return sess
 
     def _take_back(self, sess: CalibrationSession, index: int, reason: str) -> None:

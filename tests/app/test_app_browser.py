@@ -841,6 +841,8 @@ def test_a_long_press_says_how_long_it_was_held(chromium, server):
         for k in range(31):  # one still finger, 0 to 3 s of its clock
             if k == 15:  # its row: the confidence as a bar and a number
                 sync_api.expect(page.locator("#live-tracks td.confidence")).to_contain_text("0.90")
+                ARTIFACTS.mkdir(parents=True, exist_ok=True)
+                page.screenshot(path=str(ARTIFACTS / "13-live-long-press.png"))
             t = 0.1 * k
             state = "start" if k == 0 else "end" if k == 30 else "move"
             contact = Contact("skin", t, k, state, p, p, 0.9, 30.0, 4.0, 60.0, 5, 5, 0, 150.0)

@@ -91,8 +91,8 @@ export class LivePage {
       const unc = c.uncertainty_mm != null ? `± ${c.uncertainty_mm.toFixed(1)}` : "-";
       return `<tr><td><span class="swatch" style="background:${swatch}"></span>${c.track_id >= 0 ? c.track_id : "-"}</td>
         <td>${mm(c.position_m)}</td><td>${unc}</td><td>${c.strength != null ? c.strength.toFixed(0) : "-"}</td>
-        <td class="confidence"><div class="progress thin"><div style="width:${Math.round(100 * (c.confidence ?? 0))}%"></div></div>
-          <span>${c.confidence != null ? c.confidence.toFixed(2) : "-"}</span></td></tr>`;
+        <td class="confidence"><div class="conf"><div class="progress thin"><div style="width:${Math.round(100 * (c.confidence ?? 0))}%"></div></div>
+          <span>${c.confidence != null ? c.confidence.toFixed(2) : "-"}</span></div></td></tr>`;
     }).join("") || `<tr><td colspan="5" class="hint">No contact.</td></tr>`;
   }
 

@@ -763,7 +763,9 @@ function renderState(prev) {
   if (!st) return;
   const mine = !st.lease || st.lease === clientId;
   $("#busy").classList.toggle("hidden", mine);
-  if (st.message !== app.dismissed) {
+  // The server's message when it changes (a refusal shown meanwhile stays until then), never
+  // one said on another page before this one was opened.
+  if (st.message !== prev?.message && st.message !== app.dismissed) {
     app.dismissed = null;
     showMessage(st.message);
   }

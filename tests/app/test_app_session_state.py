@@ -77,7 +77,7 @@ def test_retake_after_complete_and_in_a_reopened_session(tmp_path):
 def test_training_leaves_out_touches_and_names_the_one_that_hurts(tmp_path):
     with make_client(tmp_path) as client:
         client.app.state.workspace.config.influence_suspects = 2
-        new_session(client, n_points=12)
+        new_session(client, n_points=20)
         calibrate(client, until=6)
         # Touch 7 made at the far side of the skin, the finger's other touches where asked.
         client.post("/api/finger", json={"on": False}, headers=A)
@@ -99,10 +99,10 @@ def test_training_leaves_out_touches_and_names_the_one_that_hurts(tmp_path):
 
         assert client.post("/api/train", headers=A).status_code == 200
         result = wait_for(client, trained, "training")["training"]["result"]
-        assert result["n_recorded"] == 12 and result["left_out"] == []
+        assert result["n_recorded"] == 20 and result["left_out"] == []
         assert {"index": 6, "flags": flags[6]} in result["flagged_kept"]
         influence = result["influence"]
-        assert len(influence["cv_errors_mm"]) == 12
+        assert len(influence["cv_errors_mm"]) == 20
         worst = influence["suspects"][0]
         assert worst["index"] == 6 and worst["gain_mm"] > 0
         assert worst["others_without_mm"] < worst["others_with_mm"]
@@ -112,7 +112,7 @@ def test_training_leaves_out_touches_and_names_the_one_that_hurts(tmp_path):
         wait_for(client, lambda s: trained(s) and s["training"]["result"]["left_out"], "again")
         result = client.get("/api/state").json()["session"]["holdout"]
         assert result["left_out"] == [{"index": 6, "flags": flags[6]}]
-        assert result["n_point_logs"] == 11 and 6 not in result["kept"]
+        assert result["n_point_logs"] == 19 and 6 not in result["kept"]
 
         r = client.post("/api/train", json={"exclude": [40]}, headers=A)
         assert r.status_code == 400 and "no touch 41" in r.json()["detail"]

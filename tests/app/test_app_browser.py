@@ -735,14 +735,27 @@ def test_sessions_own_their_state_and_flagged_touches_are_gated(chromium, server
         shot = ARTIFACTS / "10-train-gate.png"
         ARTIFACTS.mkdir(parents=True, exist_ok=True)
         page.screenshot(path=str(shot))
+        # Kept in, it is named as the touch that hurts the held-out error most.
+        gate.locator("tr[data-index='6'] .leave-out").uncheck()
         page.click("#train-btn")
         page.wait_for_function("() => window.skinloc.state.training?.running")
         expect(page.locator("#train-result")).to_be_empty()  # no old result under the bar
-        expect(page.locator("#train-result .result")).to_be_visible(timeout=300_000)
-        expect(page.locator("#train-result")).to_contain_text("Trained on 19 of 20 touches")
-        expect(page.locator("#train-result")).to_contain_text("left out #7 (off-target)")
-        expect(page.locator("#train-result .influence")).to_contain_text("cross-validated")
-        page.screenshot(path=str(ARTIFACTS / "11-train-result.png"))
+        result = page.locator("#train-result")
+        expect(result.locator(".result")).to_be_visible(timeout=300_000)
+        expect(result).to_contain_text("Trained on all 20 touches")
+        expect(result).to_contain_text("Flagged but kept: #7 (off-target)")
+        expect(result.locator(".influence")).to_contain_text(
+            "Touch #7 (off-target) hurts the held-out error most"
+        )
+        page.screenshot(path=str(ARTIFACTS / "11-train-influence.png"))
+        # Left out from there: trained again without it, and the result says so.
+        result.locator("button[data-drop-touch='6']").click()
+        page.wait_for_function("() => window.skinloc.state.training?.running")
+        expect(result).to_be_empty()  # the earlier result is not left under the running bar
+        expect(result).to_contain_text("Trained on 19 of 20 touches", timeout=300_000)
+        expect(result).to_contain_text("left out #7 (off-target)")
+        expect(result.locator(".influence")).to_contain_text("cross-validated")
+        page.screenshot(path=str(ARTIFACTS / "11b-train-result.png"))
 
         # The coverage map: a colour on the skin, set beside the measured (held-out) errors.
         page.click("#nav button[data-page=validate]")

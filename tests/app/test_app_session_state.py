@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from skinloc.geometry.mesh import cone_skin
 from tests.app.test_app_api import A, calibrate, make_client, new_session, wait_for
 
 
@@ -88,8 +89,8 @@ def test_training_leaves_out_touches_and_names_the_one_that_hurts(tmp_path):
             "the prompt of touch 7",
         )
         target = np.asarray(state["guided"]["target"])
-        done = np.asarray(client.get("/api/session").json()["calibration"]["done"])
-        far = done[np.argmax(np.linalg.norm(done - target, axis=1))]
+        skin = cone_skin().vertices  # its point farthest from the target: no other touch's image
+        far = skin[np.argmax(np.linalg.norm(skin - target, axis=1))]
         client.post("/api/sim/touch", json={"point": far.tolist()}, headers=A)
         wait_for(client, lambda s: s["guided"]["index"] >= 7, "the touch elsewhere")
         client.post("/api/sim/touch", json={"point": None}, headers=A)

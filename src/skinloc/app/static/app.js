@@ -638,9 +638,9 @@ document.addEventListener("keydown", (ev) => {
 });
 
 // ------------------------------------------------------------------ train page
-// Before training: the touches the capture flagged, each to leave out or retake. Off-target
-// touches (the image says the finger was elsewhere) are left out unless kept; the others
-// (weak, short, forced, saturated) go in unless left out.
+// Before training: the touches the capture flagged, each to leave out or retake. Before the
+// first training off-target touches (the image says the finger was elsewhere) are ticked to be
+// left out, the others (weak, short, forced, saturated) go in; after it, what it left out.
 const FLAG_WORDS = { "off-target": "off target", weak: "weak", short: "short", forced: "forced", saturated: "saturated" };
 function flaggedTouches() {
   const cal = app.session?.calibration;
@@ -655,7 +655,11 @@ function renderGate() {
     return;
   }
   const flagged = flaggedTouches();
-  const key = `${app.session.id}:${n}:${JSON.stringify(flagged)}`;
+  // Ticked: what the last training left out; before any, the off-target touches.
+  const last = app.state?.session?.holdout;
+  const before = new Set((last?.left_out || []).map((t) => t.index));
+  const leave = (t) => (last ? before.has(t.index) : t.flags.includes("off-target"));
+  const key = `${app.session.id}:${n}:${JSON.stringify(flagged)}:${[...before]}:${!!last}`;
   if (el.dataset.key === key) return; // keep what the person ticked
   el.dataset.key = key;
   if (!flagged.length) {
@@ -670,7 +674,7 @@ function renderGate() {
     <table class="list gate-list"><thead><tr><th>Touch</th><th>Flags</th><th>Leave out</th><th></th></tr></thead><tbody>
     ${flagged.map((t) => `<tr data-index="${t.index}"><td>#${t.index + 1}</td>
       <td>${t.flags.map((f) => `<span class="flag ${esc(f)}">${esc(f)}</span>`).join("")}</td>
-      <td><input type="checkbox" class="leave-out" data-index="${t.index}" ${t.flags.includes("off-target") ? "checked" : ""}></td>
+      <td><input type="checkbox" class="leave-out" data-index="${t.index}" ${leave(t) ? "checked" : ""}></td>
       <td><button data-gate-retake="${t.index}">Retake</button></td></tr>`).join("")}</tbody></table>`;
 }
 function leftOut() {

@@ -798,6 +798,7 @@ def test_heat_map_scale_is_steady_robust_and_lockable(chromium, server):
     styles have a legend."""
     url, app = server
     from skinloc.app.device import SourceSpec
+    from skinloc.geometry.mesh import nearest_on_surface
 
     ws = app.state.workspace
     ws.connect(SourceSpec(source="sim", rate_hz=200.0, seed=3))
@@ -822,7 +823,9 @@ def test_heat_map_scale_is_steady_robust_and_lockable(chromium, server):
 
         page.locator("#heat-connect + .heat-controls .heat-lock").check()
         locked = page.evaluate(scale)
-        ws.sim_touch(ws.default_mesh.vertices[len(ws.default_mesh.vertices) // 2].tolist())
+        # The skin's point nearest its centroid: a touch that several sensors see strongly.
+        mesh = ws.default_mesh
+        ws.sim_touch(nearest_on_surface(mesh, mesh.vertices.mean(axis=0)[None])[0][0].tolist())
         page.wait_for_function(
             "(s) => Math.max(...window.skinloc.frame.delta.map(Math.abs)) > 2 * s", arg=locked
         )

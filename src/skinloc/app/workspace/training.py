@@ -103,6 +103,7 @@ class TrainingJobs:
         """
         from skinloc.evaluation.influence import touch_influence
         from skinloc.evaluation.scoring import evaluate, train_localizer
+        from skinloc.models.localizer import ARCHITECTURES
 
         opts = self.config.train_options
         n = rec.n_point_logs
@@ -117,7 +118,8 @@ class TrainingJobs:
         def progress(phase: str):
             def cb(done: int, total: int) -> None:
                 self.training.update(phase=phase, done=done, total=total)
-                if self.active is a:  # another session's tabs are not told of this one
+                # Another session's tabs are not told of this one.
+                if self.active is not None and self.active.folder.id == session:
                     self.hub.publish({"type": "train", **self.training})
 
             return cb
@@ -136,7 +138,9 @@ class TrainingJobs:
                 **inputs,
             }
             influence = None
-            if self.config.influence_suspects > 0:
+            # Ten more fits: seconds for a response map, far too long for a network.
+            network = ARCHITECTURES.get(opts.get("arch", "default"), {}).get("kind") == "network"
+            if self.config.influence_suspects > 0 and not network:
                 where = {int(k): j for j, k in enumerate(kept)}
                 flagged = [where[f["index"]] for f in inputs["flagged_kept"]]
                 infl = touch_influence(

@@ -473,6 +473,10 @@ def test_active_sampling_then_the_coverage_map_of_the_trained_model(tmp_path):
         assert pts.ndim == 2 and pts.shape[1] == 3 and err.shape == (len(pts),)
         assert np.isfinite(err).all() and (err > 0).all() and cov["unit"] == "mm"
         assert cov["expected_error_mm"]["mean"] == pytest.approx(err.mean(), abs=0.05)
+        # Its colours span its own spread; the measured errors come with it, to compare.
+        lo, hi = cov["scale_mm"]
+        assert lo < hi and lo <= np.percentile(err, 5) + 0.1 and hi >= np.percentile(err, 95) - 0.1
+        assert cov["measured"]["holdout"]["p95_mm"] > 0
         # On the skin: every point within a millimetre of the cone's surface.
         from skinloc.geometry.mesh import nearest_on_surface
 

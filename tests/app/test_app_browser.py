@@ -797,8 +797,8 @@ def test_heat_map_scale_is_steady_robust_and_lockable(chromium, server):
     sensor does not set it), can be locked while a touch would raise it, and the outline
     styles have a legend."""
     url, app = server
-    from skinloc.sources.base import SourceOptions
     from skinloc.geometry.mesh import nearest_on_surface
+    from skinloc.sources.base import SourceOptions
 
     ws = app.state.workspace
     ws.connect(SourceOptions(source="sim", rate_hz=200.0, seed=3))

@@ -87,9 +87,9 @@ def _prepare_board(
     """The baud and grid of ``source`` when it is a serial port (asked, set up); else as given."""
     from skinloc.cli.board_setup import prepare_port
     from skinloc.cli.common import err_console
-    from skinloc.live.runner import _is_recording
+    from skinloc.sources.base import SourceKind, source_kind
 
-    serial_port = source != "sim" and not source.startswith("sim:") and not _is_recording(source)
+    serial_port = source_kind(source) is SourceKind.SERIAL
     if not serial_port or ("://" in source and not allow_url):
         if gain is not None or lines is not None:
             raise ValueError("--gain and --lines set a board: give its serial port as --source")

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import errno
-import time
 
 import numpy as np
 import pytest
@@ -17,6 +16,7 @@ from skinloc.hardware.serial import (
 )
 from skinloc.hardware.wire import encode_binary, encode_text
 from skinloc.sources import make_source
+from tests._helpers import wait_until
 
 
 def loop_source(**kw) -> SerialSource:
@@ -68,14 +68,14 @@ def test_latest_and_max_age():
 def test_bounded_buffer_counts_overflow():
     with loop_source(n_tx=1, n_rx=1, buffer_frames=2) as src:
         src.write(b"".join(encode_binary([k], 1, 1, k) for k in range(5)))
-        deadline = time.monotonic() + 30
-        last = None
-        while last is None or last.index < 4:  # wait until the reader has seen them all
-            assert time.monotonic() < deadline, "the reader did not see 5 frames in 30 s"
+
+        def seen_all() -> bool:
             try:
-                last = src.latest(max_age_ms=60_000)
+                return src.latest(max_age_ms=60_000).index >= 4
             except FrameTimeoutError:
-                time.sleep(0.005)
+                return False
+
+        wait_until(seen_all, "the reader to see 5 frames", 30.0, interval_s=0.005)
         assert [src.read(5.0).index for _ in range(2)] == [3, 4]
         assert src.stats().n_overflow == 3
 
@@ -87,15 +87,15 @@ def test_timeout_names_the_port_and_says_why():
         ):
             src.read(timeout_s=0.05)
         src.write(b"\x00" * 50)
+
         # The reader thread takes the bytes when it is scheduled: until then the timeout
         # rightly says "no bytes", so poll for the message rather than expect it at once.
-        deadline = time.monotonic() + 30
-        while True:
+        def why() -> str:
             with pytest.raises(FrameTimeoutError) as exc:
                 src.read(timeout_s=0.05)
-            if "bytes but no valid frame" in str(exc.value) or time.monotonic() > deadline:
-                break
-        assert "bytes but no valid frame" in str(exc.value)
+            return str(exc.value)
+
+        wait_until(lambda: "bytes but no valid frame" in why(), "the timeout to name the bytes", 0)
 
 
 def test_contract_connect_twice_read_after_disconnect():

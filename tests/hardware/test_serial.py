@@ -15,7 +15,6 @@ from skinloc.hardware.serial import (
     parse_line_mask,
 )
 from skinloc.hardware.wire import encode_binary, encode_text
-from skinloc.sources import make_source
 from tests._helpers import wait_until
 
 
@@ -149,13 +148,6 @@ def test_parse_line_mask_sequences():
     assert parse_line_mask(None, 2, "tx_mask").all()
     with pytest.raises(ValueError):
         parse_line_mask([2, 0], 2, "tx_mask")
-
-
-def test_make_source_builds_serial_and_replay(tmp_path):
-    src = make_source("serial", port="loop://", n_tx=21, n_rx=12)
-    assert isinstance(src, SerialSource) and src.n_sensors == 252
-    with pytest.raises(ValueError, match="n_tx"):
-        make_source("serial", port="loop://", n_tx=30)
 
 
 def test_frames_stream_and_text_index():

@@ -631,25 +631,6 @@ def test_run_cli_replays_a_bag_and_refuses_a_broken_one(tmp_path):
     assert "broken.mcap" in res.output
 
 
-def test_bag_source_topic_choice(tmp_path):
-    from skinloc.errors import RecordingError
-    from skinloc.sources.mcap_ros2 import McapReplaySource
-
-    bag = tmp_path / "two.mcap"
-    sink = Ros2BagSink_two = make_sink(f"mcap-ros2:{bag}")
-    Ros2BagSink_two.open([SkinInfo("a", n_tx=4, n_rx=2), SkinInfo("b", n_tx=2, n_rx=2)])
-    sink.emit_frame("a", np.ones(8), 1.0, 3)
-    sink.emit_frame("b", np.ones(4), 1.0, 0)
-    sink.close()
-    src = McapReplaySource(bag, skin="a")
-    assert (src.n_tx, src.n_rx, src.topic) == (4, 2, "/skinloc/a/frames")
-    assert McapReplaySource(bag, skin="b").topic == "/skinloc/b/frames"
-    with pytest.raises(RecordingError, match="several image topics"):
-        McapReplaySource(bag, skin="c")
-    with pytest.raises(RecordingError, match="no image topic"):
-        McapReplaySource(bag, topic="/x")
-
-
 # ----------------------------------------------------------------------------- TF config
 
 

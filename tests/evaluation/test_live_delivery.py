@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from skinloc.evaluation.live_delivery import blind, score_gestures, score_tracks
-from tests._helpers import wait_until
+from tests._helpers import scaled, wait_until
 
 
 def _stroke(item, t0, t1, x=0.0, slot=0, kind="tap"):
@@ -164,7 +164,9 @@ def test_scripted_gestures_through_a_faulty_virtual_skin_are_delivered_once(tmp_
     contacts = [e for e in lines if "event" not in e]
     events = [e for e in lines if e.get("event") == "gesture"]
     truth = hand.truth()
-    tracks = score_tracks(contacts, truth["strokes"], downtimes)
+    # A frame is stamped when the host reads it: on a loaded machine a track's last frames are
+    # read later after the lift than the 0.15 s an idle one needs (once 0.19 s at load 12).
+    tracks = score_tracks(contacts, truth["strokes"], downtimes, lag_s=scaled(0.15))
     gest = score_gestures(
         events,
         truth["truth_gestures"],

@@ -186,8 +186,13 @@ def test_one_ctrl_c_stops_run_even_where_python_drops_exceptions(tmp_path, monke
 
     monkeypatch.setattr(JsonLinesSink, "emit", counting_emit)
     out = tmp_path / "c.jsonl"
-    res = run("run", "--model", model_path("map"), "--source", "sim", "--emit-idle",
-              "--sink", f"jsonl:{out}", "--duration", "600")  # fmt: skip
+    # pytest started in the background has SIGINT ignored, which skinloc rightly keeps
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        res = run("run", "--model", model_path("map"), "--source", "sim", "--emit-idle",
+                  "--sink", f"jsonl:{out}", "--duration", "600")  # fmt: skip
+    finally:
+        signal.signal(signal.SIGINT, before)
     assert res.exit_code == 0, res.output
     assert "went on after" not in res.output and "skin: " in res.output  # the summary
     assert 20 <= len(emitted) <= 20 + 500

@@ -95,9 +95,9 @@ def start_skinloc(
 ) -> subprocess.Popen:
     """``python -m skinloc ARGS`` (this checkout's code) started as a shell starts a foreground job.
 
-    A job started in the background by a non-interactive shell, or under ``nohup``, inherits
-    SIGINT *ignored*, and so would every process it starts: a CI run launched that way would
-    send Ctrl-C to commands that rightly keep ignoring it. A terminal's foreground job gets
+    A job started in the background by a non-interactive shell (``make test &`` in a script)
+    inherits SIGINT *ignored*, and so does every process it starts: a CI run launched that way
+    would send Ctrl-C to commands that rightly keep ignoring it. A terminal's foreground job gets
     SIGINT at its default; so does this one (the parent's disposition is restored at once).
     """
     env = {**os.environ, **(env or {})}

@@ -51,7 +51,7 @@ def _stop_on_signals(runner: Any) -> dict[int, Any]:
     old: dict[int, Any] = {}
     for sig in (signal.SIGINT, signal.SIGTERM):
         try:
-            if signal.getsignal(sig) is signal.SIG_IGN:  # nohup, a background job: keep it
+            if signal.getsignal(sig) is signal.SIG_IGN:  # a script's background job: keep it
                 continue
             old[sig] = signal.signal(sig, handler)
         except ValueError:  # not the main thread (an embedding program, tests)

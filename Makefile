@@ -32,7 +32,7 @@ demo: $(VENV)/.demo-installed
 	$(BIN)/skinloc demo --force
 
 test: $(VENV)/.test-installed
-	@sh scripts/ensure-chromium.sh
+	@sh scripts/ensure-packages.sh chromium firmware
 	$(BIN)/ruff check src tests bench
 	$(BIN)/python -m pytest -q
 

@@ -10,8 +10,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from skinloc.bench.paper import REAL_DEC
 from skinloc.data.recording import Recording, read_recording
-from skinloc.experiments.paper_bench import REAL_DEC
 
 #: The four recordings of 2023-12-10, in recording order.
 DAY: list[str] = list(REAL_DEC)

@@ -19,10 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
+from skinloc.bench.paper import REAL_DEC, REAL_MAY
 from skinloc.data.recording import Recording, read_recording
 from skinloc.evaluation.metrics import localisation_errors_mm
 from skinloc.evaluation.scoring import evaluate, train_localizer, training_arrays
-from skinloc.experiments.paper_bench import REAL_DEC, REAL_MAY
 from skinloc.geometry.mesh import SurfaceConstraint
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -3,7 +3,7 @@
 Builds a folder of good and bad files (a small simulated recording and its model, empty,
 truncated, foreign, NaN, wrong sensor count, degenerate meshes), runs each case as a
 subprocess, checks that no file in the folder changed, and prints a Markdown table (the one at
-the end of docs/reliability.md).
+bench/results/cli-bad-input.md; docs/reliability.md says what it checks).
 
     python bench/cli_bad_input.py > table.md
 

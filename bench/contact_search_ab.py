@@ -1,8 +1,13 @@
 """``Engine.contacts`` (K = 3) with an older multi-contact search against this one, in one process.
 
-The older search is a copy of its ``skinloc/models/contact_search.py`` (for instance
-``git show 1c8a43e:src/skinloc/models/contact_search.py > /tmp/contact_search_old.py``),
-imported beside this tree's. The model is trained on ``--train``; the frames are touches of
+The older search is a copy of its ``skinloc/models/multi_contact/search.py``, imported beside
+this tree's; for instance the search before the pruning, its one import pointed at where those
+names live now::
+
+    git show 1c8a43e:src/skinloc/models/contact_search.py \
+        | sed 's/multi_contact import/multi_contact.contacts import/' > /tmp/contact_search_old.py
+
+The model is trained on ``--train``; the frames are touches of
 ``--test``: single frames, sums of two frames of different point logs, sums of three. First
 both searches' answers are compared frame by frame (count, positions to 1e-9 m, strengths and
 uncertainties to rel 1e-9, the search statistics to rel 1e-12), then ``Engine.contacts`` is

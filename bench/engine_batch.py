@@ -30,7 +30,7 @@ from types import ModuleType
 
 import numpy as np
 
-from skinloc.live.bench import _baseline_fn, touch_stream, train_bench_models
+from skinloc.bench.online import _baseline_fn, touch_stream, train_bench_models
 from skinloc.models.localizer import ContactLocalizer
 
 

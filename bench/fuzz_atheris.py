@@ -22,7 +22,7 @@ import numpy  # noqa: F401 - imported first so that only skinloc.hardware.framin
 
 with atheris.instrument_imports(include=["skinloc"]):
     from skinloc.hardware.framing import AutoParser, BinaryParser, TextParser
-    from skinloc.hardware.wire import encode_binary, encode_text
+    from skinloc.hardware.protocol import encode_binary, encode_text
 
 
 def feed(parser, data: bytes, fdp) -> list:

@@ -33,10 +33,10 @@ from collections import Counter, defaultdict
 from pathlib import Path
 
 import numpy as np
+from live_delivery import GESTURE_KINDS as KINDS
+from live_delivery import match_gestures as match
+from live_delivery import unambiguous_s
 
-from skinloc.evaluation.live_delivery import GESTURE_KINDS as KINDS
-from skinloc.evaluation.live_delivery import match_gestures as match
-from skinloc.evaluation.live_delivery import unambiguous_s
 from skinloc.live.gestures import GestureConfig
 from skinloc.sim.gesture_stream import read_gesture_truth
 

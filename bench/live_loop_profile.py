@@ -2,7 +2,7 @@
 
     PYTHONPATH=src python bench/live_loop_profile.py --max-contacts 3 1 --duration 8
 
-Per setting, one run of ``skinloc.live.bench_skins.many_skins`` (no sink) with the profiler on
+Per setting, one run of ``skinloc.bench.many_skins.many_skins`` (no sink) with the profiler on
 the loop's thread, timing in the thread's CPU time (not wall time, which the other processes on
 the machine would inflate); every stage's cumulative time divided by the frames processed, µs. The
 profiler inflates the cost of every Python call (not of the compiled kernels, one call each),
@@ -29,7 +29,7 @@ STAGES = [
     ("parse frames (FrameParser.feed)", "hardware/framing.py", "feed"),
     ("one frame (SkinCore.process_frame)", "live/core.py", "process_frame"),
     ("contacts of a touched frame (Engine.contacts)", "models/engine.py", "contacts"),
-    ("  the multi-contact search (search_into)", "models/contact_search.py", "search_into"),
+    ("  the multi-contact search (search_into)", "models/multi_contact/search.py", "search_into"),
     ("  single-contact answer (_contact_one)", "models/map_engine.py", "_contact_one"),
     ("one contact, K = 1 (SkinCore._localise)", "live/core.py", "_localise"),
     ("  single-contact match (MapEngine.localise_into)", "models/map_engine.py", "localise_into"),
@@ -50,8 +50,8 @@ def _stage_times(stats: pstats.Stats) -> dict[str, float]:
 
 
 def main() -> None:
-    from skinloc.live.bench import train_bench_models
-    from skinloc.live.bench_skins import many_skins
+    from skinloc.bench.many_skins import many_skins
+    from skinloc.bench.online import train_bench_models
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--max-contacts", type=int, nargs="+", default=[3, 1], choices=(1, 2, 3))

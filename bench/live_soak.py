@@ -15,7 +15,7 @@ double taps, long presses, swipes, two-finger taps, rests and drags at the scrip
 fingers moving and two at once, on the wall clock; the runner runs with `--max-contacts 3`.
 Every finger must then be one track (one start, one end, one id while it is down), no track
 may match no finger, and no gesture event may be written twice; per-kind precision and recall
-are reported (`skinloc.evaluation.live_delivery` says how, and what an unplug excuses):
+are reported (`live_delivery` says how, and what an unplug excuses):
 
     python bench/live_soak.py --gestures --model model.h5 --minutes 30 --out gesture-soak.json
 
@@ -38,8 +38,8 @@ from collections import Counter
 from pathlib import Path
 
 import numpy as np
+from live_delivery import score_gestures, score_tracks
 
-from skinloc.evaluation.live_delivery import score_gestures, score_tracks
 from skinloc.geometry.mesh import sample_surface
 from skinloc.sim.gestures import GestureScript
 from skinloc.sim.hand import ScriptedHand, script_items

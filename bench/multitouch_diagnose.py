@@ -32,13 +32,13 @@ from multitouch_eval import assign, strength
 
 from skinloc.data.recording import read_recording
 from skinloc.evaluation.scoring import train_localizer
-from skinloc.models.contact_calibration import (
+from skinloc.models.multi_contact.rule_calibration import (
     FALSE_RATE,
     choose_thresholds,
     rule_statistics,
     search_statistics,
 )
-from skinloc.models.contact_search import SearchTables
+from skinloc.models.multi_contact.search import SearchTables
 
 VARIANTS = (("no floor", False, 0.0), ("floor", True, 0.0)) + tuple(
     (f"floor, z^{p:g}", True, p) for p in (0.5, 1.0, 2.0)

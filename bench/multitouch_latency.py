@@ -1,7 +1,7 @@
 """Live latency per frame with K = 1 and K = 3 contacts (tracking, gestures), in one run.
 
 Bytes in to contacts out (``SkinCore.feed``, the figure of ``skinloc bench --online``) on the
-same simulated touch stream and model as ``skinloc.live.bench.single_stream``; the settings are
+same simulated touch stream and model as ``skinloc.bench.online.single_stream``; the settings are
 timed in interleaved rounds so that they share the machine's load. Frames with an output
 (touched) only: median and p99, microseconds.
 
@@ -32,10 +32,10 @@ def main() -> None:
     args = ap.parse_args()
 
     try:
-        from skinloc.hardware.wire import encode_binary
+        from skinloc.hardware.protocol import encode_binary
     except ImportError:  # a skinloc from before the wire module (the `today` run)
         from skinloc.hardware.framing import encode_binary
-    from skinloc.live.bench import touch_stream, train_bench_models
+    from skinloc.bench.online import touch_stream, train_bench_models
     from skinloc.live.core import PipelineConfig, SkinCore
     from skinloc.models.engine import load_engine
 

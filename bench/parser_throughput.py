@@ -20,7 +20,7 @@ import time
 import numpy as np
 
 from skinloc.hardware.framing import AutoParser, BinaryParser, TextParser
-from skinloc.hardware.wire import encode_binary, encode_text
+from skinloc.hardware.protocol import encode_binary, encode_text
 
 
 def naive(data: bytes) -> int:

@@ -20,8 +20,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from skinloc.live.bench import many_skins, model_code_stamp, train_bench_models
-from skinloc.live.bench_sinks import sink_cost
+from skinloc.bench.online import many_skins, model_code_stamp, train_bench_models
+from skinloc.bench.sinks import sink_cost
 
 
 def main() -> None:

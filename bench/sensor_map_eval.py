@@ -11,7 +11,7 @@ separately, and their pairwise agreement; the lines flagged in each.
 
 ``--fields`` lets ``skinloc sensors`` try the separable line-field model where the
 whole-image model is not kept, and use it where it predicts held-out touches better
-(``sensors.field_map``); each result then says which method was used and the held-out scores.
+(``sensors.line_fields``); each result then says which method was used and the held-out scores.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from _day import DAY, DEFAULT_DATA, have_day, load_day
 
 from skinloc.calibration.session import SessionConfig, simulate_session
 from skinloc.geometry.mesh import cone_skin
-from skinloc.sensors import positions as S
+from skinloc.sensors import sensor_map as S
 from skinloc.sim.skin import SimulatedSkin, SkinParams
 
 

@@ -65,7 +65,7 @@ def model_path(kind: str) -> Path:
 @functools.lru_cache(maxsize=1)
 def stream(n_frames: int = 1500) -> tuple[np.ndarray, list]:
     """Raw frames of the simulated skin with a scripted finger and the script."""
-    from skinloc.live.bench import touch_stream
+    from skinloc.bench.online import touch_stream
 
     return touch_stream(n_frames, random_state=0)  # seed 0: the skin the models know
 

@@ -103,3 +103,19 @@ def test_a_skipped_browser_test_is_announced_loudly(tmp_path):
     assert res.returncode == 0, res.stdout + res.stderr
     assert "BROWSER TEST SKIPPED" in res.stdout
     assert "no Chromium (chromium, chromium-browser, google-chrome) on PATH" in res.stdout
+
+
+def test_firmware_packages_that_cannot_be_had_are_reported(tmp_path):
+    """The firmware group gives up like Chromium's, and leaves the reason for tests/firmware."""
+    broken = 'echo "E: Unable to locate package gcc-avr"; exit 100\n'
+    env = {"PATH": str(fake_bin(tmp_path, broken)), "SKINLOC_APT_WAIT_S": "5",
+           "HOME": str(tmp_path)}  # fmt: skip
+    script = ROOT / "scripts" / "ensure-packages.sh"
+    res = subprocess.run(
+        ["sh", str(script), "firmware"], cwd=tmp_path, env=env, capture_output=True, text=True,
+        timeout=120,
+    )  # fmt: skip
+    assert res.returncode == 0
+    status = (tmp_path / "build" / "firmware-status.txt").read_text()
+    assert "Unable to locate package gcc-avr" in status
+    assert "the firmware tests will skip" in res.stdout

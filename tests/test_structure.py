@@ -4,8 +4,9 @@ Every import counts, including those inside functions and under ``TYPE_CHECKING`
 import hides a circle from Python but not from a reader. The one harmless circle, a package
 ``__init__`` re-exporting its own children (which never import it back), is ignored.
 Registries name their backends as dotted strings (``skinloc._lazy.resolve``), so they make no
-edge here. No module may exceed 500 lines, and the subpackages must form layers (no two import
-each other, even through a third): docs/architecture.md draws them.
+edge here. The subpackages must form layers (no two import each other, even through a third):
+docs/architecture.md draws them. A module is as long as its one idea needs; only one far
+beyond that (``SMELL_LINES``) is flagged, as worth a look, never as a reason to split it.
 """
 
 from __future__ import annotations
@@ -103,11 +104,16 @@ def test_no_import_circle_in_skinloc():
     assert circles(graph, mods) == []
 
 
-def test_no_module_over_500_lines():
+#: A module this long probably holds more than one idea (a smell to look at, not a rule to
+#: split by).
+SMELL_LINES = 1000
+
+
+def test_no_module_is_far_longer_than_one_idea_needs():
     _, mods = import_graph(ROOT)
     sizes = sorted(((len(p.read_text().splitlines()), m) for m, p in mods.items()), reverse=True)
-    print("\nlines  module\n" + "\n".join(f"{n:5d}  {m}" for n, m in sizes))  # noqa: T201
-    assert [(n, m) for n, m in sizes if n > 500] == []
+    print("\nlines  module\n" + "\n".join(f"{n:5d}  {m}" for n, m in sizes[:10]))  # noqa: T201
+    assert [(n, m) for n, m in sizes if n > SMELL_LINES] == []
 
 
 def package_graph(graph: dict[str, set[str]]) -> dict[str, set[str]]:

@@ -19,12 +19,12 @@ with warnings.catch_warnings():  # starlette's note that it prefers httpx2 to ht
     warnings.simplefilter("ignore")
     from fastapi.testclient import TestClient  # noqa: E402
 
-from skinloc.app.device import SourceSpec  # noqa: E402
 from skinloc.app.server import create_app  # noqa: E402
 from skinloc.app.workspace import AppConfig  # noqa: E402
 from skinloc.data.recording import read_recording  # noqa: E402
 from skinloc.geometry.mesh import cone_skin  # noqa: E402
-from tests._helpers import wait_until
+from skinloc.sources.base import SourceOptions  # noqa: E402
+from tests._helpers import wait_until  # noqa: E402
 
 #: The default localiser (it trains in seconds); tests may pass overrides here.
 FAST_TRAIN: dict = {}
@@ -41,7 +41,7 @@ def page_client(app) -> TestClient:
 
 def make_client(data: Path, source: bool = True) -> TestClient:
     config = AppConfig(data_dir=data, train_options=FAST_TRAIN, finger_delay_s=0.05)
-    spec = SourceSpec(source="sim", rate_hz=400.0, seed=3) if source else None
+    spec = SourceOptions(source="sim", rate_hz=400.0, seed=3) if source else None
     return page_client(create_app(config, spec))
 
 
@@ -331,7 +331,7 @@ def test_calibrate_over_a_serial_port_with_the_virtual_skin(tmp_path):
 
     with VirtualSkin(SimulatedSkin(random_state=0), fmt="binary", rate_hz=200) as dev:
         config = AppConfig(data_dir=tmp_path, finger_delay_s=0.05)
-        with page_client(create_app(config, SourceSpec(source=dev.path))) as client:
+        with page_client(create_app(config, SourceOptions(source=dev.path))) as client:
             state = client.get("/api/state").json()
             assert state["device"]["name"] == dev.path and not state["device"]["sim"]
             sid = new_session(client, n_points=4)
@@ -388,7 +388,7 @@ def test_every_tab_is_told_when_the_link_drops_and_comes_back(tmp_path):
     dev.start()
     try:
         config = AppConfig(data_dir=tmp_path / "data", finger_delay_s=0.05)
-        app = create_app(config, SourceSpec(source=dev.path))
+        app = create_app(config, SourceOptions(source=dev.path))
         with TestClient(app) as client:
             client.headers.update({"X-Skinloc-Token": getattr(app.state, "token", "") or ""})
             with (

@@ -583,9 +583,9 @@ def test_a_tab_notices_a_silent_link_by_itself(chromium, server):
     """The tab's own watchdog: frames stop reaching it while the server still says the link
     is up (a stalled connection, not a port the server saw close): link lost, then back."""
     url, app = server
-    from skinloc.app.device import SourceSpec
+    from skinloc.sources.base import SourceOptions
 
-    app.state.workspace.connect(SourceSpec(source="sim"))
+    app.state.workspace.connect(SourceOptions(source="sim"))
     errors: list[str] = []
     drop = threading.Event()
     with sync_api.sync_playwright() as pw:

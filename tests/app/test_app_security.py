@@ -274,3 +274,41 @@ def test_attacks_replayed_on_a_running_app(tmp_path):
     assert not failed, "\n".join(failed)
     groups = {r.group for r in rows}
     assert {"cross-site", "websocket", "sources", "upload", "bad input"} <= groups
+
+
+def _actions(app) -> list[tuple[str, str]]:
+    """Every ``(method, path)`` of the app's route table that may change something (not GET)."""
+    paths = app.openapi()["paths"]
+    out = [
+        (m.upper(), path) for path, ops in paths.items() for m in ops if m not in ("get", "head")
+    ]
+    # path parameters filled in with something that routes (what they hold does not matter)
+    return [(m, p.replace("{session_id}", "x").replace("{action}", "now")) for m, p in out]
+
+
+def test_every_action_of_the_route_table_refuses_a_request_without_the_token(app, page):
+    page.post("/api/sessions", json={"n_points": 3, "name": "kept"})
+    before = page.get("/api/state").json()
+    evil = TestClient(app)
+    actions = _actions(app)
+    assert len(actions) >= 15  # the table is read, not a list kept by hand
+    for method, path in actions:
+        for headers in ({}, {"X-Skinloc-Token": "guess"}):
+            r = evil.request(method, path, json={}, headers={**headers, **A})
+            assert r.status_code == 403, (method, path, headers, r.text)
+    after = page.get("/api/state").json()
+    assert after["session"]["id"] == before["session"]["id"]
+
+
+def test_every_action_but_taking_over_first_takes_control(app, page):
+    url = f"/ws?client=tab-a&token={app.state.token}"
+    with page.websocket_connect(url, headers={"origin": "http://testserver"}) as ws:
+        assert ws.receive_json()["type"] == "state"  # tab-a is open ...
+        page.post("/api/sessions", json={"n_points": 3, "name": "kept"})  # ... and has control
+        other = {"X-Skinloc-Token": app.state.token, "X-Skinloc-Client": "tab-b"}
+        for method, path in _actions(app):
+            if path == "/api/lease":  # takes control over whoever has it
+                continue
+            r = page.request(method, path, json={}, headers=other)
+            assert r.status_code == 409, (method, path, r.text)
+            assert "busy" in r.json()["detail"]

@@ -149,7 +149,7 @@ def test_export_writes_both(tmp_path):
 
 
 def test_online_bench_functions_run_small():
-    from skinloc.live.bench import many_skins, single_stream
+    from skinloc.bench.online import many_skins, single_stream
 
     r = single_stream(model_path("map"), n_frames=600)
     assert r["frames"] == 500 and r["touched_frames"] > 0 and r["speedup_median"] > 0

@@ -14,7 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from skinloc.hardware.framing import AutoParser, BinaryParser, TextParser, make_parser
-from skinloc.hardware.wire import (
+from skinloc.hardware.protocol import (
     MAX_LINE_BYTES,
     WireFormat,
     binary_frame_size,
@@ -412,26 +412,3 @@ def test_c_encoder_rejects_bad_grids(c_encoder):
         check=True,
     )
     assert res.stdout.split("\n")[:2] == ["", ""]
-
-
-def test_sketch_compiles_against_the_muca_api():
-    """The firmware sketch, type-checked by g++ against a stub of the Arduino and Muca APIs."""
-    gxx = shutil.which("g++")
-    if gxx is None:
-        pytest.skip("g++ not found: the sketch check needs it")
-    res = subprocess.run(
-        [
-            gxx,
-            "-std=gnu++11",
-            "-fsyntax-only",
-            "-Wall",
-            "-Wextra",
-            "-Werror",
-            f"-I{ROOT / 'tests' / 'host_c' / 'arduino_stub'}",
-            f"-I{ROOT / 'firmware' / 'skinloc_muca'}",
-            str(ROOT / "tests" / "host_c" / "sketch_syntax.cpp"),
-        ],
-        capture_output=True,
-        text=True,
-    )
-    assert res.returncode == 0, res.stderr

@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 
 from skinloc.errors import FrameTimeoutError, SourceAlreadyConnectedError, SourceNotConnectedError
+from skinloc.hardware.protocol import encode_binary, encode_text
 from skinloc.hardware.serial import (
     SerialSource,
     SerialSourceConfig,
     list_ports,
     parse_line_mask,
 )
-from skinloc.hardware.wire import encode_binary, encode_text
 from tests._helpers import wait_until
 
 

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from skinloc.hardware.wire import encode_binary, encode_text
+from skinloc.hardware.protocol import encode_binary, encode_text
 from skinloc.live.core import Contact, PipelineConfig, SkinCore, TouchState
 from tests._live import model_path, stream
 
@@ -125,7 +125,7 @@ def test_feed_bytes_equals_process(fmt):
     frames, _ = stream()
     frames = np.round(frames[:400]).astype(np.uint16)  # what the wire carries, for both paths
     a = _core(max_contacts=1)
-    b = SkinCore(a.fast, PipelineConfig(max_contacts=1), name="t", wire_format=fmt)
+    b = SkinCore(a.engine, PipelineConfig(max_contacts=1), name="t", wire_format=fmt)
     want = [c.state for c in _run(a, frames)]
     enc = (
         (lambda f, k: encode_binary(f, 8, 8, k))
@@ -161,12 +161,12 @@ def test_contact_json_and_config_errors():
 
 def test_a_model_the_engine_cannot_run_is_an_error_not_a_silent_fallback():
     # there is one implementation of prediction: no second path to fall back on
-    from skinloc.live.core import load_fast_localizer
+    from skinloc.models.engine import load_engine
     from skinloc.models.localizer import ContactLocalizer
 
     model = ContactLocalizer.load(model_path("mlp"))
     model.config_ = {**model.config_, "activation": "softsign"}  # unknown to the engine
     with pytest.raises(ValueError, match="activation must be one of relu, tanh, gelu"):
-        load_fast_localizer(model)
+        load_engine(model)
     with pytest.raises(ValueError, match="activation must be one of relu, tanh, gelu"):
         SkinCore(model, PipelineConfig())

@@ -1,4 +1,4 @@
-"""A serial port missing when the runner opens: waited for (``SkinSpec.wait``) or refused."""
+"""A serial port missing when the runner opens: waited for (``SkinConfig.wait``) or refused."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import threading
 import pytest
 
 from skinloc.errors import SourceNotConnectedError
-from skinloc.live.runner import Runner, SkinSpec
+from skinloc.live.runner import Runner, SkinConfig
 from skinloc.sim.virtual_device import VirtualSkin
 from tests._helpers import wait_until
 from tests._live import model_path
@@ -18,7 +18,7 @@ def test_a_port_plugged_in_after_start_is_waited_for_and_read(tmp_path):
     before = {t.name for t in threading.enumerate()}
     link_dir = tmp_path / "dev"
     port = str(link_dir / "ttySKIN0")  # the virtual skin's link, made when it starts
-    spec = SkinSpec(model_path("map"), source=port, name="arm", wire_format="binary", wait=True)
+    spec = SkinConfig(model_path("map"), source=port, name="arm", wire_format="binary", wait=True)
     runner = Runner([spec]).start()
     try:
         assert runner.waiting == [("arm", port)]
@@ -41,7 +41,7 @@ def test_a_port_plugged_in_after_start_is_waited_for_and_read(tmp_path):
 def test_a_missing_port_fails_without_wait(tmp_path):
     port = str(tmp_path / "ttyNONE")
     for wait in (None, False):  # None: the Python API's default is to fail, as before
-        runner = Runner([SkinSpec(model_path("map"), source=port, wait=wait)])
+        runner = Runner([SkinConfig(model_path("map"), source=port, wait=wait)])
         with pytest.raises(SourceNotConnectedError, match=f"cannot open serial port {port}: no"):
             runner.open()
 
@@ -50,7 +50,7 @@ def test_what_is_certainly_wrong_fails_even_when_waiting(tmp_path, monkeypatch):
     not_a_port = tmp_path / "notes.txt"
     not_a_port.write_text("hello\n")
     for path, match in ((not_a_port, "not a serial port"), (tmp_path, "not a serial port")):
-        runner = Runner([SkinSpec(model_path("map"), source=str(path), wait=True)])
+        runner = Runner([SkinConfig(model_path("map"), source=str(path), wait=True)])
         with pytest.raises(SourceNotConnectedError, match=match):
             runner.open()
     # Permission denied (not reproducible as root): one line naming the dialout group.
@@ -60,11 +60,11 @@ def test_what_is_certainly_wrong_fails_even_when_waiting(tmp_path, monkeypatch):
         raise serial.SerialException(errno.EACCES, f"could not open port {url}: denied")
 
     monkeypatch.setattr(serial, "serial_for_url", denied)
-    runner = Runner([SkinSpec(model_path("map"), source="/dev/ttyACM9", wait=True)])
+    runner = Runner([SkinConfig(model_path("map"), source="/dev/ttyACM9", wait=True)])
     with pytest.raises(SourceNotConnectedError, match="permission denied.*dialout"):
         runner.open()
 
 
 def test_wait_must_be_a_bool():
     with pytest.raises(ValueError, match="wait must be true or false"):
-        SkinSpec(model_path("map"), wait="yes")
+        SkinConfig(model_path("map"), wait="yes")

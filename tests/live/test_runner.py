@@ -9,7 +9,7 @@ import pytest
 
 from skinloc.errors import SkinlocError
 from skinloc.live.core import PipelineConfig
-from skinloc.live.runner import Pipeline, Runner, SkinSpec
+from skinloc.live.runner import Pipeline, Runner, SkinConfig
 from skinloc.live.sinks import ListSink
 from skinloc.live.skins_file import load_skins, runner_from_config
 from tests._helpers import wait_until
@@ -69,7 +69,7 @@ def test_runner_on_a_virtual_skin_port_reconnects():
 
     faults = FaultConfig(0, 0, 0, 0, disconnect_every_s=0.8, downtime_s=0.2)
     with VirtualSkin(fmt="binary", rate_hz=200, faults=faults) as dev:
-        spec = SkinSpec(model=model_path("map"), source=dev.path, wire_format="binary")
+        spec = SkinConfig(model=model_path("map"), source=dev.path, wire_format="binary")
         sink = ListSink()
         runner = Runner([spec], sinks=[sink])
         runner.start()
@@ -112,7 +112,7 @@ pipeline = {{ drift_tracking = false }}
     assert [s.name for s in specs] == ["left", "right"]
     assert specs[0].config.touch_on_z == 9.0 and not specs[1].config.drift_tracking
     runner = runner_from_config(cfg)
-    assert runner.cores[0].fast is runner.cores[1].fast  # one compiled model, shared
+    assert runner.cores[0].engine is runner.cores[1].engine  # one compiled model, shared
     seen = set()
     with runner:
         for c in runner:
@@ -142,20 +142,20 @@ def test_config_errors(tmp_path, text, match):
 
 def test_runner_errors(tmp_path):
     with pytest.raises(ValueError, match="unique"):
-        Runner([SkinSpec(model_path("map")), SkinSpec(model_path("map"))])
+        Runner([SkinConfig(model_path("map")), SkinConfig(model_path("map"))])
     with pytest.raises(SkinlocError, match="cannot open serial port"):
-        Runner([SkinSpec(model_path("map"), source=str(tmp_path / "ttyNONE"))]).open()
+        Runner([SkinConfig(model_path("map"), source=str(tmp_path / "ttyNONE"))]).open()
     with pytest.raises(SkinlocError, match="recording not found"):
-        Runner([SkinSpec(model_path("map"), source=str(tmp_path / "x.h5"))]).open()
-    spec = SkinSpec(model_path("map"), config=PipelineConfig(), n_tx=4, n_rx=4)
+        Runner([SkinConfig(model_path("map"), source=str(tmp_path / "x.h5"))]).open()
+    spec = SkinConfig(model_path("map"), config=PipelineConfig(), n_tx=4, n_rx=4)
     with pytest.raises(ValueError, match="16 sensors"):
         Runner([spec])
 
 
 def test_serial_url_without_file_descriptor_uses_a_thread():
-    from skinloc.hardware.wire import encode_binary
+    from skinloc.hardware.protocol import encode_binary
 
-    spec = SkinSpec(model_path("map"), source="loop://", wire_format="binary")
+    spec = SkinConfig(model_path("map"), source="loop://", wire_format="binary")
     runner = Runner([spec]).open()
     try:
         src = runner._threads[0].source
@@ -177,7 +177,7 @@ def test_a_recording_of_gestures_gives_each_gesture_once_to_sinks_and_callback()
     from tests._live import gesture_recording
 
     sink, got = ListSink(), []
-    spec = SkinSpec(model=model_path("map"), source=str(gesture_recording()), realtime=False)
+    spec = SkinConfig(model=model_path("map"), source=str(gesture_recording()), realtime=False)
     with Runner([spec], sinks=[sink], gesture_callback=got.append) as runner:
         runner.run()
         stats = runner.stats()

@@ -155,16 +155,6 @@ def test_missing_extra_is_a_skinloc_error_the_cli_reports_in_one_line():
     )
 
 
-def test_the_names_before_the_engine_still_build_it():
-    from skinloc.models.inference import FastLocalizer, InferenceSpec
-    from skinloc.models.network_engine import NetworkEngine
-
-    spec = InferenceSpec.load(GOLDEN / "model_main_paper.h5")
-    engine = FastLocalizer(spec, "none")
-    assert isinstance(engine, NetworkEngine) and engine.constraint == "none"
-    assert isinstance(FastLocalizer.from_model(GOLDEN / "model_main_paper.h5"), NetworkEngine)
-
-
 def test_training_a_network_without_torch_is_one_line_naming_the_extra(monkeypatch, tmp_path):
     # the message holds brackets, which the CLI's console must print as they are
     from typer.testing import CliRunner

@@ -16,9 +16,10 @@ from skinloc.cli.main import app
 from skinloc.data.recording import read_recording, write_recording
 from skinloc.geometry.mesh import cone_skin
 from skinloc.models.response_map import ResponseMap, shape_features
-from skinloc.sensors import joint as J
-from skinloc.sensors import positions as S
+from skinloc.sensors import joint_fit as J
+from skinloc.sensors import sensor_map as S
 from skinloc.sensors.coverage import coverage_map
+from skinloc.sensors.crossing_fit import fit_per_crossing
 from skinloc.sim.skin import SimulatedSkin, SkinParams
 from tests.conftest import make_recording
 
@@ -82,12 +83,12 @@ def test_touches_move_from_their_labels_towards_where_the_finger_was(sim_path):
     contacts = 1e3 * np.asarray(rec.meta["true_contacts"]).reshape(-1, 3)
     cands = rec.surface_points
     tree = cKDTree(1e3 * cands)
-    *_, moved = S._fit_once(rec.targets, rec.touch_means, cands, tree, 8, 8, True)
+    moved = fit_per_crossing(rec.targets, rec.touch_means, cands, tree, 8, 8, True).touches_mm
     before = np.linalg.norm(1e3 * rec.targets - contacts, axis=1)
     after = np.linalg.norm(moved - contacts, axis=1)
     assert np.median(before) > 4.5  # the simulated person misses by 5.3 mm per axis
     assert np.median(after) < 0.8 * np.median(before)  # 5.4 -> 3.5 mm on this session
-    *_, kept = S._fit_once(rec.targets, rec.touch_means, cands, tree, 8, 8, True, 0.0)
+    kept = fit_per_crossing(rec.targets, rec.touch_means, cands, tree, 8, 8, True, 0.0).touches_mm
     np.testing.assert_allclose(kept, 1e3 * rec.targets)  # exact labels stay where they are
 
 
@@ -228,7 +229,7 @@ def test_repeated_targets_measure_the_probing_floor(tmp_path):
 
 
 def test_whole_image_model_beats_the_per_crossing_fit(sim_path):
-    """All touches' images explain every crossing at once (sensors.joint)."""
+    """All touches' images explain every crossing at once (sensors.joint_fit)."""
     rec = read_recording(sim_path)
     truth = S.truth_sensor_positions(rec.meta)
     old = S.sensor_map_from_recordings([rec], n_boot=0, joint=False)
@@ -303,7 +304,8 @@ def test_weak_line_is_judged_without_the_skin_wide_response_trend(tmp_path):
     rec = simulate_session(skin, mesh, tmp_path / "s5.h5", cfg)
     cands = rec.surface_points
     tree = cKDTree(1e3 * cands)
-    pos, width, _, _, moved = S._fit_once(rec.targets, rec.touch_means, cands, tree, 8, 8, True)
+    fit = fit_per_crossing(rec.targets, rec.touch_means, cands, tree, 8, 8, True)
+    pos, width, moved = fit.positions_mm, fit.footprint_mm, fit.touches_mm
     jf = J.joint_fit(
         1e3 * rec.targets, rec.touch_means, pos, 1e3 * cands, tree, 8, 8,
         float(np.median(width)), rec.noise, init_touches_mm=moved,
@@ -351,3 +353,31 @@ def test_sensors_fields_flag_reaches_the_sensor_map(sim_path, tmp_path, monkeypa
     assert run("train", sim_path, "--out", model).exit_code == 0
     res = run("sensors", model, "--fields")
     assert res.exit_code == 1 and "--fields" in res.output and "Traceback" not in res.output
+
+
+def test_the_app_flags_a_recording_as_skinloc_sensors_does(sim_path):
+    """One classifier (``sensors.health``): the Connect page and ``skinloc sensors`` agree."""
+    from skinloc.app.device import SensorMonitor
+    from skinloc.app.workspace.link import session_sensor_map
+
+    res = run("sensors", sim_path, "--json", "--boot", "0")
+    assert res.exit_code == 0, res.output
+    cli = json.loads(res.output)
+    rec = read_recording(sim_path)
+    monitor = SensorMonitor(rec.n_tx, rec.n_rx)
+    session_sensor_map(sim_path, rec, monitor, wait=True)
+    for k, frame in enumerate(rec.baseline_frames):  # the live stream: the skin untouched
+        monitor.add(frame, 0.01 * k)
+    report = monitor.report()
+    assert report["status"] == [s["status"] for s in cli["sensors"]]
+    for kind in ("tx", "rx"):
+        app_lines = {(ln["index"], ln["status"]) for ln in report[f"{kind}_lines"]}
+        cli_lines = {
+            (ln["index"], ln["status"])
+            for ln in cli["lines"]
+            if ln["kind"] == kind and ln["status"] != "ok"
+        }
+        assert app_lines == cli_lines
+    # the seeded faults are there to agree on: RX 3 weak, sensor TX 1 x RX 7 noisy
+    assert (3, "weak") in {(ln["index"], ln["status"]) for ln in report["rx_lines"]}
+    assert report["status"][1 * 8 + 7] == "noisy"

@@ -91,8 +91,9 @@ def test_commands_and_scripted_finger():
             src.clear()
             wait_until(lambda: abs(src.read(30.0).values[k] - base[k]) < 40,
                        f"sensor {k} to return to its baseline", 30.0, 0)  # fmt: skip
-    assert dev.handle_command("v").startswith("skinloc_muca 1.0.0 grid 8x8 format text")
+    assert dev.handle_command("v").startswith("skinloc_muca 1.1.0 grid 8x8 format text")
     assert dev.handle_command("g 300").startswith("error")
+    assert dev.handle_command("g 0") == "error gain must be 1-31"
     assert dev.handle_command("g 20") == "ok gain 20"
     assert dev.handle_command("bogus").startswith("error unknown command")
     assert dev.handle_command("l 11110000 111") == "ok lines 4x3"  # the firmware's reply

@@ -1,6 +1,6 @@
 """The browser app: guided calibration on the 3D skin, training, validation and live view.
 
-``skinloc app`` serves it (``skinloc.cli.app``); ``create_app`` builds the FastAPI application.
+``skinloc app`` serves it (``skinloc.cli.webapp``); ``create_app`` builds the FastAPI application.
 Importing this package loads no web framework; ``create_app`` does.
 """
 

@@ -14,83 +14,21 @@ import logging
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
 from skinloc.errors import FrameTimeoutError, SourceNotConnectedError
-from skinloc.sources.base import Frame, FrameSource, make_source
+from skinloc.sensors.health import classify_sensors
+from skinloc.sources.base import Frame, FrameSource, SourceKind, SourceOptions, make_source
 
 log = logging.getLogger(__name__)
 
-__all__ = ["LINK_TIMEOUT_S", "DeviceLink", "SensorMonitor", "SourceSpec"]
+__all__ = ["LINK_TIMEOUT_S", "DeviceLink", "SensorMonitor"]
 
 #: Seconds without a frame after which the link counts as down (the tabs say so within 1 s).
 LINK_TIMEOUT_S = 0.8
-
-
-@dataclass
-class SourceSpec:
-    """Which skin to read.
-
-    Attributes
-    ----------
-    source : str
-        ``sim`` for the simulated skin, else a serial port (a pyserial URL is refused: see
-        ``skinloc.hardware.ports.check_source``).
-    tx, rx : int
-        Grid the device sends.
-    baud : int
-        Serial baud rate.
-    format : str
-        Serial wire format: ``auto``, ``text`` or ``binary``.
-    seed : int
-        Seed of the simulated skin.
-    rate_hz : float
-        Frame rate of the simulated skin.
-    """
-
-    source: str = "sim"
-    tx: int = 8
-    rx: int = 8
-    baud: int = 115200
-    format: str = "auto"
-    seed: int = 0
-    rate_hz: float = 100.0
-
-    @property
-    def is_sim(self) -> bool:
-        """Whether this is the simulated skin."""
-        return self.source == "sim"
-
-    def check(self) -> None:
-        """Raise ``ValueError`` unless the source is ``sim`` or a serial device (no URL)."""
-        from skinloc.hardware.ports import check_source
-
-        check_source(self.source)
-
-    def build(self, mesh: Any = None) -> FrameSource:
-        """The (unconnected) frame source; ``mesh`` is the simulated skin's surface."""
-        self.check()
-        if self.is_sim:
-            return make_source(
-                "sim",
-                mesh=mesh,
-                n_tx=self.tx,
-                n_rx=self.rx,
-                random_state=self.seed,
-                rate_hz=self.rate_hz,
-                realtime=True,
-            )
-        return make_source(
-            "serial",
-            port=self.source,
-            baud=self.baud,
-            n_tx=self.tx,
-            n_rx=self.rx,
-            format=self.format,
-        )
 
 
 class SensorMonitor:
@@ -112,6 +50,11 @@ class SensorMonitor:
         self.peak = np.zeros(n_tx * n_rx)
         self.n_frames = 0
         self.session_snr: np.ndarray | None = None
+        #: Gains and no-touch noise of the session's calibration (its ``skinloc sensors`` map),
+        #: once known: sensors and lines are then judged on them, as that command judges them.
+        self.session_gain: np.ndarray | None = None
+        self.session_noise: np.ndarray | None = None
+        self.session_map_key: Any = None
 
     def rezero(self) -> None:
         """Measure the zero level again from the next 30 frames."""
@@ -146,6 +89,14 @@ class SensorMonitor:
             return 0.0
         return (len(t) - 1) / (t[-1] - t[0])
 
+    def set_session_map(self, smap: Any) -> None:
+        """Judge the sensors on a ``SensorMap``'s gains and noise from now on (None: stop)."""
+        ok = smap is not None and len(smap.gain) == self.n_tx * self.n_rx
+        if smap is None:
+            self.session_map_key = None
+        self.session_gain = np.asarray(smap.gain) if ok else None
+        self.session_noise = np.asarray(smap.noise_counts) if ok else None
+
     def noise(self) -> np.ndarray:
         """Per-sensor noise, counts (robust std over the window)."""
         if len(self._frames) < 5:
@@ -165,37 +116,24 @@ class SensorMonitor:
                 ratio = self.peak / np.maximum(noise, 1.0)
                 snr = np.where(ratio > 1, 20 * np.log10(np.where(ratio > 1, ratio, 1.0)), np.nan)
             snr_from = "peak since zero"
-        status = np.array(["ok"] * n, dtype=object)
+        stuck = None
         if np.isfinite(noise).all():
-            med = float(np.median(noise))
-            last = self._frames[-1]
             frames = np.stack(self._frames)
-            stuck = (np.ptp(frames, axis=0) == 0) & (len(frames) >= 20)
-            status[noise > max(3.0 * med, med + 2.0)] = "noisy"
-            status[stuck | (last <= 0) | (last >= 65535)] = "dead"
-        if np.isfinite(snr).sum() > n // 2:
-            weak = np.isfinite(snr) & (snr < np.nanmedian(snr) - 6.0) & (status == "ok")
-            if snr_from == "session":
-                status[weak] = "weak"
-        grid = status.reshape(self.n_tx, self.n_rx)
-
-        def lines(axis: int) -> list[dict[str, Any]]:
-            out = []
-            for i in range(grid.shape[1 - axis]):
-                cells = grid[i, :] if axis == 1 else grid[:, i]
-                bad = [s for s in cells if s != "ok"]
-                if len(bad) * 2 >= len(cells):
-                    out.append({"index": i, "status": max(set(bad), key=bad.count)})
-            return out
-
+            last = frames[-1]
+            stuck = ((np.ptp(frames, axis=0) == 0) & (len(frames) >= 20)) | (last <= 0)
+            stuck |= last >= 65535
+        gain, judged = self.session_gain, noise
+        if gain is not None and self.session_noise is not None:
+            judged = self.session_noise
+        health = classify_sensors(self.n_tx, self.n_rx, gain=gain, noise=judged, stuck=stuck)
         return {
             "noise": noise,
             "snr_db": snr,
             "snr_from": snr_from,
             "mean_snr_db": float(np.nanmean(snr)) if np.isfinite(snr).any() else None,
-            "status": status.tolist(),
-            "tx_lines": lines(1),
-            "rx_lines": lines(0),
+            "status": health.status.tolist(),
+            "tx_lines": health.bad_lines("tx"),
+            "rx_lines": health.bad_lines("rx"),
         }
 
 
@@ -204,8 +142,9 @@ class DeviceLink:
 
     Parameters
     ----------
-    spec : SourceSpec
-        What to open.
+    options : SourceOptions
+        What to open: ``sim`` or a serial device (``skinloc.hardware.ports.check_source``:
+        no pyserial URL), read on the wall clock.
     on_frame : callable(Frame, DeviceLink)
         Called on the reader thread for every frame, with this link.
     mesh : trimesh.Trimesh, optional
@@ -217,14 +156,17 @@ class DeviceLink:
 
     def __init__(
         self,
-        spec: SourceSpec,
+        options: SourceOptions,
         on_frame: Callable[[Frame, DeviceLink], None],
         mesh: Any = None,
         on_link: Callable[[bool, DeviceLink], None] | None = None,
     ):
-        self.spec = spec
+        from skinloc.hardware.ports import check_source
+
+        check_source(options.source)
+        self.options = replace(options, realtime=True)
         self.mesh = mesh
-        self.source = spec.build(mesh)
+        self.source = make_source(self.options, mesh=mesh if self.is_sim else None)
         self.on_frame = on_frame
         self.on_link = on_link
         self.last_frame_s = time.monotonic()
@@ -237,6 +179,11 @@ class DeviceLink:
         self._jobs: collections.deque = collections.deque()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+
+    @property
+    def is_sim(self) -> bool:
+        """Whether the link reads the simulated skin."""
+        return self.options.kind is SourceKind.SIM
 
     @property
     def name(self) -> str:
@@ -306,7 +253,7 @@ class DeviceLink:
             "rate_hz": round(self.monitor.rate_hz, 1) if self.link_now() else 0.0,
             "frames": self.monitor.n_frames,
             "error": self.error,
-            "sim": self.spec.is_sim,
+            "sim": self.is_sim,
         }
         link_stats = getattr(self.source, "stats", None)
         if callable(link_stats):

@@ -17,7 +17,7 @@ from typing import Any
 
 from skinloc.app.hub import Hub
 from skinloc.errors import FrameTimeoutError
-from skinloc.live.contact import Contact
+from skinloc.live.contact import Contact, colour_index
 from skinloc.live.sinks.base import Sink
 from skinloc.sources.base import Frame, FrameSource
 
@@ -83,9 +83,10 @@ class FrameQueue(FrameSource):
 class TabSink(Sink):
     """Sends a skin's contacts and gestures to every tab.
 
-    Messages: ``{"type": "live", "skin", "timestamp_s", "contacts": [Contact.to_dict(), ...]}``
-    per frame with contacts, and ``{"type": "gesture", **event}`` per gesture event (the
-    shared gesture format: ``kind``, ``direction``, ``start_s``, ``end_s``, ``track_ids``, ...).
+    Messages: ``{"type": "live", "skin", "timestamp_s", "contacts": [...]}`` per frame with
+    contacts (``Contact.to_dict()`` and ``colour``, the finger's index into the palette), and
+    ``{"type": "gesture", **event}`` per gesture event (the shared gesture format: ``kind``,
+    ``direction``, ``start_s``, ``end_s``, ``track_ids``, ...).
     A slow tab may lose ``live`` messages, never a gesture (``skinloc.app.hub``).
     """
 
@@ -105,7 +106,8 @@ class TabSink(Sink):
                 "type": "live",
                 "skin": skin,
                 "timestamp_s": timestamp_s,
-                "contacts": [c.to_dict() for c in contacts],
+                # each with its finger's colour, an index into the page's palette
+                "contacts": [{**c.to_dict(), "colour": colour_index(c)} for c in contacts],
             }
         )
 

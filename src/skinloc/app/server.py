@@ -27,13 +27,13 @@ from starlette.datastructures import Headers
 from starlette.middleware.trustedhost import TrustedHostMiddleware
 from starlette.types import Scope
 
-from skinloc.app.device import SourceSpec
 from skinloc.app.guard import RequestGuard, own_origins
 from skinloc.app.hub import Hub
 from skinloc.app.routes import capture, device, meshes, pages, sessions, stream
 from skinloc.app.store import SessionBusyError
 from skinloc.app.workspace import AppConfig, BusyError, Workspace
 from skinloc.errors import SkinlocError
+from skinloc.sources.base import SourceOptions
 
 log = logging.getLogger(__name__)
 
@@ -45,18 +45,18 @@ MAX_DETAIL = 300
 
 def create_app(
     config: AppConfig | None = None,
-    spec: SourceSpec | None = None,
+    source: SourceOptions | None = None,
     allowed_hosts: list[str] | None = None,
     token: str | None = None,
     origins: Iterable[str] | None = None,
 ) -> FastAPI:
-    """The app, with its workspace; connects to ``spec`` at once when given.
+    """The app, with its workspace; connects to ``source`` at once when given.
 
     Parameters
     ----------
     config : AppConfig, optional
         Data folder, default mesh, training options.
-    spec : SourceSpec, optional
+    source : SourceOptions, optional
         Skin to open at start (errors propagate, so the command line can report them).
     allowed_hosts : list of str, optional
         Host headers accepted (a guard against DNS rebinding); loopback names by default.
@@ -77,12 +77,14 @@ def create_app(
         scheme = "https" if scope.get("scheme") in ("https", "wss") else "http"
         return frozenset({f"{scheme}://{headers.get('host', '')}"})
 
-    if spec is not None:
-        spec.check()
+    if source is not None:
+        from skinloc.hardware.ports import check_source
+
+        check_source(source.source)
     hub = Hub()
     workspace = Workspace(config, hub)
-    if spec is not None:
-        workspace.connect(spec)
+    if source is not None:
+        workspace.connect(source)
 
     @contextlib.asynccontextmanager
     async def lifespan(_: FastAPI) -> AsyncIterator[None]:

@@ -55,8 +55,8 @@ def register(app: typer.Typer) -> None:
             )
         import numpy as np
 
+        from skinloc.bench import paper as B
         from skinloc.evaluation.report import plot_paper_fig3
-        from skinloc.experiments import paper_bench as B
 
         try:
             size_list = [int(s) for s in sizes.split(",") if s.strip()]

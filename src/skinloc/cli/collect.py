@@ -9,6 +9,7 @@ from typing import Annotated, Any
 import numpy as np
 import typer
 
+from skinloc.cli.board_setup import GainOpt, LinesOpt
 from skinloc.cli.common import (
     Units,
     WireChoice,
@@ -32,8 +33,8 @@ from skinloc.cli.hardware import (
     TxOpt,
     _first_frame,
     _load_surface,
-    _open_source,
     _stats_line,
+    open_cli_source,
 )
 
 log = logging.getLogger(__name__)
@@ -109,10 +110,12 @@ def register(app: typer.Typer) -> None:
                 help="Send 'touch x y z'/'lift' to the port (for 'skinloc virtual-skin').",
             ),
         ] = False,
-        baud: BaudOpt = 115200,
+        baud: BaudOpt = None,
         fmt: FormatOpt = WireChoice.auto,
-        tx: TxOpt = 8,
-        rx: RxOpt = 8,
+        tx: TxOpt = None,
+        rx: RxOpt = None,
+        gain: GainOpt = None,
+        lines: LinesOpt = None,
         tx_mask: TxMaskOpt = None,
         rx_mask: RxMaskOpt = None,
         allow_url: AllowUrlOpt = False,
@@ -151,19 +154,9 @@ def register(app: typer.Typer) -> None:
             from skinloc.data.recording import read_recording
 
             sim_mesh = read_recording(out).mesh if resume else surface
-            src = _open_source(None, source, tx=tx, rx=rx, seed=seed, mesh=sim_mesh)
+            src = open_cli_source({**locals(), "port": None}, mesh=sim_mesh)
         else:
-            src = _open_source(
-                port,
-                source,
-                baud=baud,
-                fmt=fmt,
-                tx=tx,
-                rx=rx,
-                tx_mask=tx_mask,
-                rx_mask=rx_mask,
-                allow_url=allow_url,
-            )
+            src = open_cli_source(locals())
         with src:
             _first_frame(src, 1.0)
             if resume:

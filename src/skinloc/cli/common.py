@@ -1,7 +1,7 @@
 """What every ``skinloc`` command group shares: the Typer ``app``, consoles, option types, errors.
 
 A leaf of the command line: ``skinloc.cli.main`` and each group module (``cli_hardware``,
-``cli_live``, ``cli_skin``, ``skinloc.cli.app``) import it, and ``skinloc.cli.main`` imports the
+``cli_live``, ``cli_skin``, ``skinloc.cli.webapp``) import it, and ``skinloc.cli.main`` imports the
 groups to register their commands, so no group imports ``skinloc.cli.main``.
 """
 

@@ -1,4 +1,4 @@
-"""Commands for a skin on a serial port: ports, monitor, record, virtual-skin."""
+"""Commands for a skin on a serial port: monitor, record, virtual-skin (ports: ``cli.board``)."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from typing import Annotated, Any
 import numpy as np
 import typer
 
+from skinloc.cli.board_setup import GainOpt, LinesOpt
 from skinloc.cli.common import (
     Units,
     WireChoice,
@@ -68,11 +69,22 @@ SourceOpt = Annotated[
     SourceChoice, typer.Option("--source", help="'sim' reads the simulated skin instead.")
 ]
 BaudOpt = Annotated[
-    int, typer.Option(min=50, help="Baud rate (text firmware 115200, skinloc binary 1000000).")
+    int | None,
+    typer.Option(
+        min=50,
+        help="Baud rate; default: found by asking the board (skinloc's firmware 1000000, the "
+        "paper's text firmware 115200).",
+    ),
 ]
 FormatOpt = Annotated[WireChoice, typer.Option("--format", help="Wire format of the port.")]
-TxOpt = Annotated[int, typer.Option(min=1, max=21, help="TX lines the device sends.")]
-RxOpt = Annotated[int, typer.Option(min=1, max=12, help="RX lines the device sends.")]
+TxOpt = Annotated[
+    int | None,
+    typer.Option(min=1, max=21, help="TX lines the device sends (default: the board's, or 8)."),
+]
+RxOpt = Annotated[
+    int | None,
+    typer.Option(min=1, max=12, help="RX lines the device sends (default: the board's, or 8)."),
+]
 TxMaskOpt = Annotated[
     str | None, typer.Option(help="TX lines to keep, e.g. 11111111000 (default: all).")
 ]
@@ -81,46 +93,76 @@ SeedOpt = Annotated[int, typer.Option(min=0, help="Seed of the simulated skin (-
 ForceOpt = Annotated[bool, typer.Option("--force", help="Replace an existing --out.")]
 
 
-def _open_source(
-    port: str | None,
-    source: SourceChoice,
-    *,
-    baud: int = 115200,
-    fmt: WireChoice = WireChoice.auto,
-    tx: int = 8,
-    rx: int = 8,
-    tx_mask: str | None = None,
-    rx_mask: str | None = None,
-    realtime: bool = False,
-    seed: int = 0,
-    mesh: Any = None,
-    allow_url: bool = False,
-):
-    """Build (not connect) the frame source the options describe."""
+#: The shared source options every command that reads a skin declares, by parameter name.
+_SOURCE_PARAMS = (
+    "port",
+    "source",
+    "baud",
+    "fmt",
+    "tx",
+    "rx",
+    "tx_mask",
+    "rx_mask",
+    "seed",
+    "gain",
+    "lines",
+)
+
+
+def open_cli_source(params: dict[str, Any], *, realtime: bool = False, mesh: Any = None):
+    """Build (not connect) the frame source a command's options name.
+
+    ``params`` is the command's ``locals()``: its ``--port``, ``--source``, ``--baud``,
+    ``--format``, ``--tx``, ``--rx``, masks, ``--seed``, ``--gain``, ``--lines`` and
+    ``--allow-url`` under the parameter names of ``PortOpt``, ``SourceOpt`` and the rest (a
+    command without one gets the default). A serial port's board is asked first
+    (``cli.board_setup.prepare_port``): its baud and grid unless given, its controller, and
+    ``gain`` / ``lines`` set. The source is built by the one factory,
+    ``skinloc.sources.base.make_source``; ``mesh`` is the simulated skin's surface.
+    """
+    from skinloc.sources.base import SourceOptions, make_source
+
+    p = {k: params[k] for k in _SOURCE_PARAMS if k in params}
+    port, source = p.get("port"), p.get("source", SourceChoice.serial)
+    gain, lines = p.get("gain"), p.get("lines")
+    n_tx, n_rx, baud = p.get("tx"), p.get("rx"), p.get("baud")
     if source is SourceChoice.sim:
         if port is not None:
             raise ValueError("give either --port or --source sim, not both")
-        from skinloc.sim.skin import SimulatedSkin
-
-        return SimulatedSkin(mesh, n_tx=tx, n_rx=rx, random_state=seed, realtime=realtime)
-    if port is None:
+        if gain is not None or lines is not None:
+            raise ValueError("--gain and --lines set a board: give --port, not --source sim")
+        port = "sim"
+    elif port is None:
         raise ValueError(
             "give --port (a serial port: see 'skinloc ports') or --source sim for the simulator"
         )
-    from skinloc.hardware.ports import check_source
-    from skinloc.hardware.serial import SerialSource, SerialSourceConfig
+    else:
+        from skinloc.cli.board_setup import prepare_port
+        from skinloc.hardware.ports import check_source
 
-    check_source(port, allow_urls=allow_url, allow_sim=False, opt_in="pass --allow-url")
-    cfg = SerialSourceConfig(
-        port=port,
-        baud=baud,
-        n_tx=tx,
-        n_rx=rx,
-        tx_mask=tx_mask,
-        rx_mask=rx_mask,
+        check_source(
+            port,
+            allow_urls=params.get("allow_url", False),
+            allow_sim=False,
+            opt_in="pass --allow-url",
+        )
+        ready = prepare_port(port, baud=baud, gain=gain, lines=lines, n_tx=n_tx, n_rx=n_rx)
+        if ready.description:
+            err_console.print(f"{port}: {ready.description}", highlight=False)
+        baud, n_tx, n_rx = ready.baud, ready.n_tx, ready.n_rx
+    fmt = p.get("fmt", WireChoice.auto)
+    options = SourceOptions(
+        port,
+        n_tx=n_tx or 8,
+        n_rx=n_rx or 8,
+        baud=baud or 115200,
         format=fmt.value,
+        tx_mask=p.get("tx_mask"),
+        rx_mask=p.get("rx_mask"),
+        seed=p.get("seed", 0),
+        realtime=realtime,
     )
-    return SerialSource(cfg)
+    return make_source(options, mesh=mesh)
 
 
 #: Longest wait for a board's first frame, s: opening the port resets an Uno (DTR), and its
@@ -155,48 +197,18 @@ def _stats_line(src) -> str:
 def register(app: typer.Typer) -> None:
     """Add the hardware commands to the main ``skinloc`` app."""
 
-    # -------------------------------------------------------------------------------- ports
-    @app.command()
-    @friendly_errors
-    def ports(
-        as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
-    ) -> None:
-        """List serial ports; the likely Arduino is marked, running virtual skins are listed.
-
-        Example: skinloc ports
-        """
-        import json
-
-        from skinloc.hardware.ports import list_ports
-
-        found = list_ports()
-        if as_json:
-            sys.stdout.write(json.dumps([p.__dict__ for p in found], indent=2) + "\n")
-            return
-        if not found:
-            console.print(
-                "No serial port found. Plug the Arduino in (a data cable, not charge-only), "
-                "or start 'skinloc virtual-skin'."
-            )
-            return
-        from rich.table import Table
-
-        table = Table("", "port", "description", "hardware id")
-        for p in found:
-            mark = "* Arduino?" if p.likely_arduino else ("virtual" if p.virtual else "")
-            table.add_row(mark, p.device, p.description, p.hwid)
-        console.print(table)
-
     # -------------------------------------------------------------------------------- monitor
     @app.command()
     @friendly_errors
     def monitor(
         port: PortOpt = None,
         source: SourceOpt = SourceChoice.serial,
-        baud: BaudOpt = 115200,
+        baud: BaudOpt = None,
         fmt: FormatOpt = WireChoice.auto,
-        tx: TxOpt = 8,
-        rx: RxOpt = 8,
+        tx: TxOpt = None,
+        rx: RxOpt = None,
+        gain: GainOpt = None,
+        lines: LinesOpt = None,
         tx_mask: TxMaskOpt = None,
         rx_mask: RxMaskOpt = None,
         seconds: Annotated[
@@ -216,19 +228,7 @@ def register(app: typer.Typer) -> None:
         from rich.live import Live
         from rich.table import Table
 
-        src = _open_source(
-            port,
-            source,
-            baud=baud,
-            fmt=fmt,
-            tx=tx,
-            rx=rx,
-            tx_mask=tx_mask,
-            rx_mask=rx_mask,
-            realtime=True,
-            seed=seed,
-            allow_url=allow_url,
-        )
+        src = open_cli_source(locals(), realtime=True)
 
         def render(values: np.ndarray, baseline: np.ndarray | None, n: int) -> Table:
             img = values if raw or baseline is None else values - baseline
@@ -289,10 +289,12 @@ def register(app: typer.Typer) -> None:
         baseline_frames: Annotated[
             int, typer.Option(min=2, help="No-touch frames captured first.")
         ] = 50,
-        baud: BaudOpt = 115200,
+        baud: BaudOpt = None,
         fmt: FormatOpt = WireChoice.auto,
-        tx: TxOpt = 8,
-        rx: RxOpt = 8,
+        tx: TxOpt = None,
+        rx: RxOpt = None,
+        gain: GainOpt = None,
+        lines: LinesOpt = None,
         tx_mask: TxMaskOpt = None,
         rx_mask: RxMaskOpt = None,
         mesh: Annotated[
@@ -317,19 +319,7 @@ def register(app: typer.Typer) -> None:
             raise ValueError(f"--out must be an .h5 file, got {out}")
         check_output(out, option="--out", inputs=[mesh], force=force)
         surface = _load_surface(mesh, units)
-        src = _open_source(
-            port,
-            source,
-            baud=baud,
-            fmt=fmt,
-            tx=tx,
-            rx=rx,
-            tx_mask=tx_mask,
-            rx_mask=rx_mask,
-            seed=seed,
-            mesh=surface if source is SourceChoice.sim else None,
-            allow_url=allow_url,
-        )
+        src = open_cli_source(locals(), mesh=surface if source is SourceChoice.sim else None)
         frames, times, index = [], [], []
         with src, progress_steps() as step:
             _first_frame(src, timeout)

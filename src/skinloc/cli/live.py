@@ -13,6 +13,7 @@ from typing import Annotated, Any
 
 import typer
 
+from skinloc.cli.board_setup import GainOpt, LinesOpt
 from skinloc.cli.common import WireChoice
 
 log = logging.getLogger(__name__)
@@ -59,39 +60,62 @@ def _stop_on_signals(runner: Any) -> dict[int, Any]:
     return old
 
 
-def _check_sources(specs: list[Any], allow_url: bool, wait: bool) -> None:
+def _check_sources(skin_cfgs: list[Any], allow_url: bool, wait: bool) -> None:
     """Refuse a port that is a pyserial URL (without ``--allow-url``) or not a serial device.
 
     A port that does not exist yet is let through to the runner, which waits for it, unless
     ``--no-wait`` (``wait`` False) or the skin's own ``wait = false`` says to fail at once;
-    every spec leaves with ``wait`` set.
+    every skin leaves with ``wait`` set.
     """
     from skinloc.hardware.ports import PortMissingError, check_source
-    from skinloc.live.runner import _is_recording
+    from skinloc.sources.base import SourceKind, source_kind
 
-    for spec in specs:
-        spec.wait = wait and spec.wait is not False
-        src = spec.source
-        if not isinstance(src, str) or src == "sim" or src.startswith("sim:"):
-            continue
-        if not _is_recording(src):
+    for skin_cfg in skin_cfgs:
+        skin_cfg.wait = wait and skin_cfg.wait is not False
+        src = skin_cfg.source
+        if isinstance(src, str) and source_kind(src) is SourceKind.SERIAL:
             try:
                 check_source(src, allow_urls=allow_url, allow_sim=False, opt_in="pass --allow-url")
             except PortMissingError:
-                if not spec.wait:
+                if not skin_cfg.wait:
                     raise
 
 
-def _sink_files(spec: str) -> list[Path]:
+def _sink_files(sink: str) -> list[Path]:
     """Files a ``--sink`` writes: ``jsonl:F``, ``mcap:F``, ``mcap-ros2:F``, ``...?mcap=F``."""
     from urllib.parse import parse_qs, urlsplit
 
     for scheme in ("jsonl:", "mcap:", "mcap-ros2:"):
-        if spec.startswith(scheme) and len(spec) > len(scheme):
-            return [Path(spec[len(scheme) :])]
-    if "://" in spec:
-        return [Path(p) for p in parse_qs(urlsplit(spec).query).get("mcap", [])]
+        if sink.startswith(scheme) and len(sink) > len(scheme):
+            return [Path(sink[len(scheme) :])]
+    if "://" in sink:
+        return [Path(p) for p in parse_qs(urlsplit(sink).query).get("mcap", [])]
     return []
+
+
+def _prepare_board(
+    source: str,
+    baud: int | None,
+    gain: int | None,
+    lines: str | None,
+    tx: int | None,
+    rx: int | None,
+    allow_url: bool,
+) -> tuple[int, int | None, int | None]:
+    """The baud and grid of ``source`` when it is a serial port (asked, set up); else as given."""
+    from skinloc.cli.board_setup import prepare_port
+    from skinloc.cli.common import err_console
+    from skinloc.live.runner import _is_recording
+
+    serial_port = source != "sim" and not source.startswith("sim:") and not _is_recording(source)
+    if not serial_port or ("://" in source and not allow_url):
+        if gain is not None or lines is not None:
+            raise ValueError("--gain and --lines set a board: give its serial port as --source")
+        return baud or 115200, tx, rx
+    ready = prepare_port(source, baud=baud, gain=gain, lines=lines, n_tx=tx, n_rx=rx)
+    if ready.description:
+        err_console.print(f"{source}: {ready.description}", highlight=False)
+    return ready.baud, ready.n_tx, ready.n_rx
 
 
 def register(app: typer.Typer) -> None:
@@ -130,7 +154,16 @@ def register(app: typer.Typer) -> None:
             bool, typer.Option("--fast", help="Replay a recording as fast as possible.")
         ] = False,
         loop: Annotated[bool, typer.Option("--loop", help="Replay a recording forever.")] = False,
-        baud: Annotated[int, typer.Option(min=50, help="Baud rate of a serial port.")] = 115200,
+        baud: Annotated[
+            int | None,
+            typer.Option(
+                min=50,
+                help="Baud rate of a serial port; default: found by asking the board "
+                "(1000000 when it is not plugged in yet).",
+            ),
+        ] = None,
+        gain: GainOpt = None,
+        lines: LinesOpt = None,
         wire_format: Annotated[
             WireChoice, typer.Option("--format", help="Wire format of a serial port.")
         ] = WireChoice.auto,
@@ -201,7 +234,7 @@ def register(app: typer.Typer) -> None:
         Example: skinloc run --model model.h5 --source /dev/ttyACM0 --sink jsonl --sink ws://127.0.0.1:8767
         """
         from skinloc.live.core import PipelineConfig
-        from skinloc.live.runner import Runner, SkinSpec
+        from skinloc.live.runner import Runner, SkinConfig
 
         sinks = list(sink) if sink else ["jsonl"]
         inputs = [model, baseline, config, Path(source)]
@@ -214,9 +247,11 @@ def register(app: typer.Typer) -> None:
 
             if model is not None:
                 raise ValueError("give either --config (many skins) or --model, not both")
-            specs, global_sinks = load_skins(config)
-            _check_sources(specs, allow_url, wait)
-            runner = Runner(specs, sinks=[*global_sinks, *(sink or [])] or ["jsonl"])
+            if gain is not None or lines is not None:
+                raise ValueError("--gain and --lines set one board: use them without --config")
+            skin_cfgs, global_sinks = load_skins(config)
+            _check_sources(skin_cfgs, allow_url, wait)
+            runner = Runner(skin_cfgs, sinks=[*global_sinks, *(sink or [])] or ["jsonl"])
         else:
             if model is None:
                 raise ValueError("give --model MODEL (from 'skinloc train') or --config SKINS.toml")
@@ -231,12 +266,12 @@ def register(app: typer.Typer) -> None:
                 max_contacts=max_contacts,
                 gestures=gestures,
             )
-            spec = SkinSpec(
+            skin_cfg = SkinConfig(
                 model=model,
                 source=source,
                 name=name,
                 config=cfg,
-                baud=baud,
+                baud=baud or 115200,
                 wire_format=wire_format.value,
                 n_tx=tx,
                 n_rx=rx,
@@ -244,15 +279,18 @@ def register(app: typer.Typer) -> None:
                 loop=loop,
                 baseline=baseline,
             )
-            _check_sources([spec], allow_url, wait)
-            runner = Runner([spec], sinks=sinks)
+            _check_sources([skin_cfg], allow_url, wait)
+            skin_cfg.baud, skin_cfg.n_tx, skin_cfg.n_rx = _prepare_board(
+                source, baud, gain, lines, tx, rx, allow_url
+            )
+            runner = Runner([skin_cfg], sinks=sinks)
         t0 = time.monotonic()
         # Until the loop runs (opening sources and sinks), a signal interrupts as in every
         # command; while it runs, one stops it cleanly and the summary is printed.
         with runner:
             err_console.print(
-                f"running {len(runner.specs)} skin(s): "
-                + ", ".join(f"{s.name} <- {s.source}" for s in runner.specs),
+                f"running {len(runner.skins)} skin(s): "
+                + ", ".join(f"{s.name} <- {s.source}" for s in runner.skins),
                 highlight=False,
             )
             # Servers asked for port 0 got a free one: say which.
@@ -320,14 +358,16 @@ def register(app: typer.Typer) -> None:
             check_output(onnx, option="--onnx", inputs=[model], force=force)
         if c_header is not None:
             check_output(c_header, option="--c-header", inputs=[model], force=force)
-        spec = ModelSpec.load(model)
+        model_spec = ModelSpec.load(model)
         if onnx is not None:
-            atomic_write(onnx, lambda tmp: export_onnx(spec, tmp, include_surface=surface))
+            atomic_write(onnx, lambda tmp: export_onnx(model_spec, tmp, include_surface=surface))
             err_console.print(f"wrote {onnx}", highlight=False)
         if c_header is not None:
             atomic_write(
                 c_header,
-                lambda tmp: export_c_header(spec, tmp, include_surface=surface, prefix=prefix),
+                lambda tmp: export_c_header(
+                    model_spec, tmp, include_surface=surface, prefix=prefix
+                ),
             )
             size = c_header.stat().st_size
             err_console.print(
@@ -337,8 +377,8 @@ def register(app: typer.Typer) -> None:
 
 def bench_online(out: Path, as_json: bool) -> None:
     """``skinloc bench --online``: the live path's figures, written to ``out/online.json``."""
+    from skinloc.bench.online import online_bench
     from skinloc.cli.common import console, print_json, progress_steps
-    from skinloc.live.bench import online_bench
 
     out.mkdir(parents=True, exist_ok=True)
     with progress_steps() as step:

@@ -13,14 +13,15 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from skinloc.cli import app as app_cli
 from skinloc.cli import bench as cli_bench
+from skinloc.cli import board as cli_board
 from skinloc.cli import collect as cli_collect
 from skinloc.cli import hardware as cli_hardware
 from skinloc.cli import live as cli_live
 from skinloc.cli import predict as cli_predict
 from skinloc.cli import recordings as cli_recordings
 from skinloc.cli import skin as cli_skin
+from skinloc.cli import webapp as app_cli
 from skinloc.cli.common import (
     Arch,
     Constraint,
@@ -369,8 +370,9 @@ def _register_groups() -> None:
     # after this module's commands so that ``skinloc --help`` lists them in this order.
     cli_recordings.register(app)  # snr, info, convert
     cli_bench.register(app)  # skinloc bench
-    cli_hardware.register(app)  # ports, record, calibrate, virtual-skin, ...
+    cli_hardware.register(app)  # monitor, record, virtual-skin
     cli_collect.register(app)  # collect
+    cli_board.register(app)  # ports, doctor
     app_cli.register(app)  # skinloc app
     cli_live.register(app)  # skinloc run, export
     cli_skin.register(app)  # skinloc sensors, coverage

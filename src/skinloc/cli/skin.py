@@ -104,7 +104,7 @@ def sensors_result(
     import numpy as np
 
     from skinloc.geometry.mesh import mesh_from_arrays
-    from skinloc.sensors import positions as S
+    from skinloc.sensors import sensor_map as S
 
     if kind == "model":
         if fields:

@@ -50,12 +50,21 @@ def draw_mesh(ax, mesh, alpha: float = 0.3, edgecolor: str = "0.7") -> None:
     ax.set_box_aspect(np.ptp(v, axis=0))
 
 
-def _save(fig, path: str | Path, **kw) -> Path:
-    """Write ``fig`` to ``path`` (PNG, 150 dpi) and, beside it, the same figure as SVG."""
+def save_figure(fig, path: str | Path, *, svg: bool = True, **kw) -> Path:
+    """Write ``fig`` to ``path`` (150 dpi) and close it; returns the path.
+
+    Laid out tight first (unless ``bbox_inches`` is given); with ``svg``, a PNG also gets the
+    same figure beside it as SVG. ``kw`` goes to ``savefig``.
+    """
+    from matplotlib import pyplot as plt
+
     path = Path(path)
+    if "bbox_inches" not in kw:
+        fig.tight_layout()
     fig.savefig(path, dpi=150, **kw)
-    if path.suffix.lower() == ".png":
+    if svg and path.suffix.lower() == ".png":
         fig.savefig(path.with_suffix(".svg"), **kw)
+    plt.close(fig)
     return path
 
 
@@ -74,10 +83,7 @@ def plot_sensor_image(
     ax.set_yticks(range(n_tx))
     ax.set_title(title)
     fig.colorbar(im, ax=ax, label="counts above baseline")
-    fig.tight_layout()
-    _save(fig, path)
-    plt.close(fig)
-    return Path(path)
+    return save_figure(fig, path)
 
 
 def plot_predictions_3d(
@@ -115,9 +121,7 @@ def plot_predictions_3d(
     fig.subplots_adjust(left=0.0, right=0.9, wspace=0.0)
     fig.colorbar(sm, cax=fig.add_axes((0.92, 0.2, 0.012, 0.6)), label="error (mm)")
     fig.suptitle(title)
-    _save(fig, path, bbox_inches="tight")
-    plt.close(fig)
-    return Path(path)
+    return save_figure(fig, path, bbox_inches="tight")
 
 
 def plot_error_curves(
@@ -141,10 +145,7 @@ def plot_error_curves(
     ax.set_ylim(bottom=0)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    _save(fig, path)
-    plt.close(fig)
-    return Path(path)
+    return save_figure(fig, path)
 
 
 def plot_uncertainty(uncertainty_mm: np.ndarray, error_mm: np.ndarray, path: str | Path) -> Path:
@@ -162,10 +163,7 @@ def plot_uncertainty(uncertainty_mm: np.ndarray, error_mm: np.ndarray, path: str
     ax.set_ylabel("actual error (mm)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    _save(fig, path)
-    plt.close(fig)
-    return Path(path)
+    return save_figure(fig, path)
 
 
 def plot_error_curve(
@@ -187,10 +185,7 @@ def plot_error_curve(
     ax.set_ylim(bottom=0)
     ax.grid(alpha=0.3)
     ax.legend()
-    fig.tight_layout()
-    _save(fig, path)
-    plt.close(fig)
-    return Path(path)
+    return save_figure(fig, path)
 
 
 def plot_paper_fig3(
@@ -218,10 +213,7 @@ def plot_paper_fig3(
         ax.grid(alpha=0.3)
     if title:
         fig.suptitle(title)
-    fig.tight_layout()
-    _save(fig, path)
-    plt.close(fig)
-    return Path(path)
+    return save_figure(fig, path)
 
 
 def write_html(

@@ -1,4 +1,4 @@
-r"""Pure parsers of the two wire formats a skin speaks over serial (``hardware.wire``).
+r"""Pure parsers of the two wire formats a skin speaks over serial (``hardware.protocol``).
 
 * **text**: the paper's firmware prints one line of comma-separated decimal counts per frame,
   TX-major, ending in ``\r\n`` (``Serial.println``), at 115200 baud. Lines that are not data
@@ -22,7 +22,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from skinloc.hardware.wire import (
+from skinloc.hardware.protocol import (
     _COUNT_MAX,
     _CRC_SIZE,
     _HEADER,

@@ -24,8 +24,8 @@ import numpy as np
 from skinloc.errors import FrameTimeoutError, SourceNotConnectedError
 from skinloc.hardware.framing import ParserStats, make_parser
 from skinloc.hardware.ports import PortInfo, check_source, list_ports  # re-exported
-from skinloc.hardware.wire import MAX_RX, MAX_TX, WireFormat
-from skinloc.sources.base import Frame, FrameSource
+from skinloc.hardware.protocol import MAX_RX, MAX_TX, WireFormat
+from skinloc.sources.base import Frame, FrameSource, SourceOptions
 
 log = logging.getLogger(__name__)
 
@@ -191,7 +191,7 @@ class SerialSource(FrameSource):
 
     Examples
     --------
-    >>> from skinloc.hardware.wire import encode_binary
+    >>> from skinloc.hardware.protocol import encode_binary
     >>> with SerialSource(SerialSourceConfig("loop://", n_tx=1, n_rx=2)) as src:
     ...     src.write(encode_binary([5, 6], 1, 2, counter=0))
     ...     src.read(timeout_s=2.0).values.tolist()
@@ -225,9 +225,19 @@ class SerialSource(FrameSource):
         self._write_lock = threading.Lock()
 
     @classmethod
-    def from_options(cls, **config: Any) -> SerialSource:
-        """A source from ``SerialSourceConfig``'s fields as keywords (``make_source("serial")``)."""
-        return cls(SerialSourceConfig(**config))
+    def from_options(cls, options: SourceOptions, mesh: Any = None) -> SerialSource:
+        """The port ``options`` name (``skinloc.sources.base.make_source``); no ``mesh``."""
+        return cls(
+            SerialSourceConfig(
+                port=options.source,
+                baud=options.baud,
+                n_tx=options.n_tx,
+                n_rx=options.n_rx,
+                tx_mask=options.tx_mask,
+                rx_mask=options.rx_mask,
+                format=options.format,
+            )
+        )
 
     # -- FrameSource -------------------------------------------------------------------------
     @property

@@ -1,4 +1,4 @@
-"""``Contact``: one output of the live pipeline, the type every sink consumes.
+"""``Contact``: one output of the live pipeline, the type every sink consumes, and its colour.
 
 A leaf module so that the pipeline (which makes contacts) and the sinks (which send them) both
 import it without importing each other.
@@ -11,7 +11,12 @@ import math
 from dataclasses import asdict, dataclass
 from typing import Any
 
-__all__ = ["Contact"]
+__all__ = ["TRACK_COLOURS", "Contact", "colour_index", "track_colour"]
+
+#: The fingers' colours (sRGB), shared by every view of the contacts: the app's page (the
+#: server writes them into it), the ROS 2 markers (RViz) and the Foxglove scene. Fingers down
+#: at once never share a slot, so never a colour (``colour_index``).
+TRACK_COLOURS: tuple[str, ...] = ("#2f6fde", "#e8590c", "#2b8a3e", "#ae3ec9", "#c2255c", "#0c8599")
 
 
 @dataclass(slots=True)
@@ -80,3 +85,21 @@ class Contact:
     def to_json(self) -> str:
         """One line of JSON (the wire format of the JSON-lines, WebSocket and UDP sinks)."""
         return json.dumps(self.to_dict(), separators=(",", ":"))
+
+
+def colour_index(contact: Contact) -> int:
+    """The index into ``TRACK_COLOURS`` (modulo its length) of a contact's finger.
+
+    Its slot; without one (a one-contact pipeline) its track id, else its touch number.
+    """
+    if contact.slot >= 0:
+        return contact.slot
+    if contact.track_id >= 0:
+        return contact.track_id
+    return max(contact.touch_id - 1, 0)
+
+
+def track_colour(contact: Contact) -> tuple[float, float, float]:
+    """The colour of a contact's finger, ``(r, g, b)`` in [0, 1]."""
+    hex_ = TRACK_COLOURS[colour_index(contact) % len(TRACK_COLOURS)]
+    return (int(hex_[1:3], 16) / 255, int(hex_[3:5], 16) / 255, int(hex_[5:7], 16) / 255)

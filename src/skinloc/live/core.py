@@ -37,24 +37,18 @@ from skinloc.live.gestures import GestureConfig, GestureRecognizer, SkinFrame
 from skinloc.live.one_euro import one_euro as _one_euro
 from skinloc.live.pair_prior import pair_prior
 from skinloc.live.tracking import Track, Tracker, frame_contacts
-from skinloc.live.wire_input import WireInput
 from skinloc.models.engine import Engine, load_engine
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Contact", "PipelineConfig", "SkinCore", "TouchState", "load_fast_localizer"]
+__all__ = ["Contact", "PipelineConfig", "SkinCore", "TouchState"]
 
 
 # --------------------------------------------------------------------------------------------
 # one skin
 
 
-def load_fast_localizer(model: Any) -> Engine:
-    """The warmed-up engine of a model path, a ``ContactLocalizer``, a spec or an engine."""
-    return load_engine(model)
-
-
-class SkinCore(WireInput):
+class SkinCore:
     """The per-skin processing chain, pure and single-threaded.
 
     Parameters
@@ -99,10 +93,10 @@ class SkinCore(WireInput):
         up: Sequence[float] | None = None,
         gesture_config: GestureConfig | None = None,
     ) -> None:
-        self.fast = load_fast_localizer(localizer)
+        self.engine: Engine = load_engine(localizer)
         self.config = PipelineConfig() if config is None else config
         self.name = name
-        n = self.fast.n_features
+        n = self.engine.n_features
         self.n_sensors = n
         if n_tx is None or n_rx is None:
             n_tx, n_rx = (8, 8) if n == 64 else (n, 1)
@@ -113,7 +107,9 @@ class SkinCore(WireInput):
             )
         self.n_tx, self.n_rx = int(n_tx), int(n_rx)
         self.wire_format = wire_format
-        self._parser = None
+        self._parser: Any = None  # built on the first ``feed``
+        #: Sinks that record raw frames (``emit_frame``), handed every frame before processing.
+        self.frame_sinks: list[Any] = []
         self._baseline = np.zeros(n, dtype=np.float64)
         self._inv_sigma = np.ones(n, dtype=np.float64)
         self._acc = np.zeros(n, dtype=np.float64)
@@ -155,14 +151,14 @@ class SkinCore(WireInput):
                 cfg.track_gate_mm,
                 cfg.track_miss_frames,
                 cfg.track_confirm_frames,
-                self.fast.constrain_into,
+                self.engine.constrain_into,
                 self._filt_prm if cfg.filter == "one-euro" else None,
-                pair=pair_prior(self.fast, self._delta),
+                pair=pair_prior(self.engine, self._delta),
             )
         self.gestures: list[dict[str, Any]] = []  # events due, collected by ``take_gestures``
         self._recognizer: GestureRecognizer | None = None
         if cfg.gestures:
-            spec = self.fast.spec
+            spec = self.engine.spec
             vertices = getattr(spec, "vertices", None)
             if vertices is not None or up is not None:
                 frame = SkinFrame(vertices, getattr(spec, "faces", None), up)
@@ -176,7 +172,7 @@ class SkinCore(WireInput):
         for dtype in (np.float32, np.uint16):
             _prep(np.zeros(n, dtype=dtype), base, self._inv_sigma, scratch, 0.0, 1.0, 0)
         _one_euro(np.zeros(8), 0.0, 0.0, 0.0, 0.0, self._filt_prm, np.zeros(3))
-        self.fast.constrain_into(0.0, 0.0, 0.0, np.zeros(3))
+        self.engine.constrain_into(0.0, 0.0, 0.0, np.zeros(3))
 
     # ------------------------------------------------------------------ baseline
     def set_baseline(self, frames: np.ndarray) -> None:
@@ -249,6 +245,8 @@ class SkinCore(WireInput):
         to ``gestures``. ``t_in`` is when the frame's bytes arrived (``time.monotonic()``), for
         the latency; by default now.
         """
+        for sink in self.frame_sinks:
+            sink.emit_frame(self.name, values, timestamp_s, index)
         out = self._frame(values, timestamp_s, index, t_in)
         rec = self._recognizer
         if rec is not None and (out or rec.busy):
@@ -264,6 +262,54 @@ class SkinCore(WireInput):
     def n_gestures(self) -> int:
         """Gesture events recognised so far."""
         return 0 if self._recognizer is None else self._recognizer.n_events
+
+    # ------------------------------------------------------------------ bytes
+    def feed(self, data: bytes, t_in: float | None = None) -> list[Contact]:
+        """Parse wire bytes (``skinloc.hardware.framing``) and process every complete frame in them.
+
+        Returns every contact of those frames. Frame timestamps are ``t_in`` (arrival,
+        ``time.monotonic()``); indices are the device's counter, unwrapped (binary) or a
+        running count (text).
+        """
+        out: list[Contact] = []
+        for contacts in self.feed_frames(data, t_in):
+            out += contacts
+        return out
+
+    def feed_frames(self, data: bytes, t_in: float | None = None) -> list[Sequence[Contact]]:
+        """As ``feed``, the contacts frame by frame (only frames that have some)."""
+        if t_in is None:
+            t_in = time.monotonic()
+        if self._parser is None:
+            from skinloc.hardware.framing import make_parser
+
+            self._parser = make_parser(self.wire_format, self.n_tx, self.n_rx)
+        out: list[Sequence[Contact]] = []
+        for raw in self._parser.feed(data):
+            counter = raw.counter
+            if counter is None:
+                index = self.n_frames
+            else:
+                if self._last_counter is not None and counter < self._last_counter:
+                    self._counter_base += 1 << 16
+                self._last_counter = counter
+                index = self._counter_base + counter
+            contacts = self.process_frame(raw.values, t_in, index, t_in)
+            if contacts:
+                out.append(contacts)
+        return out
+
+    def reset_link(self) -> None:
+        """Forget partial wire input after a reconnect (the touch state is kept)."""
+        if self._parser is not None:
+            self._parser.reset()
+        self._last_counter = None
+        self._counter_base = (self._counter_base >> 16) + 1 << 16
+
+    @property
+    def parser_stats(self) -> dict[str, int]:
+        """Counters of the wire parser (empty before ``feed``)."""
+        return {} if self._parser is None else self._parser.stats.as_dict()
 
     def take_gestures(self) -> list[dict[str, Any]]:
         """The gesture events due so far (JSON-ready dicts), oldest first; clears them."""
@@ -344,11 +390,11 @@ class SkinCore(WireInput):
 
     def _localise(self, state: TouchState, ts: float, index: int, z: float, t_in: float) -> Contact:
         out = self._out
-        fast = self.fast
-        fast.localise_into(self._delta, out)
+        engine = self.engine
+        engine.localise_into(self._delta, out)
         if self.config.filter == "one-euro":
             _one_euro(self._filt_state, out[3], out[4], out[5], ts, self._filt_prm, self._tmp)
-            fast.constrain_into(self._tmp[0], self._tmp[1], self._tmp[2], self._pos)
+            engine.constrain_into(self._tmp[0], self._tmp[1], self._tmp[2], self._pos)
         else:
             self._pos[:] = out[3:6]
         o = out.tolist()
@@ -383,7 +429,7 @@ class SkinCore(WireInput):
     ) -> list[Contact]:
         """K > 1: the frame's contacts, matched to tracks; one ``Contact`` per track."""
         pos, raw, strength, unc = frame_contacts(
-            self.fast, self._delta, self.max_contacts, self._out
+            self.engine, self._delta, self.max_contacts, self._out
         )
         events = self._tracker.update(
             ts, pos, raw, strength, unc, state is TouchState.START, self._below == 0

@@ -2,7 +2,7 @@
 
 Serial ports are read by the loop itself (``_PortFeed``); any other ``FrameSource`` is read on
 a small thread of its own (``_ThreadFeed``). A port missing at start is waited for when its
-skin asks to (``SkinSpec.wait``): the loop retries it on the unplug recovery's schedule.
+skin asks to (``SkinConfig.wait``): the loop retries it on the unplug recovery's schedule.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ if TYPE_CHECKING:
     import collections
 
     from skinloc.live.core import SkinCore
-    from skinloc.live.spec import SkinSpec
+    from skinloc.live.skin_config import SkinConfig
 
 log = logging.getLogger(__name__)
 
@@ -51,19 +51,19 @@ class _NoFileDescriptor(Exception):
 class _PortFeed:
     """A serial port read by the loop itself (non-blocking file descriptor, no thread)."""
 
-    def __init__(self, slot: int, spec: SkinSpec, core: SkinCore) -> None:
+    def __init__(self, slot: int, skin: SkinConfig, core: SkinCore) -> None:
         from skinloc.hardware.serial import SerialSourceConfig
 
         self.slot = slot
         self.core = core
         self.cfg = SerialSourceConfig(
-            str(spec.source),
-            baud=spec.baud,
-            n_tx=spec.n_tx or core.n_tx,
-            n_rx=spec.n_rx or core.n_rx,
-            tx_mask=spec.tx_mask,
-            rx_mask=spec.rx_mask,
-            format=spec.wire_format,
+            str(skin.source),
+            baud=skin.baud,
+            n_tx=skin.n_tx or core.n_tx,
+            n_rx=skin.n_rx or core.n_rx,
+            tx_mask=skin.tx_mask,
+            rx_mask=skin.rx_mask,
+            format=skin.wire_format,
         )
         self.port = self.cfg.port
         self.ser: Any = None
@@ -76,7 +76,7 @@ class _PortFeed:
         #: Missing at start and waited for (no reconnect is counted when it appears).
         self.waiting = False
         self._told_denied = False
-        self.name = spec.name
+        self.name = skin.name
 
     def open(self) -> None:
         import serial
@@ -140,10 +140,10 @@ class _PortFeed:
                 log.warning("reconnected to %s", self.port)
 
 
-def open_port_feed(slot: int, spec: SkinSpec, core: SkinCore) -> _PortFeed | None:
+def open_port_feed(slot: int, skin: SkinConfig, core: SkinCore) -> _PortFeed | None:
     """The loop's feed of a serial port, opened; None for a URL without a file descriptor.
 
-    A port that does not exist (yet) is waited for when ``spec.wait``: the feed is returned
+    A port that does not exist (yet) is waited for when ``skin.wait``: the feed is returned
     closed, marked ``waiting``, and the loop's ``retry`` opens it once it appears.
 
     Raises
@@ -154,19 +154,19 @@ def open_port_feed(slot: int, spec: SkinSpec, core: SkinCore) -> _PortFeed | Non
     """
     from skinloc.hardware.serial import _why_not_open
 
-    feed = _PortFeed(slot, spec, core)
+    feed = _PortFeed(slot, skin, core)
     try:
         feed.open()
     except _NoFileDescriptor:
         return None  # a URL without a file descriptor (loop://): read on a thread
     except (OSError, ValueError) as exc:  # serial.SerialException is an OSError
         code = getattr(exc, "errno", None)
-        if spec.wait and (code in _MISSING or (code is None and not os.path.exists(feed.port))):
+        if skin.wait and (code in _MISSING or (code is None and not os.path.exists(feed.port))):
             feed.waiting = True
             feed.last_error = "not present"
             return feed
         raise SourceNotConnectedError(
-            f"cannot open serial port {spec.source}: {_why_not_open(exc)}"
+            f"cannot open serial port {skin.source}: {_why_not_open(exc)}"
         ) from None
     return feed
 

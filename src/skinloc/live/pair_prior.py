@@ -4,7 +4,7 @@ The multi-contact search decides one frame at a time whether an image holds one 
 and on the simulated two-finger taps it sees one in about half of them (docs/multitouch.md).
 The tracker knows where the first finger is. ``PairPrior`` asks, while a touch has one track
 and the search reports one contact, for the two-contact fit anchored at that contact
-(``skinloc.models.contact_refit``), and:
+(``skinloc.models.multi_contact.refit``), and:
 
 * **starts** a second finger when, within ``window_s`` of the first finger's landing, over
   the last ``start_frames`` frames the fit has been better than one contact by ``start_ratio``
@@ -63,7 +63,7 @@ class PairPrior:
     Parameters
     ----------
     refit : PairRefit
-        The model's anchored two-contact fit (``skinloc.models.contact_refit``).
+        The model's anchored two-contact fit (``skinloc.models.multi_contact.refit``).
     image : (n_features,) float32
         The buffer holding the current frame's baseline-subtracted counts (read each frame).
     rule : PairRule, optional
@@ -153,6 +153,6 @@ def pair_prior(engine: Any, image: np.ndarray, rule: PairRule | None = None) -> 
     """The prior for ``engine``, or None if its model has no multi-contact search."""
     if not hasattr(engine, "search_tables"):
         return None
-    from skinloc.models.contact_refit import PairRefit
+    from skinloc.models.multi_contact.refit import PairRefit
 
     return PairPrior(PairRefit(engine), image, rule)

@@ -1,4 +1,4 @@
-"""The engine that runs skin pipelines: sources in, ``SkinCore`` per skin, sinks out.
+"""The live runner: sources in, ``SkinCore`` per skin, sinks out, on one loop.
 
 One ``Runner`` serves one skin or many from one thread: serial ports are read without a thread
 each (their file descriptors wait in one ``selectors`` loop, bytes go straight to the skin's
@@ -30,12 +30,13 @@ from typing import Any
 
 from skinloc.errors import SourceNotConnectedError
 from skinloc.live.config import PipelineConfig
-from skinloc.live.core import Contact, SkinCore, load_fast_localizer
+from skinloc.live.core import Contact, SkinCore
 from skinloc.live.feeds import _PortFeed, _ThreadFeed, open_port_feed
 from skinloc.live.scripted import ScriptedFinger
 from skinloc.live.sinks.base import Sink, SkinInfo, make_sink
-from skinloc.live.spec import SkinSpec, _is_recording, open_source, record_frames, skin_info
-from skinloc.sources.base import Frame
+from skinloc.live.skin_config import SkinConfig, skin_info
+from skinloc.models.engine import load_engine
+from skinloc.sources.base import Frame, FrameSource, SourceKind, make_source, source_kind
 
 log = logging.getLogger(__name__)
 
@@ -43,11 +44,26 @@ log = logging.getLogger(__name__)
 #: come every 0.1 s, ``stale_s`` is 1 s by default)
 _SWEEP_S = 0.01
 
-__all__ = ["Pipeline", "Runner", "ScriptedFinger", "SkinSpec", "open_source"]
+__all__ = ["Pipeline", "Runner", "ScriptedFinger", "SkinConfig", "open_source"]
 
 
 # --------------------------------------------------------------------------------------------
 # the runner
+
+
+def open_source(skin: SkinConfig, core: SkinCore) -> FrameSource:
+    """The frame source of a skin the loop does not read itself, built by ``make_source``.
+
+    The simulated skin is touched by a scripted finger (``ScriptedFinger``), so that a model
+    gives contacts without hardware.
+    """
+    if isinstance(skin.source, FrameSource):
+        return skin.source
+    options = skin.source_options(core)
+    source = make_source(options)
+    if options.kind is SourceKind.SIM:
+        return ScriptedFinger(source, random_state=options.sim_seed)
+    return source
 
 
 class Runner:
@@ -55,7 +71,7 @@ class Runner:
 
     Parameters
     ----------
-    skins : sequence of SkinSpec
+    skins : sequence of SkinConfig
         The skins; names must be unique. Skins that share a model file share its compiled
         localiser.
     sinks : sequence of str or Sink, optional
@@ -74,7 +90,7 @@ class Runner:
 
     def __init__(
         self,
-        skins: Sequence[SkinSpec],
+        skins: Sequence[SkinConfig],
         sinks: Sequence[str | Sink] = (),
         callback: Callable[[Contact], Any] | None = None,
         gesture_callback: Callable[[dict[str, Any]], Any] | None = None,
@@ -85,35 +101,35 @@ class Runner:
         dup = sorted({n for n in names if names.count(n) > 1})
         if dup:
             raise ValueError(f"skin names must be unique; repeated: {', '.join(dup)}")
-        self.specs = list(skins)
+        self.skins = list(skins)
         self.callback = callback
         self.gesture_callback = gesture_callback
         models: dict[str, Any] = {}
         self.cores: list[SkinCore] = []
-        for spec in self.specs:
-            key = str(Path(spec.model).resolve()) if isinstance(spec.model, str | Path) else None
-            fast = models.get(key) if key else None
-            if fast is None:
-                fast = load_fast_localizer(spec.model)
+        for skin in self.skins:
+            key = str(Path(skin.model).resolve()) if isinstance(skin.model, str | Path) else None
+            engine = models.get(key) if key else None
+            if engine is None:
+                engine = load_engine(skin.model)
                 if key:
-                    models[key] = fast
+                    models[key] = engine
             core = SkinCore(
-                fast,
-                spec.config,
-                name=spec.name,
-                n_tx=spec.n_tx,
-                n_rx=spec.n_rx,
-                wire_format=spec.wire_format,
-                up=spec.up,
-                gesture_config=spec.gestures,
+                engine,
+                skin.config,
+                name=skin.name,
+                n_tx=skin.n_tx,
+                n_rx=skin.n_rx,
+                wire_format=skin.wire_format,
+                up=skin.up,
+                gesture_config=skin.gestures,
             )
-            if spec.baseline is not None:
+            if skin.baseline is not None:
                 from skinloc.data.recording import read_recording
 
-                core.set_baseline(read_recording(spec.baseline).baseline_frames)
+                core.set_baseline(read_recording(skin.baseline).baseline_frames)
             self.cores.append(core)
         self.global_sinks = [make_sink(s) for s in sinks]
-        self.skin_sinks = [[make_sink(s) for s in spec.sinks] for spec in self.specs]
+        self.skin_sinks = [[make_sink(s) for s in skin.sinks] for skin in self.skins]
         self._stop_event = threading.Event()
         self._queue: collections.deque[tuple[int, Frame, float]] = collections.deque()
         self._wake_r, self._wake_w = -1, -1
@@ -149,7 +165,7 @@ class Runner:
         os.set_blocking(self._wake_r, False)
         os.set_blocking(self._wake_w, False)
         self._sel.register(self._wake_r, selectors.EVENT_READ, None)
-        infos = [skin_info(s, c) for s, c in zip(self.specs, self.cores, strict=True)]
+        infos = [skin_info(s, c) for s, c in zip(self.skins, self.cores, strict=True)]
         for sink in self.global_sinks:
             sink.open(infos)
         for info, sinks in zip(infos, self.skin_sinks, strict=True):
@@ -161,35 +177,30 @@ class Runner:
                 for s in (*self.skin_sinks[slot], *self.global_sinks)
                 if getattr(s, "wants_frames", False)
             ]
-            if recorders:
-                record_frames(core, recorders)
-        for slot, (spec, core) in enumerate(zip(self.specs, self.cores, strict=True)):
-            src = spec.source
-            if (
-                isinstance(src, str | Path)
-                and not _is_recording(str(src))
-                and not (str(src) == "sim" or str(src).startswith("sim:"))
-            ):
-                feed = open_port_feed(slot, spec, core)  # None: a URL read on a thread
+            core.frame_sinks = recorders
+        for slot, (skin, core) in enumerate(zip(self.skins, self.cores, strict=True)):
+            src = skin.source
+            if isinstance(src, str | Path) and source_kind(str(src)) is SourceKind.SERIAL:
+                feed = open_port_feed(slot, skin, core)  # None: a URL read on a thread
                 if feed is not None:
                     self._ports.append(feed)
                     if not feed.waiting:  # a missing port waited for is opened by the loop
                         self._sel.register(feed.fd, selectors.EVENT_READ, feed)
                     continue
-            source = open_source(spec, core.n_sensors)
+            source = open_source(skin, core)
             if source.n_sensors != core.n_sensors:
                 raise ValueError(
-                    f"skin {spec.name!r}: the source {source.name} sends {source.n_sensors} "
+                    f"skin {skin.name!r}: the source {source.name} sends {source.n_sensors} "
                     f"sensors but the model takes {core.n_sensors}"
                 )
-            feed_t = _ThreadFeed(slot, source, self, spec.realtime)
+            feed_t = _ThreadFeed(slot, source, self, skin.realtime)
             self._threads.append(feed_t)
         for feed_t in self._threads:
             feed_t.thread.start()
 
     def _skin_info(self, i: int) -> SkinInfo:
-        """What the sinks learn of skin ``i`` (``skinloc.live.spec.skin_info``)."""
-        return skin_info(self.specs[i], self.cores[i])
+        """What the sinks learn of skin ``i`` (``skinloc.live.skin_config.skin_info``)."""
+        return skin_info(self.skins[i], self.cores[i])
 
     def close(self) -> None:
         """Stop the loop, join every thread, close ports, sources and sinks. Idempotent."""
@@ -406,9 +417,9 @@ class Runner:
         out = []
         ports = {f.slot: f for f in self._ports}
         threads = {f.slot: f for f in self._threads}
-        for slot, (spec, core) in enumerate(zip(self.specs, self.cores, strict=True)):
+        for slot, (skin, core) in enumerate(zip(self.skins, self.cores, strict=True)):
             d: dict[str, Any] = {
-                "skin": spec.name,
+                "skin": skin.name,
                 "frames": core.n_frames,
                 "contacts": core.n_contacts,
                 "touches": core.n_touches,
@@ -453,7 +464,7 @@ class Pipeline(Runner):
     gesture_callback : callable(dict), optional
         Called for every gesture event, on the pipeline's thread.
     **source_options
-        Further ``SkinSpec`` fields: ``name``, ``baud``, ``wire_format``, ``n_tx``, ``n_rx``,
+        Further ``SkinConfig`` fields: ``name``, ``baud``, ``wire_format``, ``n_tx``, ``n_rx``,
         ``realtime``, ``loop``, ``rate_hz``, ``baseline``, ``wait`` (a missing port).
 
     Examples
@@ -474,13 +485,13 @@ class Pipeline(Runner):
         gesture_callback: Callable[[dict[str, Any]], Any] | None = None,
         **source_options: Any,
     ) -> None:
-        spec = SkinSpec(
+        skin = SkinConfig(
             model=model,
             source=source,
             config=PipelineConfig() if config is None else config,
             **source_options,
         )
-        super().__init__([spec], sinks=sinks, callback=callback, gesture_callback=gesture_callback)
+        super().__init__([skin], sinks=sinks, callback=callback, gesture_callback=gesture_callback)
 
     @property
     def core(self) -> SkinCore:

@@ -1,10 +1,10 @@
 """Many skins from one process: the configuration file of ``skinloc run --config``.
 
-A TOML file lists the skins of a robot; each becomes a ``SkinSpec`` of one ``Runner``::
+A TOML file lists the skins of a robot; each becomes a ``SkinConfig`` of one ``Runner``::
 
     sinks = ["jsonl", "ws://127.0.0.1:8767"]   # receive the contacts of every skin
 
-    [defaults]                 # any SkinSpec field, for every skin
+    [defaults]                 # any SkinConfig field, for every skin
     model = "arm.h5"           # paths are relative to this file
     baud = 1000000
     wire_format = "binary"
@@ -42,7 +42,7 @@ from pathlib import Path
 from typing import Any
 
 from skinloc.live.core import PipelineConfig
-from skinloc.live.runner import Runner, SkinSpec
+from skinloc.live.runner import Runner, SkinConfig
 
 __all__ = ["load_skins", "runner_from_config"]
 
@@ -56,7 +56,7 @@ def _resolve(value: Any, base: Path) -> Any:
     return value
 
 
-def load_skins(path: str | Path) -> tuple[list[SkinSpec], list[str]]:
+def load_skins(path: str | Path) -> tuple[list[SkinConfig], list[str]]:
     """Read a skins file; returns ``(skins, global sinks)``.
 
     Raises
@@ -80,9 +80,9 @@ def load_skins(path: str | Path) -> tuple[list[SkinSpec], list[str]]:
     if not isinstance(skins_raw, list) or not skins_raw:
         raise ValueError(f"{path}: no [[skin]] entries")
     base = path.parent
-    known = {f.name for f in dataclasses.fields(SkinSpec)} - {"config"} | {"pipeline"}
+    known = {f.name for f in dataclasses.fields(SkinConfig)} - {"config"} | {"pipeline"}
     defaults = dict(raw.get("defaults", {}))
-    specs = []
+    skins = []
     for k, entry in enumerate(skins_raw):
         merged = {**defaults, **entry}
         name = str(merged.get("name", f"skin{k}"))
@@ -111,16 +111,16 @@ def load_skins(path: str | Path) -> tuple[list[SkinSpec], list[str]]:
         if not isinstance(sinks, list):
             raise ValueError(f"{path}: skin {name!r}: sinks must be a list of strings")
         try:
-            specs.append(SkinSpec(config=config, sinks=list(sinks), **merged))
+            skins.append(SkinConfig(config=config, sinks=list(sinks), **merged))
         except (TypeError, ValueError) as exc:
             raise ValueError(f"{path}: skin {name!r}: {exc}") from None
     sinks = raw.get("sinks", [])
     if not isinstance(sinks, list):
         raise ValueError(f"{path}: sinks must be a list of strings")
-    return specs, [str(s) for s in sinks]
+    return skins, [str(s) for s in sinks]
 
 
 def runner_from_config(path: str | Path, extra_sinks: list[str] | None = None) -> Runner:
     """A ``Runner`` for every skin of a skins file (plus ``extra_sinks`` for all skins)."""
-    specs, sinks = load_skins(path)
-    return Runner(specs, sinks=[*sinks, *(extra_sinks or [])])
+    skins, sinks = load_skins(path)
+    return Runner(skins, sinks=[*sinks, *(extra_sinks or [])])

@@ -28,8 +28,8 @@ from skinloc._jit import jit
 from skinloc._lazy import resolve
 from skinloc._typing import Frames, Points
 from skinloc.geometry.snap import CONSTRAINTS, Surface
-from skinloc.models.contact_search import single_into
-from skinloc.models.multi_contact import N_COLS, ContactSet, CountRule, noise_weights
+from skinloc.models.multi_contact.contacts import N_COLS, ContactSet, CountRule, noise_weights
+from skinloc.models.multi_contact.search import single_into
 
 __all__ = ["ContactSet", "Engine", "ModelSpec", "Prediction", "load_engine"]
 

@@ -28,9 +28,12 @@ import numpy as np
 
 from skinloc._typing import Frames, Points
 from skinloc.errors import NotFittedError
-from skinloc.models.contact_calibration import fit_contact_model, sensor_noise_from_frames
 from skinloc.models.engine import Engine, ModelSpec, Prediction
 from skinloc.models.model_file import MODEL_FORMAT_VERSION
+from skinloc.models.multi_contact.rule_calibration import (
+    fit_contact_model,
+    sensor_noise_from_frames,
+)
 from skinloc.models.network_training import fit_network
 
 log = logging.getLogger(__name__)

@@ -16,7 +16,6 @@ import numpy as np
 
 from skinloc._jit import jit
 from skinloc._typing import Points
-from skinloc.models.contact_search import SearchTables, search_into, single_into
 from skinloc.models.engine import Engine, ModelSpec
 from skinloc.models.map_match import (
     _ROWS,
@@ -26,6 +25,7 @@ from skinloc.models.map_match import (
     _match_rows,
     _new_scratch,
 )
+from skinloc.models.multi_contact.search import SearchTables, search_into, single_into
 
 __all__ = ["MapEngine", "MapSpec"]
 

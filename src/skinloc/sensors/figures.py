@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 
 from skinloc._typing import Points
-from skinloc.evaluation.report import _pyplot, draw_mesh
-from skinloc.sensors.positions import SensorMap
+from skinloc.evaluation.report import _pyplot, draw_mesh, save_figure
+from skinloc.sensors.sensor_map import SensorMap
 
 __all__ = ["plot_coverage", "plot_sensor_map"]
 
@@ -55,10 +55,7 @@ def plot_sensor_map(mesh, smap: SensorMap, path: str | Path, truth: Points | Non
     if truth is not None:
         ax.scatter(*(1e3 * truth).T, marker="x", c="k", s=14, label="true", depthshade=False)
     ax.legend(loc="upper left", fontsize=8, title="marker area ~ uncertainty^2")
-    fig.tight_layout()
-    fig.savefig(path, dpi=150)
-    plt.close(fig)
-    return Path(path)
+    return save_figure(fig, path, svg=False)
 
 
 def plot_coverage(
@@ -75,7 +72,4 @@ def plot_coverage(
         ax.scatter(*(1e3 * blind).T, marker="x", c="tab:red", s=30, label="blind spot")
         ax.legend(loc="upper left", fontsize=8)
     fig.colorbar(sc, ax=ax, shrink=0.6, label="expected error (mm)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=150)
-    plt.close(fig)
-    return Path(path)
+    return save_figure(fig, path, svg=False)

@@ -1,4 +1,4 @@
-"""The wires of a TX x RX skin: smooth paths through their crossings (``sensors.positions``).
+"""The wires of a TX x RX skin: smooth paths through their crossings (``sensors.sensor_map``).
 
 Crossing (i, j) lies on TX wire i and on RX wire j, and wires are continuous, gently bending
 paths. In a 2D chart of the skin the crossings of one line fall on a smooth curve; that ties

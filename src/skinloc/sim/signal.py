@@ -89,14 +89,7 @@ def sensor_image(
     >>> int(np.argmax(img))
     9
     """
-    contact = np.asarray(contact, dtype=np.float64)
-    if contact.shape != (3,):
-        raise ValueError(f"contact must have shape (3,), got {contact.shape}")
-    if not (np.isfinite(pressure) and pressure >= 0):
-        raise ValueError(f"pressure must be a finite value >= 0, got {pressure!r}")
-    if not (np.isfinite(finger_radius_m) and finger_radius_m > 0):
-        raise ValueError(f"finger_radius_m must be > 0, got {finger_radius_m!r}")
-    terms = finger_terms(layout, params, contact, pressure, finger_radius_m)
+    terms = finger_terms(layout, params, contact, pressure, finger_radius_m)  # checks them
     along = (terms.line_tx[:, None] + terms.line_rx[None, :]).ravel()
     signal = layout.gains * (terms.local + along + pressure * params.common_mode_counts)
     return apply_weak_lines(layout, params, signal, pressure)

@@ -23,7 +23,7 @@ from skinloc.sim.fingers import Finger, multi_touch_image
 from skinloc.sim.layout import MAX_RX, MAX_TX, SkinLayout, check_grid
 from skinloc.sim.params import COUNT_MAX, SkinParams
 from skinloc.sim.signal import sensor_image, silicone_thickness_at
-from skinloc.sources.base import Frame, FrameSource
+from skinloc.sources.base import Frame, FrameSource, SourceOptions
 
 log = logging.getLogger(__name__)
 
@@ -120,6 +120,20 @@ class SimulatedSkin(FrameSource):
     def is_connected(self) -> bool:
         """Whether ``read`` may be called."""
         return self._connected
+
+    @classmethod
+    def from_options(
+        cls, options: SourceOptions, mesh: trimesh.Trimesh | None = None
+    ) -> SimulatedSkin:
+        """The skin ``options`` name (``skinloc.sources.base.make_source``), on ``mesh``."""
+        return cls(
+            mesh,
+            n_tx=options.n_tx,
+            n_rx=options.n_rx,
+            random_state=options.sim_seed,
+            rate_hz=options.rate_hz,
+            realtime=options.realtime,
+        )
 
     def _connect(self) -> None:
         self._connected = True

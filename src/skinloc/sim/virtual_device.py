@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from skinloc.hardware.wire import WireFormat, encode_binary, encode_text
+from skinloc.hardware.protocol import WireFormat, encode_binary, encode_text
 from skinloc.sim.device_commands import FIRMWARE_VERSION, answer_command
 from skinloc.sim.device_faults import Fate, FaultConfig, Pending, TruthLog
 
@@ -287,7 +287,7 @@ class VirtualSkin:
         while b"\n" in self._cmd_buf:
             line, _, rest = bytes(self._cmd_buf).partition(b"\n")
             self._cmd_buf = bytearray(rest)
-            reply = self.handle_command(line.decode("ascii", "replace").strip())
+            reply = self.handle_command(line.decode("ascii", "replace"))
             if reply:
                 self._flush_pending()
                 self._write(reply.encode("ascii") + b"\r\n")

@@ -1,4 +1,9 @@
-"""The frame-source interface shared by the simulated skin, serial hardware and file replay."""
+"""Frame sources: the interface, the options that name one, and the one factory that builds it.
+
+Every caller that opens a skin (the command line, ``skinloc run``'s runner, the browser app)
+describes it with one ``SourceOptions`` and builds it with ``make_source``; the backends are
+named in ``_BACKENDS`` and imported only when used.
+"""
 
 from __future__ import annotations
 
@@ -6,16 +11,17 @@ import abc
 import logging
 from dataclasses import dataclass
 from enum import StrEnum
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from skinloc._lazy import resolve
-from skinloc.errors import SourceAlreadyConnectedError, SourceNotConnectedError
+from skinloc.errors import SkinlocError, SourceAlreadyConnectedError, SourceNotConnectedError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Frame", "FrameSource", "SourceKind", "make_source"]
+__all__ = ["Frame", "FrameSource", "SourceKind", "SourceOptions", "make_source", "source_kind"]
 
 
 @dataclass(frozen=True)
@@ -43,6 +49,7 @@ class SourceKind(StrEnum):
     SIM = "sim"
     SERIAL = "serial"
     REPLAY = "replay"
+    BAG = "bag"
 
     @classmethod
     def _missing_(cls, value: object) -> SourceKind:
@@ -122,24 +129,115 @@ class FrameSource(abc.ABC):
             self.disconnect()
 
 
-# Each kind's factory, by name: this module never imports a backend (they import it).
-_BACKENDS: dict[SourceKind, str] = {
-    SourceKind.SIM: "skinloc.sim.skin:SimulatedSkin",
-    SourceKind.SERIAL: "skinloc.hardware.serial:SerialSource.from_options",
-    SourceKind.REPLAY: "skinloc.sources.replay:ReplaySource",
-}
+@dataclass(frozen=True)
+class SourceOptions:
+    """Which skin to read, and how: everything ``make_source`` needs.
 
-
-def make_source(kind: SourceKind | str, **config: Any) -> FrameSource:
-    """Build a source by kind, importing its backend only now.
+    Attributes
+    ----------
+    source : str
+        ``sim`` (the simulated skin; ``sim:SEED`` picks its seed), a recording (``.h5``,
+        ``.hdf5``, ``.mat``; a ROS 2 bag ``.mcap``), or else a serial port or pyserial URL.
+    n_tx, n_rx : int
+        Grid the device sends (the simulated skin's grid).
+    baud : int
+        Baud rate of a serial port.
+    format : {"auto", "binary", "text"}
+        Frame format of a serial port (``skinloc.hardware.protocol``).
+    tx_mask, rx_mask : str or None
+        Lines of a serial port to keep, e.g. ``"11111111000"`` (``SerialSourceConfig``).
+    seed : int
+        Seed of the simulated skin (``sim:SEED`` overrides it).
+    rate_hz : float
+        Frame rate of the simulated skin, Hz.
+    realtime : bool
+        Run the simulated skin on the wall clock (False: as fast as it is read).
+    loop : bool
+        Replay a recording over and over.
+    skin : str or None
+        Which skin's frames a ROS 2 bag replays (its ``/skinloc/<skin>/frames`` topic).
 
     Examples
     --------
-    >>> src = make_source("sim", random_state=0)
-    >>> src.n_sensors
+    >>> SourceOptions("sim:3").kind, SourceOptions("run.mcap").kind, SourceOptions("COM3").kind
+    (<SourceKind.SIM: 'sim'>, <SourceKind.BAG: 'bag'>, <SourceKind.SERIAL: 'serial'>)
+    """
+
+    source: str = "sim"
+    n_tx: int = 8
+    n_rx: int = 8
+    baud: int = 115200
+    format: str = "auto"
+    tx_mask: str | None = None
+    rx_mask: str | None = None
+    seed: int = 0
+    rate_hz: float = 100.0
+    realtime: bool = False
+    loop: bool = False
+    skin: str | None = None
+
+    @property
+    def kind(self) -> SourceKind:
+        """The backend the source names (``source_kind``)."""
+        return source_kind(self.source)
+
+    @property
+    def sim_seed(self) -> int:
+        """The simulated skin's seed: ``N`` of ``sim:N``, else ``seed``."""
+        _, _, seed = self.source.partition(":")
+        if not seed:
+            return self.seed
+        try:
+            return int(seed)
+        except ValueError:
+            raise ValueError(f"sim:SEED needs a whole number, not {seed!r}") from None
+
+
+#: Recordings by file suffix; any other source is a serial port (or URL).
+_SUFFIXES: dict[str, SourceKind] = {
+    ".h5": SourceKind.REPLAY,
+    ".hdf5": SourceKind.REPLAY,
+    ".mat": SourceKind.REPLAY,
+    ".mcap": SourceKind.BAG,
+}
+
+
+def source_kind(source: str) -> SourceKind:
+    """The kind of source a name gives: ``sim[:SEED]``, a recording by suffix, else serial."""
+    text = str(source)
+    if text == "sim" or text.startswith("sim:"):
+        return SourceKind.SIM
+    return _SUFFIXES.get(Path(text).suffix.lower(), SourceKind.SERIAL)
+
+
+# Each kind's factory, by name: this module never imports a backend (they import it). A
+# factory takes ``(options, mesh)``.
+_BACKENDS: dict[SourceKind, str] = {
+    SourceKind.SIM: "skinloc.sim.skin:SimulatedSkin.from_options",
+    SourceKind.SERIAL: "skinloc.hardware.serial:SerialSource.from_options",
+    SourceKind.REPLAY: "skinloc.sources.replay:ReplaySource.from_options",
+    SourceKind.BAG: "skinloc.sources.mcap_ros2:McapReplaySource.from_options",
+}
+
+
+def make_source(options: SourceOptions, *, mesh: Any = None) -> FrameSource:
+    """Build (not connect) the source ``options`` names, importing its backend only now.
+
+    Parameters
+    ----------
+    options : SourceOptions
+        The source and its settings.
+    mesh : trimesh.Trimesh, optional
+        The simulated skin's surface (default: the built-in cone); other kinds ignore it.
+
+    Examples
+    --------
+    >>> make_source(SourceOptions("sim", seed=0)).n_sensors
     64
-    >>> make_source("serial", port="loop://", n_tx=21, n_rx=12).n_sensors
+    >>> make_source(SourceOptions("loop://", n_tx=21, n_rx=12)).n_sensors
     252
     """
-    kind = SourceKind(kind)
-    return resolve(_BACKENDS[kind])(**config)
+    kind = options.kind
+    if kind in (SourceKind.REPLAY, SourceKind.BAG) and not Path(options.source).is_file():
+        raise SkinlocError(f"recording not found: {options.source}")
+    return resolve(_BACKENDS[kind])(options, mesh)

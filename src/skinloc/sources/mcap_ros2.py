@@ -10,10 +10,12 @@ first frame), frame counters the MCAP sequence numbers (a running count when a b
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from skinloc.errors import RecordingError
+from skinloc.sources.base import SourceOptions
 from skinloc.sources.replay import ArrayReplaySource
 
 __all__ = ["McapReplaySource", "image_topics"]
@@ -83,8 +85,8 @@ class McapReplaySource(ArrayReplaySource):
         topic: str | None = None,
         loop: bool = False,
     ) -> None:
-        from skinloc.data.ros2_msgs import Image
-        from skinloc.data.ros2_names import topic_base
+        from skinloc.ros2.msgs import Image
+        from skinloc.ros2.names import topic_base
 
         self.path = Path(path)
         topics = image_topics(self.path)
@@ -142,6 +144,11 @@ class McapReplaySource(ArrayReplaySource):
         self.loop = loop
         self._pos = 0
         self._connected = False
+
+    @classmethod
+    def from_options(cls, options: SourceOptions, mesh: Any = None) -> McapReplaySource:
+        """The bag ``options`` name (``skinloc.sources.base.make_source``): its skin's frames."""
+        return cls(options.source, skin=options.skin, loop=options.loop)
 
     @property
     def name(self) -> str:

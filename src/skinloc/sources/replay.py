@@ -16,7 +16,7 @@ import numpy as np
 
 from skinloc.errors import FrameTimeoutError, RecordingError
 from skinloc.files import atomic_write
-from skinloc.sources.base import Frame, FrameSource
+from skinloc.sources.base import Frame, FrameSource, SourceOptions
 
 log = logging.getLogger(__name__)
 
@@ -225,6 +225,11 @@ class ReplaySource(ArrayReplaySource):
         self.loop = loop
         self._pos = 0
         self._connected = False
+
+    @classmethod
+    def from_options(cls, options: SourceOptions, mesh: Any = None) -> ReplaySource:
+        """The recording ``options`` name (``skinloc.sources.base.make_source``)."""
+        return cls(options.source, loop=options.loop)
 
     @property
     def name(self) -> str:

@@ -2,5 +2,6 @@
 
 Each module has an ``add_routes(app, workspace, ...)`` that ``skinloc.app.server.create_app``
 calls. Every action that changes something names its tab in ``X-Skinloc-Client`` and first
-takes control (``Workspace.require``: 409 when another tab has it).
+takes control (``Workspace.require``: 409 when another tab has it): the routes are added to
+an ``actions_router`` (``routes.common``), whose dependency does that for every action.
 """

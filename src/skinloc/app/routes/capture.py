@@ -7,7 +7,7 @@ from typing import Any
 from fastapi import FastAPI
 
 from skinloc.app.routes.bodies import FlagBody, IndexBody, ValidateBody
-from skinloc.app.routes.common import OK, ClientHeader
+from skinloc.app.routes.common import OK, actions_router
 from skinloc.app.workspace import Workspace
 
 
@@ -17,28 +17,25 @@ def add_routes(app: FastAPI, workspace: Workspace) -> None:
     ``POST /api/calibrate/start``, ``/api/validate/start``, ``/api/capture/...``,
     ``/api/finger``, ``/api/train``, ``/api/live/start``.
     """
+    router = actions_router()
 
-    @app.post("/api/calibrate/start")
-    def calibrate(client: str | None = ClientHeader) -> dict[str, Any]:
-        workspace.require(client)
+    @router.post("/api/calibrate/start")
+    def calibrate() -> dict[str, Any]:
         workspace.start_calibration()
         return OK
 
-    @app.post("/api/validate/start")
-    def validate(body: ValidateBody, client: str | None = ClientHeader) -> dict[str, Any]:
-        workspace.require(client)
+    @router.post("/api/validate/start")
+    def validate(body: ValidateBody) -> dict[str, Any]:
         workspace.start_validation(body.n_points)
         return OK
 
-    @app.post("/api/capture/retake")
-    def retake(body: IndexBody, client: str | None = ClientHeader) -> dict[str, Any]:
-        workspace.require(client)
+    @router.post("/api/capture/retake")
+    def retake(body: IndexBody) -> dict[str, Any]:
         workspace.retake(body.index, body.recording)
         return OK
 
-    @app.post("/api/capture/{action}")
-    def capture(action: str, client: str | None = ClientHeader) -> dict[str, Any]:
-        workspace.require(client)
+    @router.post("/api/capture/{action}")
+    def capture(action: str) -> dict[str, Any]:
         actions = {
             "now": workspace.capture_now,
             "undo": workspace.undo,
@@ -50,20 +47,19 @@ def add_routes(app: FastAPI, workspace: Workspace) -> None:
         actions[action]()
         return OK
 
-    @app.post("/api/finger")
-    def finger(body: FlagBody, client: str | None = ClientHeader) -> dict[str, Any]:
-        workspace.require(client)
+    @router.post("/api/finger")
+    def finger(body: FlagBody) -> dict[str, Any]:
         workspace.set_finger(body.on)
         return OK
 
-    @app.post("/api/train")
-    def train(client: str | None = ClientHeader) -> dict[str, Any]:
-        workspace.require(client)
+    @router.post("/api/train")
+    def train() -> dict[str, Any]:
         workspace.train()
         return OK
 
-    @app.post("/api/live/start")
-    def live(client: str | None = ClientHeader) -> dict[str, Any]:
-        workspace.require(client)
+    @router.post("/api/live/start")
+    def live() -> dict[str, Any]:
         workspace.start_live()
         return OK
+
+    app.include_router(router)

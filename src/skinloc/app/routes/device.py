@@ -6,10 +6,11 @@ from typing import Any
 
 from fastapi import FastAPI
 
-from skinloc.app.device import SourceSpec
 from skinloc.app.routes.bodies import ConnectBody, TouchBody
-from skinloc.app.routes.common import OK, ClientHeader
+from skinloc.app.routes.common import OK, actions_router
 from skinloc.app.workspace import Workspace
+from skinloc.hardware.ports import check_source
+from skinloc.sources.base import SourceOptions
 
 
 def add_routes(app: FastAPI, workspace: Workspace) -> None:
@@ -18,35 +19,43 @@ def add_routes(app: FastAPI, workspace: Workspace) -> None:
     ``GET /api/ports``, ``POST /api/connect``, ``/api/disconnect``, ``/api/rezero``,
     ``/api/sim/touch``.
     """
+    router = actions_router()
 
-    @app.get("/api/ports")
+    @router.get("/api/ports")
     def ports() -> list[dict[str, Any]]:
         from skinloc.hardware.serial import list_ports
 
         return [p.__dict__ for p in list_ports()]
 
-    @app.post("/api/connect")
-    def connect(body: ConnectBody, client: str | None = ClientHeader) -> dict[str, Any]:
-        workspace.require(client)
-        spec = SourceSpec(**body.model_dump())
-        spec.check()  # before the skin in use is closed
-        workspace.connect(spec)
+    @router.post("/api/connect")
+    def connect(body: ConnectBody) -> dict[str, Any]:
+        check_source(body.source)  # before the skin in use is closed
+        workspace.connect(
+            SourceOptions(
+                body.source,
+                n_tx=body.tx,
+                n_rx=body.rx,
+                baud=body.baud,
+                format=body.format,
+                seed=body.seed,
+                rate_hz=body.rate_hz,
+            )
+        )
         return OK
 
-    @app.post("/api/disconnect")
-    def disconnect(client: str | None = ClientHeader) -> dict[str, Any]:
-        workspace.require(client)
+    @router.post("/api/disconnect")
+    def disconnect() -> dict[str, Any]:
         workspace.disconnect()
         return OK
 
-    @app.post("/api/rezero")
-    def rezero(client: str | None = ClientHeader) -> dict[str, Any]:
-        workspace.require(client)
+    @router.post("/api/rezero")
+    def rezero() -> dict[str, Any]:
         workspace.rezero()
         return OK
 
-    @app.post("/api/sim/touch")
-    def sim_touch(body: TouchBody, client: str | None = ClientHeader) -> dict[str, Any]:
-        workspace.require(client)
+    @router.post("/api/sim/touch")
+    def sim_touch(body: TouchBody) -> dict[str, Any]:
         workspace.sim_touch(body.point)
         return OK
+
+    app.include_router(router)

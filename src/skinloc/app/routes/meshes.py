@@ -10,7 +10,7 @@ from typing import Any
 
 from fastapi import FastAPI, HTTPException, Query, Request
 
-from skinloc.app.routes.common import ClientHeader
+from skinloc.app.routes.common import actions_router
 from skinloc.app.workspace import Workspace
 from skinloc.errors import SkinlocError
 
@@ -20,18 +20,17 @@ MESH_SUFFIXES = (".obj", ".stl", ".ply")
 
 def add_routes(app: FastAPI, workspace: Workspace) -> None:
     """``GET /api/meshes`` and ``POST /api/meshes?filename=`` (the file is the body)."""
+    router = actions_router()
 
-    @app.get("/api/meshes")
+    @router.get("/api/meshes")
     def meshes() -> list[dict[str, Any]]:
         return _list_meshes(workspace.mesh_dir)
 
-    @app.post("/api/meshes")
+    @router.post("/api/meshes")
     async def upload_mesh(
         request: Request,
         filename: str = Query(..., max_length=255),
-        client: str | None = ClientHeader,
     ) -> dict[str, Any]:
-        await asyncio.to_thread(workspace.require, client)
         name = _mesh_name(filename)
         declared = request.headers.get("content-length", "")
         if declared.isdigit() and int(declared) > MAX_UPLOAD_BYTES:
@@ -54,6 +53,8 @@ def add_routes(app: FastAPI, workspace: Workspace) -> None:
             return await asyncio.to_thread(_install_mesh, Path(tmp), folder / name)
         finally:
             Path(tmp).unlink(missing_ok=True)
+
+    app.include_router(router)
 
 
 def _mesh_name(filename: str) -> str:

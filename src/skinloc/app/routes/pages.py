@@ -14,6 +14,7 @@ from fastapi.staticfiles import StaticFiles
 
 from skinloc.app.routes.common import OK, ClientHeader, json_response
 from skinloc.app.workspace import Workspace
+from skinloc.live.contact import TRACK_COLOURS
 
 STATIC = Path(str(resources.files("skinloc.app") / "static"))
 
@@ -25,6 +26,8 @@ def add_routes(app: FastAPI, workspace: Workspace, token: str) -> None:
     def index() -> HTMLResponse:
         page = (STATIC / "index.html").read_text(encoding="utf-8")
         meta = f'<meta name="skinloc-token" content="{html.escape(token)}">'
+        # the one palette of fingers, shared with the ROS 2 and Foxglove sinks
+        meta += f'<meta name="skinloc-track-colours" content="{" ".join(TRACK_COLOURS)}">'
         page = re.sub(r"(<head[^>]*>)", lambda m: m.group(1) + meta, page, count=1)
         headers = {
             "Cache-Control": "no-store",  # the token changes with every launch
@@ -52,6 +55,7 @@ def add_routes(app: FastAPI, workspace: Workspace, token: str) -> None:
     def session_mesh() -> Response:
         return json_response(workspace.session_mesh())
 
+    # The one action that does not first take control (``actions_router``): it takes it over.
     @app.post("/api/lease")
     def take_over(client: str | None = ClientHeader) -> dict[str, Any]:
         workspace.take_over(client or "anonymous")

@@ -8,7 +8,7 @@ from fastapi import FastAPI, Query
 from fastapi.responses import Response
 
 from skinloc.app.routes.bodies import SessionBody
-from skinloc.app.routes.common import OK, ClientHeader, json_response
+from skinloc.app.routes.common import OK, actions_router, json_response
 from skinloc.app.workspace import Workspace
 
 
@@ -18,36 +18,31 @@ def add_routes(app: FastAPI, workspace: Workspace) -> None:
     ``/api/sessions``, ``/api/sessions/{id}/open``, ``/api/session/close``,
     ``/api/recordings/import``, ``/api/sessions/{id}/targets.{svg,pdf}``.
     """
+    router = actions_router()
 
-    @app.get("/api/sessions")
+    @router.get("/api/sessions")
     def sessions() -> Response:
         return json_response(workspace.sessions())
 
-    @app.post("/api/sessions")
-    def create_session(body: SessionBody, client: str | None = ClientHeader) -> dict[str, Any]:
-        workspace.require(client)
+    @router.post("/api/sessions")
+    def create_session(body: SessionBody) -> dict[str, Any]:
         return {"id": workspace.create_session(**body.model_dump())}
 
-    @app.post("/api/sessions/{session_id}/open")
-    def open_session(session_id: str, client: str | None = ClientHeader) -> dict[str, Any]:
-        workspace.require(client)
+    @router.post("/api/sessions/{session_id}/open")
+    def open_session(session_id: str) -> dict[str, Any]:
         workspace.open_session(session_id)
         return OK
 
-    @app.post("/api/session/close")
-    def close_session(client: str | None = ClientHeader) -> dict[str, Any]:
-        workspace.require(client)
+    @router.post("/api/session/close")
+    def close_session() -> dict[str, Any]:
         workspace.close_session()
         return OK
 
-    @app.post("/api/recordings/import")
-    def import_recording(
-        path: str = Query(...), client: str | None = ClientHeader
-    ) -> dict[str, Any]:
-        workspace.require(client)
+    @router.post("/api/recordings/import")
+    def import_recording(path: str = Query(...)) -> dict[str, Any]:
         return {"id": workspace.import_recording(path)}
 
-    @app.get("/api/sessions/{session_id}/targets.{fmt}")
+    @router.get("/api/sessions/{session_id}/targets.{fmt}")
     def targets_sheet(session_id: str, fmt: str) -> Response:
         from skinloc.app.sheet import layout_sheet, render_pdf, render_svg
 
@@ -60,6 +55,8 @@ def add_routes(app: FastAPI, workspace: Workspace) -> None:
         if fmt == "svg":
             return Response(render_svg(sheet), media_type="image/svg+xml", headers=headers)
         return Response(render_pdf(sheet), media_type="application/pdf", headers=headers)
+
+    app.include_router(router)
 
 
 def _sheet_input(workspace: Workspace, session_id: str):

@@ -351,7 +351,7 @@ async function loadPorts() {
 function markConnected(rebuilt = false) {
   // The Source selector names the skin that is connected, and selects it.
   const sel = $("#source-select");
-  const source = app.state?.device?.spec?.source;
+  const source = app.state?.device?.options?.source;
   const mark = " ● connected";
   for (const o of [...sel.options]) {
     if (o.value === source) continue;

@@ -23,8 +23,8 @@ export class LivePage {
     for (const c of msg.contacts) {
       const key = c.track_id >= 0 ? `t${c.track_id}` : `u${c.touch_id}`;
       const ended = c.state === "end";
-      // Tracks at once never share a slot, so never a colour.
-      const colour = c.slot >= 0 ? c.slot : c.track_id >= 0 ? c.track_id : Math.max(c.touch_id - 1, 0);
+      // The finger's colour, chosen by the server (skinloc.live.contact.colour_index).
+      const colour = c.colour;
       const point = c.position_m && c.position_m.every((v) => v != null) ? c.position_m : null;
       this.viewer.trackContact(key, colour, point, c.uncertainty_mm, ended);
       if (ended) this.tracks.delete(key);

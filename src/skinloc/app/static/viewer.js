@@ -14,7 +14,9 @@ export function errorColor(mm) {
 const TRAIL = 60; // points of a track's trail
 const TRAIL_STEP_MM = 0.5; // a point joins the trail once the track has moved this far
 const TRACK_MARKS = 6; // tracks drawn at once
-export const TRACK_COLOURS = ["#2f6fde", "#e8590c", "#2b8a3e", "#ae3ec9", "#c2255c", "#0c8599"];
+// The fingers' palette is the server's (skinloc.live.contact.TRACK_COLOURS, shared with the
+// ROS 2 and Foxglove sinks), written into the page.
+export const TRACK_COLOURS = document.querySelector('meta[name="skinloc-track-colours"]').content.split(" ");
 
 class TrackMark {
   // One track's dot, halo and trail; the trail is one fixed buffer drawn up to its length.

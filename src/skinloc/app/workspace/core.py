@@ -140,7 +140,7 @@ class Workspace(
                 "finger": self.finger_on,
                 "device": None
                 if self.device is None
-                else {**self.device.stats(), "spec": asdict(self.device.spec)},
+                else {**self.device.stats(), "options": asdict(self.device.options)},
                 "session": None
                 if a is None
                 else {

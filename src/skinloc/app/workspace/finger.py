@@ -51,7 +51,7 @@ class FingerActions:
             self._finger = None
             return
         source = self.device.source
-        if self.device.spec.is_sim:
+        if self.device.is_sim:
             # The calibration module's scripted finger, without its simulated travel time
             # (the app's clock is the wall clock; finger_delay_s plays that part).
             self._finger = ScriptedFinger(source, random_state=int(time.time()), move_time_s=0.0)

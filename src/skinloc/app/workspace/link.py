@@ -2,32 +2,38 @@
 
 from __future__ import annotations
 
+import logging
+import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from skinloc.app.capture import CapturePhase
-from skinloc.app.device import DeviceLink, SourceSpec
+from skinloc.app.device import DeviceLink, SensorMonitor
 from skinloc.app.workspace.state import Mode
 from skinloc.data.recording import read_recording
 from skinloc.errors import RecordingError
 from skinloc.geometry.mesh import nearest_on_surface
-from skinloc.sources.base import Frame
+from skinloc.sources.base import Frame, SourceKind, SourceOptions
+
+log = logging.getLogger(__name__)
 
 
 class LinkActions:
     """Part of ``Workspace``: the device, and every frame the reader thread hands over."""
 
-    def connect(self, spec: SourceSpec) -> None:
-        """Open the skin ``spec`` names (closing the one before)."""
+    def connect(self, options: SourceOptions) -> None:
+        """Open the skin ``options`` name (closing the one before)."""
         with self._lock:
             self._stop_device(self._detach_device())
             mesh = self.active.mesh if self.active is not None else self.default_mesh
+            is_sim = options.kind is SourceKind.SIM
             link = DeviceLink(
-                spec, self.on_frame, mesh=mesh if spec.is_sim else None, on_link=self.on_link
+                options, self.on_frame, mesh=mesh if is_sim else None, on_link=self.on_link
             )
             link.start()
             self.device = link
@@ -70,7 +76,7 @@ class LinkActions:
         """Press the simulated skin at ``point`` (m; snapped onto the skin) or lift (None)."""
         with self._lock:
             device = self._need_device()
-            if not device.spec.is_sim:
+            if not device.is_sim:
                 raise ValueError("touching with the mouse works on the simulated skin only")
             skin = device.source
             if point is None:
@@ -197,9 +203,48 @@ class LinkActions:
                 rec = read_recording(a.folder.calibration)
             except RecordingError:
                 rec = None
+        monitor = self.device.monitor
         if rec is None or rec.n_point_logs < 15 or rec.n_sensors != self.device.source.n_sensors:
-            self.device.monitor.session_snr = None
+            monitor.session_snr = None
+            monitor.set_session_map(None)
             return
         from skinloc.evaluation.metrics import snr_db
 
-        self.device.monitor.session_snr = snr_db(rec.touch_means, rec.baseline_frames)
+        monitor.session_snr = snr_db(rec.touch_means, rec.baseline_frames)
+        if a is not None and a.cal is None:  # a finished calibration: judge it as `skinloc sensors`
+            session_sensor_map(a.folder.calibration, rec, monitor)
+
+
+#: Sensor maps of finished calibrations, by (file, modification time): a map takes seconds.
+_SENSOR_MAPS: dict[tuple[str, int], Any] = {}
+_SENSOR_MAPS_LOCK = threading.Lock()
+
+
+def session_sensor_map(path: Path, rec: Any, monitor: SensorMonitor, wait: bool = False) -> None:
+    """Give ``monitor`` the sensor map of a finished calibration, computed on a thread.
+
+    The Connect page then flags sensors and lines as ``skinloc sensors`` flags that recording
+    (``skinloc.sensors.health``); until the map is ready it flags from the live stream alone.
+    ``wait``: compute it on this thread.
+    """
+    key = (str(path), path.stat().st_mtime_ns if path.is_file() else 0)
+    monitor.session_map_key = key  # a map of an older session arriving late is ignored
+
+    def compute() -> None:
+        with _SENSOR_MAPS_LOCK:
+            smap = _SENSOR_MAPS.get(key)
+            if smap is None:
+                from skinloc.sensors.sensor_map import sensor_map_from_recordings
+
+                try:
+                    smap = _SENSOR_MAPS[key] = sensor_map_from_recordings([rec], n_boot=0)
+                except (ValueError, RecordingError) as exc:
+                    log.warning("no sensor map of %s: %s", path, exc)
+                    return
+        if monitor.session_map_key == key:
+            monitor.set_session_map(smap)
+
+    if wait:
+        compute()
+    else:
+        threading.Thread(target=compute, name="skinloc-sensor-map", daemon=True).start()

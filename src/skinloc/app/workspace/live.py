@@ -72,12 +72,12 @@ class LiveView:
 
         Not started; ``core.set_baseline`` and ``start`` follow, ``close`` ends it.
         """
-        from skinloc.live.core import load_fast_localizer
         from skinloc.live.runner import Pipeline
+        from skinloc.models.engine import load_engine
 
         cached = self._live_engine
         if cached is None or cached[0] is not model:
-            cached = self._live_engine = (model, load_fast_localizer(model))
+            cached = self._live_engine = (model, load_engine(model))
         return Pipeline(
             cached[1], queue, sinks=[self.live_sink], name="skin", n_tx=queue.n_tx, n_rx=queue.n_rx
         )

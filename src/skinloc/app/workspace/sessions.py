@@ -156,11 +156,11 @@ class SessionActions:
     def _shape_simulated_skin(self, mesh: trimesh.Trimesh) -> None:
         """Give the simulated skin, if that is what is connected, the shape ``mesh``."""
         device = self.device
-        if device is None or not device.spec.is_sim or same_mesh(device.mesh, mesh):
+        if device is None or not device.is_sim or same_mesh(device.mesh, mesh):
             return
-        spec = device.spec
+        options = device.options
         self._stop_device(self._detach_device())
-        link = DeviceLink(spec, self.on_frame, mesh=mesh, on_link=self.on_link)
+        link = DeviceLink(options, self.on_frame, mesh=mesh, on_link=self.on_link)
         link.start()
         self.device = link
 
@@ -178,6 +178,7 @@ class SessionActions:
             self.active = None
         if self.device is not None:
             self.device.monitor.session_snr = None
+            self.device.monitor.set_session_map(None)
 
     def import_recording(self, path: str) -> str:
         """Make a session from a loose recording (copied in as its finished calibration)."""

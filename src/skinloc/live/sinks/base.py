@@ -202,8 +202,8 @@ _BACKENDS: dict[str, str] = {
     "udp": "skinloc.live.sinks.udp:UdpSink",
     "foxglove": "skinloc.live.sinks.foxglove:FoxgloveSink",
     "lsl": "skinloc.live.sinks.lsl:LslSink",
-    "ros2": "skinloc.live.sinks.ros2:Ros2Sink",
-    "mcap-ros2": "skinloc.live.sinks.ros2_bag:Ros2BagSink",
+    "ros2": "skinloc.live.sinks.ros2.sink:Ros2Sink",
+    "mcap-ros2": "skinloc.live.sinks.ros2.bag:Ros2BagSink",
 }
 _WS_DEFAULT_PORT = "skinloc.live.sinks.websocket:DEFAULT_PORT"
 

@@ -2,7 +2,8 @@
 
 Through ``foxglove-sdk``. Topics: ``/skinloc/scene`` (``foxglove.SceneUpdate``: each skin's mesh
 as a translucent triangle list and every contact of a frame as a sphere, one entity per slot
-(``<skin>/slot<k>``) coloured by its track's id, removed when the finger lifts),
+(``<skin>/slot<k>``) in its finger's colour (``live.contact.track_colour``), removed when the
+finger lifts),
 ``/skinloc/<skin>/contact`` (``foxglove.Point3InFrame``, m: the frame's first contact, lowest
 slot), ``/skinloc/contacts`` (JSON, the same object as the JSON-lines sink, one per contact),
 ``/skinloc/gestures`` (``foxglove.Log``: one line per gesture, for the Log panel) and
@@ -22,6 +23,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from skinloc.live.contact import track_colour
 from skinloc.live.sinks.base import Sink, SkinInfo, gesture_json
 
 if TYPE_CHECKING:
@@ -32,15 +34,6 @@ log = logging.getLogger(__name__)
 __all__ = ["FoxgloveSink"]
 
 _MESH_REPUBLISH_S = 2.0  # clients that connect later get the mesh within this time
-#: Track colours (r, g, b), by tracking id: neighbouring ids differ at a glance
-TRACK_COLOURS = (
-    (0.10, 0.80, 0.20),
-    (0.95, 0.45, 0.05),
-    (0.15, 0.45, 0.95),
-    (0.85, 0.15, 0.65),
-    (0.95, 0.85, 0.10),
-    (0.10, 0.80, 0.85),
-)
 
 
 def _require_foxglove() -> Any:
@@ -212,7 +205,7 @@ class FoxgloveSink(Sink):
                     )
                 )
             elif x == x:  # not nan
-                r, g, b = TRACK_COLOURS[max(c.track_id, 0) % len(TRACK_COLOURS)]
+                r, g, b = track_colour(c)
                 sphere = SpherePrimitive(
                     pose=Pose(
                         position=Vector3(x=x, y=y, z=z), orientation=Quaternion(x=0, y=0, z=0, w=1)

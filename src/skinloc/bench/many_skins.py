@@ -1,0 +1,301 @@
+"""100 skins at 100 Hz (``skinloc bench --online``, ``bench/ros2_sinks.py``): the live loop.
+
+A feeder process writes every skin's frames to its own pseudo-terminal on schedule (staggered
+phases); runners read them: one in this process, or, with ``workers`` > 1, one per worker
+process, each over its share of the skins (what running several ``skinloc live`` processes,
+one skins file each, would do). Latency is from the bytes' arrival to the contact; end to end
+from the frame's scheduled write time.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from skinloc.bench.stream import touch_stream
+
+__all__ = ["many_skins"]
+
+
+def _feeder(conn: Any, n_skins: int, rate_hz: float, duration_s: float, frames: np.ndarray) -> None:
+    """Child process: one pty per skin, frames written on schedule (staggered phases)."""
+    import pty
+    import tty
+
+    from skinloc.hardware.protocol import encode_binary
+
+    masters, names = [], []
+    for _ in range(n_skins):
+        m, s = pty.openpty()
+        tty.setraw(s)
+        names.append(os.ttyname(s))
+        os.close(s)
+        os.set_blocking(m, False)
+        masters.append(m)
+    conn.send(names)
+    t0 = conn.recv()  # the parent has opened every port
+    period = 1.0 / rate_hz
+    n_per = int(duration_s * rate_hz)
+    late = 0
+    written = np.zeros(n_skins, dtype=np.int64)
+    failed = 0
+    order = [(k, s) for k in range(n_per) for s in range(n_skins)]
+    L = len(frames)
+    for k, s in order:
+        due = t0 + k * period + s * period / n_skins
+        wait = due - time.monotonic()
+        if wait > 0:
+            time.sleep(wait)
+        elif wait < -0.002:
+            late += 1
+        data = encode_binary(frames[(k + 37 * s) % L], 8, 8, k)
+        try:
+            os.write(masters[s], data)
+            written[s] += 1
+        except OSError:
+            failed += 1
+    time.sleep(0.5)
+    conn.send({"written": written.tolist(), "late_over_2ms": late, "write_errors": failed})
+    conn.recv()
+    for m in masters:
+        os.close(m)
+
+
+def _shard(
+    model_path: Path,
+    names: list[str],
+    first: int,
+    n_skins: int,
+    rate_hz: float,
+    duration_s: float,
+    sinks: tuple[str, ...],
+    max_contacts: int | None,
+    domain: int | None,
+    dds_config: str | None,
+    start: Callable[[], float],
+) -> dict:
+    """One ``Runner`` over the skins ``first .. first + len(names) - 1`` (their ptys ``names``).
+
+    ``start()`` is called once every port is open and returns the feeder's start time
+    (``time.monotonic`` s; the clock is the machine's, shared by processes). Returns the
+    contacts' latencies (s), the runner's and the sinks' statistics and the loop's CPU.
+    """
+    from skinloc.live.core import PipelineConfig
+    from skinloc.live.runner import Runner, SkinConfig
+    from skinloc.models.engine import load_engine
+
+    fast = load_engine(model_path)
+    extra = {} if max_contacts is None else {"max_contacts": int(max_contacts)}
+    config = PipelineConfig(baseline_frames=50, **extra)
+    specs = [
+        SkinConfig(
+            model=fast,
+            source=name,
+            name=f"skin{first + i:03d}",
+            wire_format="binary",
+            config=config,
+        )
+        for i, name in enumerate(names)
+    ]
+    lat: list[float] = []
+    e2e: list[float] = []
+    phase = {f"skin{i:03d}": i / (rate_hz * n_skins) for i in range(n_skins)}
+    holder: dict[str, float] = {}
+
+    def on_contact(c: Any) -> None:
+        now = time.monotonic()
+        lat.append(c.latency_us)
+        e2e.append(now - (holder["t0"] + c.index / rate_hz + phase[c.skin]))
+
+    sink_objs: list[Any] = []
+    for spec in sinks:
+        if spec.startswith("ros2"):
+            from skinloc.live.sinks.ros2.sink import Ros2Sink
+
+            sink_objs.append(Ros2Sink(domain_id=domain, backend="dds", dds_config=dds_config))
+        else:
+            sink_objs.append(spec)
+    runner = Runner(specs, sinks=sink_objs, callback=on_contact)
+    runner.open()
+    t0 = holder["t0"] = start()
+    end = t0 + duration_s + 1.0
+    # CPU of the loop thread and of the whole process (Cyclone's own threads included):
+    # what the sinks cost, less sensitive than latency to other processes on the machine
+    cpu_thread0, cpu_proc0 = time.thread_time(), time.process_time()
+    while time.monotonic() < end:
+        runner._step(0.05)
+    cpu_thread = time.thread_time() - cpu_thread0
+    cpu_proc = time.process_time() - cpu_proc0
+    for _ in range(20):
+        runner._step(0.01)
+    stats = runner.stats()
+    runner.close()  # the ROS 2 sink publishes what is queued and joins its thread
+    sink_stats = {getattr(s, "name", str(s)): s.stats() for s in sink_objs if hasattr(s, "stats")}
+    return {
+        "lat_us": np.asarray(lat, dtype=np.float64),
+        "e2e_s": np.asarray(e2e, dtype=np.float64),
+        "stats": stats,
+        "sink_stats": sink_stats,
+        "cpu_thread": cpu_thread,
+        "cpu_proc": cpu_proc,
+        "max_contacts": config.max_contacts,
+    }
+
+
+def _worker(conn: Any, kw: dict) -> None:
+    """Worker process: one shard; says "ready" once its ports are open, then waits for t0."""
+
+    def start() -> float:
+        conn.send("ready")
+        return float(conn.recv())
+
+    try:
+        conn.send(_shard(start=start, **kw))
+    except Exception as exc:  # the parent reports it instead of waiting for ever
+        conn.send({"error": f"{type(exc).__name__}: {exc}"})
+
+
+def _merge_sink_stats(parts: list[dict]) -> dict:
+    """Every worker's sink statistics summed per sink (counts and CPU seconds).
+
+    Delays (``publish_delay_*``) cannot be summed: the worst worker's is kept.
+    """
+    out: dict[str, dict] = {}
+    for part in parts:
+        for name, st in part.items():
+            acc = out.setdefault(name, {})
+            for k, v in st.items():
+                if k.startswith("publish_delay"):
+                    acc[k] = max((x for x in (acc.get(k), v) if x is not None), default=None)
+                elif isinstance(v, int | float):
+                    acc[k] = acc.get(k, 0) + v
+                else:
+                    acc[k] = v
+    return out
+
+
+def many_skins(
+    model_path: Path,
+    n_skins: int = 100,
+    rate_hz: float = 100.0,
+    duration_s: float = 30.0,
+    random_state: int = 0,
+    sinks: tuple[str, ...] = (),
+    max_contacts: int | None = None,
+    workers: int = 1,
+) -> dict:
+    """``n_skins`` pipelines at ``rate_hz`` each, fed through ptys.
+
+    ``sinks``: sink specs every skin's contacts go to (``ros2``: plain DDS on loopback, no
+    subscriber). End-to-end times are taken after the sinks, so they include what the loop
+    pays for them (for ``ros2``, packing a record into its pipe; its publisher process's CPU is in
+    ``sink_stats``).
+    ``max_contacts``: contacts per frame each pipeline looks for (``PipelineConfig``'s; ``None``:
+    its default). ``workers``: 1, one ``Runner`` in this process; more, one per worker
+    process over consecutive shares of the skins (loop CPU then summed over the workers).
+    """
+    from skinloc.bench.sinks import bench_dds
+
+    if not 1 <= workers <= n_skins:
+        raise ValueError(f"workers must be 1..{n_skins} (the skins), got {workers}")
+    frames, _ = touch_stream(3000, random_state=random_state)
+    domain, dds = bench_dds() if any(s.startswith("ros2") for s in sinks) else (None, None)
+    ctx = mp.get_context("spawn")
+    parent, child = ctx.Pipe()
+    proc = ctx.Process(
+        target=_feeder, args=(child, n_skins, rate_hz, duration_s, frames), daemon=True
+    )
+    proc.start()
+    procs: list[Any] = []
+    try:
+        names = parent.recv()
+        common = {
+            "model_path": Path(model_path),
+            "n_skins": n_skins,
+            "rate_hz": rate_hz,
+            "duration_s": duration_s,
+            "sinks": tuple(sinks),
+            "max_contacts": max_contacts,
+            "domain": domain,
+            "dds_config": dds,
+        }
+
+        def go() -> float:
+            t0 = time.monotonic() + 0.5
+            parent.send(t0)
+            return t0
+
+        if workers == 1:
+            parts = [_shard(names=names, first=0, start=go, **common)]
+        else:
+            cut = np.linspace(0, n_skins, workers + 1).round().astype(int)
+            pipes = []
+            for w in range(workers):
+                a, b = ctx.Pipe()
+                kw = dict(common, names=names[cut[w] : cut[w + 1]], first=int(cut[w]))
+                p = ctx.Process(target=_worker, args=(b, kw), daemon=True)
+                p.start()
+                procs.append(p)
+                pipes.append(a)
+            for a in pipes:
+                if a.recv() != "ready":
+                    raise RuntimeError("a bench worker failed before it started")
+            t0 = go()
+            for a in pipes:
+                a.send(t0)
+            parts = [a.recv() for a in pipes]
+            bad = [p["error"] for p in parts if "error" in p]
+            if bad:
+                raise RuntimeError(f"a bench worker failed: {bad[0]}")
+        report = parent.recv()
+        parent.send("done")
+    finally:
+        for p in (*procs, proc):
+            p.join(10)
+            if p.is_alive():
+                p.terminate()
+    stats = [s for p in parts for s in p["stats"]]
+    lat = np.concatenate([p["lat_us"] for p in parts])
+    e2e = np.concatenate([p["e2e_s"] for p in parts])
+    sink_stats = _merge_sink_stats([p["sink_stats"] for p in parts])
+    cpu_thread = sum(p["cpu_thread"] for p in parts)
+    cpu_proc = sum(p["cpu_proc"] for p in parts)
+    frames_in = [s["frames"] for s in stats]
+    wire = [s.get("wire", {}) for s in stats]
+    sent = report["written"]
+    has = len(lat) > 0
+    return {
+        "skins": n_skins,
+        "rate_hz": rate_hz,
+        "duration_s": duration_s,
+        "workers": workers,
+        "frames_sent": int(sum(sent)),
+        "frames_processed": int(sum(frames_in)),
+        "frames_dropped": int(sum(sent) - sum(frames_in)),
+        "parser_dropped_or_lost": int(
+            sum(w.get("n_dropped", 0) + w.get("n_lost", 0) + w.get("n_corrupted", 0) for w in wire)
+        ),
+        "contacts": len(lat),
+        "latency_median_us": float(np.median(lat)) if has else None,
+        "latency_p99_us": float(np.percentile(lat, 99)) if has else None,
+        "latency_max_us": float(np.max(lat)) if has else None,
+        "end_to_end_median_us": float(np.median(e2e)) * 1e6 if has else None,
+        "end_to_end_p99_us": float(np.percentile(e2e, 99)) * 1e6 if has else None,
+        "feeder_writes_late_over_2ms": report["late_over_2ms"],
+        "feeder_write_errors": report["write_errors"],
+        "model": str(model_path),
+        "sinks": list(sinks),
+        "max_contacts": parts[0]["max_contacts"],
+        # the publisher processes: frames queued, dropped (pipe full), sent; their CPU s, delays
+        "sink_stats": sink_stats,
+        "sink_frames_dropped": int(sum(v["dropped"] for v in sink_stats.values())),
+        "loop_thread_cpu_s": cpu_thread,
+        "process_cpu_s": cpu_proc,
+        "loop_cpu_us_per_frame": cpu_thread / max(sum(frames_in), 1) * 1e6,
+    }

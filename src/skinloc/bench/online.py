@@ -1,0 +1,300 @@
+"""``skinloc bench --online``: the live path's latency and throughput, with a baseline.
+
+Figures (docs/benchmarks.md, "Live pipeline"):
+
+* per-frame latency, bytes in to contact out, one 64-sensor stream: ``SkinCore.feed`` on the
+  wire bytes of each frame (skinloc binary format) through parsing, baseline, detection,
+  localiser, surface constraint and filter, timed per frame; against a plain baseline timed in
+  the same run on the same frames: for a network, a NumPy forward pass plus a scipy KD-tree
+  snap; for a response map, the coarse-to-fine match in NumPy. Neither baseline parses,
+  subtracts or detects anything, so the ratio is conservative;
+* single-stream frames/s: the same ``feed`` back to back;
+* batched frames/s: the engine's ``predict_batch`` on 200,000 touched frames, against the same
+  baseline on the same batch;
+* 100 skins at 100 Hz (``skinloc.bench.many_skins``): a feeder process writes every skin's
+  frames to its own pseudo-terminal on schedule; one ``Runner`` reads all of them (or one per
+  worker process); latency from the bytes' arrival to the contact, and end to end from the
+  frame's scheduled write time; once more with the ROS 2 sink on (plain DDS, loopback);
+* publishing cost per contact of the sinks (``skinloc.bench.sinks``).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from skinloc.bench.many_skins import many_skins
+from skinloc.bench.stream import touch_stream
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "many_skins",
+    "model_code_stamp",
+    "online_bench",
+    "single_stream",
+    "touch_stream",
+    "train_bench_models",
+]
+
+Step = Callable[[str, int, int], None]
+
+
+def _noop(label: str, done: int, total: int) -> None:
+    pass
+
+
+#: Subpackages whose code decides what a trained benchmark model is (simulation, training,
+#: the model's arrays); the live path and its front ends do not.
+_MODEL_CODE = ("calibration", "data", "evaluation", "geometry", "models", "sensors", "sim")
+
+
+def model_code_stamp() -> str:
+    """A hash of the code that simulates and trains the benchmark models (16 hex digits).
+
+    A cached model trained by other code (before a model gained its amplitude map and
+    calibrated count rule, say) would time another search than the one users run.
+    """
+    import hashlib
+
+    import skinloc
+
+    root = Path(skinloc.__file__).parent
+    h = hashlib.sha256()
+    for sub in _MODEL_CODE:
+        for f in sorted((root / sub).rglob("*.py")):
+            h.update(f.relative_to(root).as_posix().encode())
+            h.update(f.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def train_bench_models(folder: Path, archs: tuple[str, ...], step: Step = _noop) -> dict[str, Path]:
+    """Simulate a calibration (80 touches) and train each architecture; cached in ``folder``.
+
+    The cache holds while the code that trains them is unchanged (``model_code_stamp``, kept
+    in ``folder / "code-stamp"``); otherwise the calibration and the models are moved to
+    ``folder / "older-<stamp>"`` and made again.
+    """
+    from skinloc.calibration.session import SessionConfig, simulate_session
+    from skinloc.evaluation.scoring import train_localizer
+    from skinloc.geometry.mesh import cone_skin
+    from skinloc.sim.skin import SimulatedSkin
+
+    folder.mkdir(parents=True, exist_ok=True)
+    cal_path = folder / "cal.h5"
+    paths = {a: folder / f"{a}.h5" for a in archs}
+    stamp_path = folder / "code-stamp"
+    stamp = model_code_stamp()
+    old = stamp_path.read_text().strip() if stamp_path.is_file() else "unstamped"
+    if old != stamp:
+        # made by other code: set aside (never deleted: ``folder`` may be under a user's --out)
+        # and made again
+        aside = folder / f"older-{old}"
+        for p in (cal_path, *(folder / f"{a}.h5" for a in ("default", "mlp", "paper", *archs))):
+            if p.is_file():
+                aside.mkdir(exist_ok=True)
+                p.replace(aside / p.name)
+        stamp_path.write_text(stamp + "\n")
+    if all(p.is_file() for p in paths.values()):
+        return paths
+    mesh = cone_skin()
+    if not cal_path.is_file():
+        step("online: simulating a calibration", 0, 1)
+        with SimulatedSkin(mesh, random_state=0) as skin:
+            simulate_session(
+                skin,
+                mesh,
+                cal_path,
+                SessionConfig(n_points=80, mode="even", samples_per_touch=20, random_state=0),
+            )
+    from skinloc.data.recording import read_recording
+
+    cal = read_recording(cal_path)
+    for i, a in enumerate(archs):
+        if not paths[a].is_file():
+            step("online: training", i, len(archs))
+            train_localizer([cal], arch=a, random_state=0).save(paths[a])
+    return paths
+
+
+def _baseline_fn(model: Any) -> Callable[[np.ndarray], np.ndarray]:
+    """The plain NumPy implementation the engine is compared with: rows ``(n, 64)`` to points.
+
+    For a response map, the coarse-to-fine match in NumPy (the library's own prediction
+    before the engine); for a network, a NumPy forward pass over the ensemble and a scipy
+    ``cKDTree`` snap. A benchmark's baseline, not a second engine: nothing else calls it.
+    """
+    from scipy.spatial import cKDTree
+
+    from skinloc.models.network_engine import activate_inplace
+
+    spec = model.spec()
+    if spec.kind == "map":
+        return _plain_map_match(spec)
+    pts = spec.surface_points
+    tree = cKDTree(pts)
+
+    def plain(X: np.ndarray) -> np.ndarray:
+        Z = np.maximum(X, 0.0) if spec.clip_negative else X
+        if spec.normalise != "none":
+            order = 1 if spec.normalise == "l1" else 2
+            Z = Z / np.maximum(np.linalg.norm(Z, ord=order, axis=1, keepdims=True), 1.0)
+        h = (Z - spec.feature_mean) / spec.feature_scale
+        for i, (W, b) in enumerate(zip(spec.weights, spec.biases, strict=True)):
+            h = np.matmul(h, W) + b
+            if i < len(spec.weights) - 1:
+                h = activate_inplace(h, spec.activation)
+        raw = (h * spec.target_scale + spec.target_mean).mean(axis=0)
+        return pts[tree.query(raw)[1]]
+
+    return plain
+
+
+def _plain_map_match(spec: Any) -> Callable[[np.ndarray], np.ndarray]:
+    """Coarse-to-fine matching in NumPy, 512 rows at a time: the best of the 8 best cells."""
+    T = np.asarray(spec.table, dtype=np.float32)
+    sq = (T**2).sum(axis=1)
+    coarse, members = spec.coarse, spec.cells
+
+    def plain(X: np.ndarray) -> np.ndarray:
+        Z = np.maximum(X, 0.0) if spec.clip_negative else X
+        F = (Z / np.maximum(np.linalg.norm(Z, axis=1, keepdims=True), 1.0)).astype(np.float32)
+        out = []
+        for i in range(0, len(F), 512):
+            Fs = F[i : i + 512]
+            dc = sq[coarse][None, :] - 2.0 * Fs @ T[coarse].T
+            best_cells = np.argpartition(dc, spec.n_cells - 1, axis=1)[:, : spec.n_cells]
+            idx = members[best_cells].reshape(len(Fs), -1)
+            d = sq[idx] - 2.0 * np.einsum("nk,nck->nc", Fs, T[idx])
+            out.append(spec.surface_points[idx[np.arange(len(Fs)), d.argmin(axis=1)]])
+        return np.concatenate(out)
+
+    return plain
+
+
+def single_stream(model_path: Path, n_frames: int = 20000, random_state: int = 0) -> dict:
+    """Latency and throughput of one 64-sensor stream, bytes in to contact out."""
+    from skinloc.hardware.protocol import encode_binary
+    from skinloc.live.core import SkinCore
+    from skinloc.models.engine import load_engine
+    from skinloc.models.localizer import ContactLocalizer
+
+    model = ContactLocalizer.load(model_path)
+    fast = load_engine(model)
+    frames, _ = touch_stream(n_frames, random_state=random_state)
+    wire = [encode_binary(f, 8, 8, i) for i, f in enumerate(frames)]
+
+    def fresh_core() -> SkinCore:
+        core = SkinCore(fast, wire_format="binary")
+        for b in wire[:100]:  # baseline capture
+            core.feed(b)
+        return core
+
+    # latency: one frame at a time, with perf_counter around each feed
+    core = fresh_core()
+    lat_touch: list[float] = []
+    lat_all: list[float] = []
+    pc = time.perf_counter
+    for b in wire[100:]:
+        t0 = pc()
+        out = core.feed(b)
+        dt = pc() - t0
+        lat_all.append(dt)
+        if out:
+            lat_touch.append(dt)
+    # the plain baseline on the touched frames' deltas, interleaved in the same run
+    plain = _baseline_fn(model)
+    deltas = frames[100:].astype(np.float64) - frames[:100].mean(axis=0)
+    touched = deltas[np.max(deltas, axis=1) > 60][:5000]
+    lat_plain = []
+    for x in touched:
+        t0 = pc()
+        plain(x[None])
+        lat_plain.append(pc() - t0)
+    # throughput: back to back, no timing inside
+    core = fresh_core()
+    t0 = pc()
+    n_out = 0
+    for b in wire[100:]:
+        n_out += len(core.feed(b))
+    elapsed = pc() - t0
+    # batched prediction of touched frames
+    reps = max(1, 200_000 // max(len(touched), 1))
+    batch = np.tile(touched.astype(np.float32), (reps, 1))
+    fast.predict_batch(batch[:1000])
+    t0 = pc()
+    fast.predict_batch(batch)
+    batch_s = pc() - t0
+    t0 = pc()
+    plain(batch.astype(np.float64))
+    plain_batch_s = pc() - t0
+    us = 1e6
+    med = float(np.median(lat_touch)) * us
+    plain_med = float(np.median(lat_plain)) * us
+    return {
+        "model": str(model_path),
+        "arch": model.config_.get("arch"),
+        "kind": fast.kind,
+        "frames": len(wire) - 100,
+        "touched_frames": len(lat_touch),
+        "latency_touched_median_us": med,
+        "latency_touched_p99_us": float(np.percentile(lat_touch, 99)) * us,
+        "latency_all_median_us": float(np.median(lat_all)) * us,
+        "latency_all_p99_us": float(np.percentile(lat_all, 99)) * us,
+        "baseline": "numpy coarse-to-fine match"
+        if fast.kind == "map"
+        else "numpy forward + scipy cKDTree snap",
+        "baseline_median_us": plain_med,
+        "baseline_p99_us": float(np.percentile(lat_plain, 99)) * us,
+        "speedup_median": plain_med / med,
+        "stream_frames_per_s": (len(wire) - 100) / elapsed,
+        "stream_contacts": n_out,
+        "batch_frames": len(batch),
+        "batch_frames_per_s": len(batch) / batch_s,
+        "baseline_batch_frames_per_s": len(batch) / plain_batch_s,
+        "batch_ratio": plain_batch_s / batch_s,
+    }
+
+
+def online_bench(
+    models: list[Path] | None = None,
+    out: Path | None = None,
+    *,
+    n_frames: int = 20000,
+    n_skins: int = 100,
+    skins_duration_s: float = 30.0,
+    step: Step = _noop,
+) -> dict:
+    """Every figure of the live path; trains the models when none are given."""
+    import platform
+
+    from skinloc.bench.sinks import sink_cost
+
+    if not models:
+        folder = (out or Path(tempfile.gettempdir()) / "skinloc-bench") / "online-models"
+        paths = train_bench_models(folder, ("default", "mlp", "paper"), step)
+        models = list(paths.values())
+    results: dict[str, Any] = {
+        "machine": f"{platform.machine()}, {os.cpu_count()} cores, {platform.python_version()}",
+        "single_stream": [],
+    }
+    for i, m in enumerate(models):
+        step("online: single stream", i, len(models))
+        results["single_stream"].append(single_stream(Path(m), n_frames))
+    step("online: sink cost", 0, 1)
+    results["sink_cost"] = sink_cost()
+    step("online: 100 skins", 0, 2)
+    results["many_skins"] = many_skins(Path(models[0]), n_skins, 100.0, skins_duration_s)
+    step("online: 100 skins, ROS 2 sink", 1, 2)
+    results["many_skins_ros2"] = many_skins(
+        Path(models[0]), n_skins, 100.0, skins_duration_s, sinks=("ros2",)
+    )
+    step("online: done", 1, 1)
+    return results

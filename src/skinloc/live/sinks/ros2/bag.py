@@ -1,0 +1,142 @@
+"""A ROS 2 bag (MCAP, what ``ros2 bag play`` reads) of the ROS 2 sink's topics and the raw frames.
+
+The same topics, types and stamps as ``Ros2Sink`` (``live.sinks.ros2.sink``), each message CDR
+encoded exactly as on the DDS wire (``message_encoding`` ``cdr``) with its ``.msg`` definition
+as schema (``ros2msg``), plus ``/skinloc/<skin>/frames``: every raw frame as a
+``sensor_msgs/Image`` (``32FC1``, TX rows by RX columns, raw counts), its frame counter kept as
+the message's sequence number, so ``skinloc run --source FILE.mcap`` replays the bag.
+
+The file is written under a temporary name next to it and renamed when closed, so a crash never
+leaves a truncated bag under the final name; an existing file is never overwritten.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from skinloc.live.sinks.base import SkinInfo
+from skinloc.live.sinks.ros2.topics import Ros2Topics
+
+__all__ = ["Ros2BagSink", "offered_qos"]
+
+
+def offered_qos(latched: bool, depth: int) -> str:
+    """The ``offered_qos_profiles`` channel metadata (YAML) of a topic of the bag.
+
+    rosbag2 stores it and ``ros2 bag play`` publishes with it: one reliable keep-last profile,
+    transient local when ``latched``.
+
+    Numeric enums (rmw's: history 1 keep last; reliability 1 reliable; durability 1 transient
+    local, 2 volatile; liveliness 1 automatic) and zero durations (the defaults), the form
+    rosbag2 has written since Foxy.
+    """
+    zero = "\n    sec: 0\n    nsec: 0"
+    return (
+        f"- history: 1\n  depth: {depth}\n  reliability: 1\n  durability: {1 if latched else 2}"
+        f"\n  deadline:{zero}\n  lifespan:{zero}\n  liveliness: 1"
+        f"\n  liveliness_lease_duration:{zero}\n  avoid_ros_namespace_conventions: false"
+    )
+
+
+def _require_mcap() -> Any:
+    try:
+        from mcap.writer import CompressionType, Writer
+    except ImportError:
+        raise ImportError(
+            "the ROS 2 bag sink needs mcap: pip install 'skinloc[live]' (or pip install mcap)"
+        ) from None
+    return Writer, CompressionType
+
+
+class Ros2BagSink(Ros2Topics):
+    """Write the ROS 2 topics (and raw frames) to an MCAP ROS 2 bag.
+
+    Parameters
+    ----------
+    path : str or Path
+        The ``.mcap`` file to create; it must not exist yet.
+    frames : bool, default=True
+        Record the raw frames (``/skinloc/<skin>/frames``).
+    """
+
+    name = "mcap-ros2"
+
+    def __init__(self, path: str | Path, *, frames: bool = True) -> None:
+        super().__init__()
+        self.path = Path(path)
+        self.wants_frames = frames
+        self._writer: Any = None
+        self._fh: Any = None
+        self._tmp: Path | None = None
+        self._channels: dict[str, int] = {}
+        self._schemas: dict[type, int] = {}
+        self._seq: dict[str, int] = {}
+
+    def open(self, skins: list[SkinInfo]) -> None:
+        """Create the file (under a temporary name) and write meshes and transforms."""
+        if self._writer is not None:
+            for s in skins:
+                if s.name not in self._skins:
+                    self._add_skin(s)
+            return
+        writer_cls, compression = _require_mcap()
+        if self.path.exists():
+            raise FileExistsError(f"{self.path} exists; the ROS 2 bag sink never overwrites a file")
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(
+            prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent
+        )
+        self._tmp = Path(tmp)
+        self._fh = os.fdopen(fd, "wb")
+        self._writer = writer_cls(self._fh, compression=compression.ZSTD)
+        self._writer.start(profile="ros2", library="skinloc")
+        self._open_topics(skins)
+
+    def _advertise(self, topic: str, cls: type, latched: bool) -> None:
+        if topic in self._channels:
+            return
+        m = self._msgs
+        schema = self._schemas.get(cls)
+        if schema is None:
+            schema = self._schemas[cls] = self._writer.register_schema(
+                name=m.ros_type_name(cls),
+                encoding="ros2msg",
+                data=m.msg_definition(cls).encode(),
+            )
+        self._channels[topic] = self._writer.register_channel(
+            topic=topic,
+            message_encoding="cdr",
+            schema_id=schema,
+            metadata={"offered_qos_profiles": offered_qos(latched, 1 if latched else 10)},
+        )
+
+    def _write(self, topic: str, data: bytes, t_ns: int, sequence: int | None = None) -> None:
+        if sequence is None:
+            sequence = self._seq.get(topic, 0)
+        self._seq[topic] = sequence + 1
+        self._writer.add_message(
+            channel_id=self._channels[topic],
+            log_time=t_ns,
+            publish_time=t_ns,
+            data=data,
+            sequence=sequence,
+        )
+
+    def close(self) -> None:
+        """Finish the file and give it its name."""
+        if self._writer is None:
+            return
+        try:
+            self._writer.finish()
+            self._fh.close()
+            if self.path.exists():  # appeared meanwhile: keep both
+                raise FileExistsError(
+                    f"{self.path} appeared while recording; bag left at {self._tmp}"
+                )
+            os.replace(self._tmp, self.path)
+        finally:
+            self._writer = None
+            self._fh = None

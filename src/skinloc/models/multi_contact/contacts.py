@@ -1,0 +1,169 @@
+"""The multi-contact search's result and count rule (the method: the package docstring).
+
+``ContactSet``: the contacts of one frame; ``CountRule``: how many fingers an image holds;
+``noise_weights``: each sensor's weight in the search.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+__all__ = ["ContactSet", "CountRule", "noise_weights"]
+
+#: Noise per sensor assumed when a model does not know its skin's (counts; the paper skin's
+#: median no-touch std is 4.8).
+DEFAULT_NOISE_COUNTS = 5.0
+#: Columns of a search's output rows: x, y, z (m), strength (counts), uncertainty (mm).
+N_COLS = 5
+
+
+def noise_weights(sensor_noise: np.ndarray | None, k: int) -> np.ndarray:
+    """``1 / sigma (k,)`` float32 from the noise per sensor (counts; ``None``: the default).
+
+    Sigma is floored at the median noise: a sensor quieter than the rest is not trusted more
+    than them (its quiet is more likely a dead line than a better one).
+    """
+    if sensor_noise is None:
+        return np.full(k, 1.0 / DEFAULT_NOISE_COUNTS, dtype=np.float32)
+    noise = np.asarray(sensor_noise, dtype=np.float64).reshape(-1)
+    if noise.shape != (k,):
+        raise ValueError(f"sensor noise must have shape ({k},), got {noise.shape}")
+    sigma = np.maximum(noise, max(float(np.median(noise)), 1.0))
+    return (1.0 / sigma).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class CountRule:
+    """How many contacts an image holds (see the module's docstring).
+
+    Attributes
+    ----------
+    z_on : float
+        Peak signal, in noise levels, of a contact (the live pipeline's ``touch_on_z``).
+    min_separation_mm : float
+        Closest two contacts may be, mm (closer ones are one finger to this model).
+    tau2, tau3 : float
+        Relative residual reduction that a 2nd (3rd) contact must bring.
+    z2_min, z3_min : float
+        Peak signal, noise levels, that the weakest of 2 (3) contacts must reach (at least
+        ``z_on``).
+    n_top : int
+        Seeds of the pair search.
+    misfit : float
+        The share of a single touch's (whitened) energy the model leaves unexplained, typical
+        of a touch it was not trained on (median over the calibration's held-out touches); the
+        residual reduction is measured against the residual plus this much of the image's
+        energy, so that a strong touch's own misfit does not pass for a second finger. 0 (rules
+        saved before it): against the residual alone.
+    calibrated : bool
+        Whether tau2 and tau3 come from cross-validation on the training recording.
+    z_power : float
+        Power of the weakest contact's peak signal that weighs the relative reduction (0, rules
+        saved before it: the reduction alone).
+    """
+
+    z_on: float = 8.0
+    min_separation_mm: float = 30.0
+    tau2: float = 1.0
+    tau3: float = 1.0
+    z2_min: float = 8.0
+    z3_min: float = 8.0
+    n_top: int = 12
+    calibrated: bool = False
+    misfit: float = 0.0
+    z_power: float = 0.0
+
+    def as_dict(self) -> dict[str, Any]:
+        """The rule as plain JSON values."""
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any] | None) -> CountRule:
+        """The rule of ``as_dict`` (unknown keys ignored; ``None``: the defaults)."""
+        if not d:
+            return cls()
+        names = cls.__dataclass_fields__
+        return cls(**{k: v for k, v in d.items() if k in names})
+
+    def params(self) -> np.ndarray:
+        """The kernels' parameters.
+
+        z_on, min separation^2 (m^2), tau2, tau3, n_top, z2_min, z3_min, misfit, z_power.
+        """
+        return np.array(
+            [
+                self.z_on,
+                (1e-3 * self.min_separation_mm) ** 2,
+                self.tau2,
+                self.tau3,
+                self.n_top,
+                max(self.z2_min, self.z_on),
+                max(self.z3_min, self.z_on),
+                max(self.misfit, 0.0),
+                max(self.z_power, 0.0),
+            ],
+            dtype=np.float64,
+        )
+
+
+class ContactSet:
+    """The contacts of one frame, strongest first.
+
+    Attributes
+    ----------
+    rows : (k, 5) float64
+        Per contact: x, y, z (m), strength (counts), uncertainty (mm).
+    positions_m : (k, 3) float64
+        Contact points on the skin, m.
+    strength : (k,) float64
+        Contact strengths, counts (the L2 norm of each contact's image's positive part).
+    uncertainty_mm : (k,) float64
+        Per-contact uncertainty, mm (nan when the model has none).
+    """
+
+    __slots__ = ("rows",)
+
+    def __init__(self, rows: np.ndarray) -> None:
+        # one (k, 5) block, its columns viewed on access: one allocation per frame
+        self.rows = rows
+
+    @property
+    def positions_m(self) -> np.ndarray:
+        """``(k, 3)`` contact points, m."""
+        return self.rows[:, :3]
+
+    @property
+    def strength(self) -> np.ndarray:
+        """``(k,)`` strengths, counts."""
+        return self.rows[:, 3]
+
+    @property
+    def uncertainty_mm(self) -> np.ndarray:
+        """``(k,)`` uncertainties, mm."""
+        return self.rows[:, 4]
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def __repr__(self) -> str:
+        return f"ContactSet({len(self)} contacts)"
+
+    def to_json(self) -> list[dict[str, Any]]:
+        """``[{"position_m": [x, y, z], "uncertainty_mm": u, "strength": s}, ...]``."""
+        return [
+            {
+                "position_m": [float(v) for v in p],
+                "uncertainty_mm": None if not math.isfinite(u) else float(u),
+                "strength": None if not math.isfinite(s) else float(s),
+            }
+            for p, s, u in zip(
+                self.positions_m.tolist(),
+                self.strength.tolist(),
+                self.uncertainty_mm.tolist(),
+                strict=True,
+            )
+        ]

@@ -1,0 +1,479 @@
+"""The compiled multi-contact search (the method: ``skinloc.models.multi_contact``)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from skinloc._jit import jit
+from skinloc.models.multi_contact.contacts import N_COLS, CountRule, noise_weights
+from skinloc.models.multi_contact.pairs import PairTables, far_apart, seeds_and_pair
+
+__all__ = [
+    "SearchTables",
+    "nnls",
+    "nnls2",
+    "polish",
+    "relative_gain",
+    "search_into",
+    "single_into",
+    "weakest_z",
+]
+
+#: Coarse cells searched around each contact (its own and the nearest others).
+N_NEIGHBOURS = 7
+
+
+# --------------------------------------------------------------------------------------------
+# the search tables
+
+
+class SearchTables:
+    """The arrays of the search, built once per engine.
+
+    Parameters
+    ----------
+    unit : (P, k) float
+        Unit image at every candidate (counts per count of strength).
+    candidates : (P, 3) float
+        Candidate surface points, m.
+    coarse : (C,) int
+        Coarse candidates.
+    cells : (C, m) int
+        Each coarse candidate's cell (padded by repeating the coarse candidate).
+    sensor_noise : (k,) float or None
+        Noise per sensor, counts (``None``: ``DEFAULT_NOISE_COUNTS``).
+    rule : CountRule
+        The count rule.
+
+    Attributes
+    ----------
+    arrays : tuple
+        The kernels' tables: ``w, Ct, Cg, Cd, Cpos, nbr, Ft, Fpos, Fpk, Fcell, off, cfine`` and
+        ``Fn (P,)`` float64, each fine row's ``_dot(row, row)`` (whitened counts^2).
+    pair : PairTables
+        The pruned seed and pair stages' tables (``skinloc.models.multi_contact.pairs``).
+    scratch : tuple
+        The search's work arrays; ``scratch[-1]`` its statistics.
+    """
+
+    def __init__(
+        self,
+        unit: np.ndarray,
+        candidates: np.ndarray,
+        coarse: np.ndarray,
+        cells: np.ndarray,
+        sensor_noise: np.ndarray | None,
+        rule: CountRule,
+    ) -> None:
+        from scipy.spatial import cKDTree
+
+        k = unit.shape[1]
+        self.w = noise_weights(sensor_noise, k)
+        self.rule = rule
+        self.prm = rule.params()
+        coarse = np.asarray(coarse, dtype=np.int64)
+        perm, off, fcell, cfine = [], [0], [], []
+        for c, row in enumerate(np.asarray(cells, dtype=np.int64)):
+            members = list(dict.fromkeys(row.tolist()))
+            cfine.append(len(perm) + members.index(int(coarse[c])))
+            perm += members
+            fcell += [c] * len(members)
+            off.append(len(perm))
+        perm_a = np.asarray(perm, dtype=np.int64)
+        uw = np.asarray(unit, dtype=np.float64) * self.w.astype(np.float64)
+        self.Ft = np.ascontiguousarray(uw[perm_a], dtype=np.float32)
+        self.Fpos = np.ascontiguousarray(np.asarray(candidates, dtype=np.float64)[perm_a])
+        self.Fpk = np.maximum(self.Ft.max(axis=1), 0.0).astype(np.float64)
+        self.Fcell = np.asarray(fcell, dtype=np.int64)
+        self.off = np.asarray(off, dtype=np.int64)
+        self.cfine = np.asarray(cfine, dtype=np.int64)
+        self.Ct = np.ascontiguousarray(self.Ft[self.cfine])
+        self.Cg = np.ascontiguousarray(self.Ct @ self.Ct.T, dtype=np.float32)
+        self.Cpos = np.ascontiguousarray(self.Fpos[self.cfine])
+        n_nb = min(N_NEIGHBOURS, len(coarse))
+        self.nbr = cKDTree(self.Cpos).query(self.Cpos, k=n_nb)[1].reshape(len(coarse), n_nb)
+        self.nbr = np.ascontiguousarray(self.nbr, dtype=np.int64)
+        # the pruned seed and pair stages' tables (``skinloc.models.multi_contact.pairs``)
+        self.pair = PairTables(self.Cg, self.Cpos, float(self.prm[1]))
+        widest = int(np.diff(self.off).max()) * n_nb
+        n_top = max(1, min(int(rule.n_top), len(coarse)))
+        self.arrays = (
+            self.w,
+            self.Ct,
+            self.Cg,
+            np.ascontiguousarray(np.diag(self.Cg), dtype=np.float64),
+            self.Cpos,
+            self.nbr,
+            self.Ft,
+            self.Fpos,
+            self.Fpk,
+            self.Fcell,
+            self.off,
+            self.cfine,
+            _row_norms(self.Ft),
+        )
+        self.scratch = (
+            np.zeros(k, dtype=np.float32),  # whitened image
+            np.zeros(len(coarse)),  # coarse correlations
+            np.zeros(len(coarse)),  # one-contact gains (then suppressed)
+            np.zeros(n_top, dtype=np.int64),  # seeds
+            np.zeros(3, dtype=np.int64),  # the contacts' fine rows
+            np.zeros(3, dtype=np.int64),  # the pair's, kept while a third is tried
+            np.zeros(widest),  # gains of one contact's candidates
+            np.zeros(widest, dtype=np.int64),  # those candidates
+            np.zeros(3),  # strengths
+            np.zeros(3),  # spreads, mm
+            np.zeros(12),  # stats: g1, g2, g3, weakest z of 2, of 3, |xw|^2; 8..10: rows
+        )
+
+
+# --------------------------------------------------------------------------------------------
+# compiled kernels
+
+
+@jit()
+def _dot(a: np.ndarray, b: np.ndarray) -> float:  # pragma: no cover - compiled
+    acc = np.float32(0.0)
+    for i in range(a.shape[0]):
+        acc += a[i] * b[i]
+    return float(acc)
+
+
+@jit()
+def _row_norms(Ft: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    """``_dot(row, row)`` of every row of ``Ft (P, k)``: ``(P,)`` float64 (the search's own)."""
+    n = np.empty(Ft.shape[0])
+    for q in range(Ft.shape[0]):
+        n[q] = _dot(Ft[q], Ft[q])
+    return n
+
+
+@jit()
+def nnls2(
+    g11: float, g12: float, g22: float, b1: float, b2: float
+) -> tuple:  # pragma: no cover - compiled
+    """NNLS of two columns: ``(gain, s1, s2)``."""
+    det = g11 * g22 - g12 * g12
+    if det > 1e-12 * g11 * g22:
+        s1 = (g22 * b1 - g12 * b2) / det
+        s2 = (g11 * b2 - g12 * b1) / det
+        if s1 >= 0.0 and s2 >= 0.0:
+            return s1 * b1 + s2 * b2, s1, s2
+    ga = b1 * b1 / g11 if b1 > 0.0 else 0.0
+    gb = b2 * b2 / g22 if b2 > 0.0 else 0.0
+    if ga >= gb:
+        return ga, (b1 / g11 if b1 > 0.0 else 0.0), 0.0
+    return gb, 0.0, b2 / g22
+
+
+@jit()
+def nnls(G: np.ndarray, b: np.ndarray, m: int, s: np.ndarray) -> float:  # pragma: no cover
+    """Non-negative least squares of ``m <= 3`` columns from their Gram ``G`` and ``b``.
+
+    Returns the gain ``s . b`` (the residual's reduction), the strengths in ``s[:m]``. For three
+    columns: the unconstrained solution if it is feasible, else the best of the three pairs
+    (the optimum then lies on a face).
+    """
+    if m == 1:
+        s[0] = b[0] / G[0, 0] if b[0] > 0.0 else 0.0
+        return s[0] * b[0]
+    if m == 2:
+        g, s[0], s[1] = nnls2(G[0, 0], G[0, 1], G[1, 1], b[0], b[1])
+        return g
+    a, bb, c = G[0, 0], G[0, 1], G[0, 2]
+    d, e, f = G[1, 1], G[1, 2], G[2, 2]
+    c00 = d * f - e * e
+    c01 = c * e - bb * f
+    c02 = bb * e - c * d
+    det = a * c00 + bb * c01 + c * c02
+    if det > 1e-12 * a * d * f:
+        c11 = a * f - c * c
+        c12 = bb * c - a * e
+        c22 = a * d - bb * bb
+        s0 = (c00 * b[0] + c01 * b[1] + c02 * b[2]) / det
+        s1 = (c01 * b[0] + c11 * b[1] + c12 * b[2]) / det
+        s2 = (c02 * b[0] + c12 * b[1] + c22 * b[2]) / det
+        if s0 >= 0.0 and s1 >= 0.0 and s2 >= 0.0:
+            s[0], s[1], s[2] = s0, s1, s2
+            return s0 * b[0] + s1 * b[1] + s2 * b[2]
+    g01, p0, p1 = nnls2(a, bb, d, b[0], b[1])
+    g02, q0, q2 = nnls2(a, c, f, b[0], b[2])
+    g12, r1, r2 = nnls2(d, e, f, b[1], b[2])
+    if g01 >= g02 and g01 >= g12:
+        s[0], s[1], s[2] = p0, p1, 0.0
+        return g01
+    if g02 >= g12:
+        s[0], s[1], s[2] = q0, 0.0, q2
+        return g02
+    s[0], s[1], s[2] = 0.0, r1, r2
+    return g12
+
+
+@jit()
+def _refine(
+    i: int,
+    m: int,
+    fi: np.ndarray,
+    xw: np.ndarray,
+    xx: float,
+    arrays: tuple,
+    min2: float,
+    gq: np.ndarray,
+    qq: np.ndarray,
+    s_out: np.ndarray,
+) -> tuple:  # pragma: no cover - compiled
+    """Move contact ``i`` of ``m`` (fine rows ``fi``) to its best candidate, the others fixed.
+
+    Returns ``(gain, spread_mm)``; ``fi[i]`` and the strengths ``s_out[:m]`` are updated.
+    """
+    w, Ct, Cg, Cd, Cpos, nbr, Ft, Fpos, Fpk, Fcell, off, cfine, Fn = arrays
+    G = np.empty((3, 3))  # once per call, not per candidate
+    b = np.empty(3)
+    s = np.empty(3)
+    for j in range(m):
+        b[j] = _dot(Ft[fi[j]], xw)
+        for t in range(j, m):
+            G[j, t] = G[t, j] = _dot(Ft[fi[j]], Ft[fi[t]])
+    home = Fcell[fi[i]]
+    n = 0
+    best = -1.0
+    best_q = fi[i]
+    for a in range(nbr.shape[1]):
+        cell = nbr[home, a]
+        for q in range(off[cell], off[cell + 1]):
+            ok = True
+            for j in range(m):
+                if j != i and not far_apart(Fpos[q], Fpos[fi[j]], min2):
+                    ok = False
+            if not ok:
+                continue
+            row = Ft[q]
+            b[i] = _dot(row, xw)
+            for j in range(m):
+                if j != i:
+                    G[i, j] = G[j, i] = _dot(row, Ft[fi[j]])
+            G[i, i] = Fn[q]  # _dot(row, row), once per model
+            g = nnls(G, b, m, s)
+            gq[n] = g
+            qq[n] = q
+            n += 1
+            if g > best:
+                best = g
+                best_q = q
+                for j in range(m):
+                    s_out[j] = s[j]
+    if n == 0:  # nowhere to go: keep the contact
+        return -1.0, math.nan
+    fi[i] = best_q
+    rmin = max(xx - best, 0.0)
+    k = xw.shape[0]
+    scale = 2.0 * max(rmin / max(k - 4 * m, 1), 1.0)
+    wsum = 0.0
+    acc = 0.0
+    for r in range(n):
+        e = (best - gq[r]) / scale
+        if e > 50.0:
+            continue
+        wt = math.exp(-e)
+        wsum += wt
+        acc += wt * (
+            (Fpos[qq[r], 0] - Fpos[best_q, 0]) ** 2
+            + (Fpos[qq[r], 1] - Fpos[best_q, 1]) ** 2
+            + (Fpos[qq[r], 2] - Fpos[best_q, 2]) ** 2
+        )
+    return best, 1e3 * math.sqrt(acc / wsum)
+
+
+@jit()
+def polish(
+    m: int,
+    fi: np.ndarray,
+    xw: np.ndarray,
+    xx: float,
+    arrays: tuple,
+    min2: float,
+    S: tuple,
+    rounds: int = 2,
+) -> float:  # pragma: no cover - compiled
+    """``rounds`` rounds of ``_refine`` over the ``m`` contacts; returns the gain."""
+    gq, qq, s, spread = S[6], S[7], S[8], S[9]
+    g = 0.0
+    for _ in range(rounds):
+        for i in range(m):
+            gi, sp = _refine(i, m, fi, xw, xx, arrays, min2, gq, qq, s)
+            if gi >= 0.0:
+                g = gi
+                spread[i] = sp
+    return g
+
+
+@jit()
+def relative_gain(r_prev: float, r_next: float, floor: float) -> float:  # pragma: no cover
+    """What one more contact brings: ``(r_prev - r_next) / (r_next + floor)``.
+
+    ``floor`` (whitened counts^2) is the residual the model leaves on a touch it explains
+    (``CountRule.misfit`` times the image's energy; 0: the residual alone).
+    """
+    return (r_prev - r_next) / (r_next + floor)
+
+
+@jit()
+def weakest_z(m: int, fi: np.ndarray, s: np.ndarray, Fpk: np.ndarray) -> float:  # pragma: no cover
+    """The weakest of ``m`` contacts' peak signals, noise levels (strength times peak)."""
+    z = np.inf
+    for j in range(m):
+        z = min(z, s[j] * Fpk[fi[j]])
+    return z
+
+
+@jit()
+def search_into(
+    x: np.ndarray,
+    K: int,
+    arrays: tuple,
+    prm: np.ndarray,
+    S: tuple,
+    calib: bool,
+    out: np.ndarray,
+    pair: tuple,
+    pair_s: tuple,
+) -> int:  # pragma: no cover - compiled
+    """The contacts of one image ``x (k,)`` float32 counts into ``out (K, 5)``; returns their count.
+
+    ``arrays``, ``prm``, ``S``: ``SearchTables.arrays``, ``.prm``, ``.scratch``; ``pair``,
+    ``pair_s``: ``SearchTables.pair.arrays`` and ``.scratch`` (the pruned seed and pair stages).
+
+    A count of 1 leaves ``out`` to the caller (the model's single-contact answer). With
+    ``calib`` every stage up to ``K`` runs whatever the rule says (for its calibration); the
+    statistics go to ``S[10]``: g1, g2, g3, weakest z of 2 and of 3 contacts, ``|xw|^2``.
+    """
+    w, Ct, Cg, Cd, Cpos, nbr, Ft, Fpos, Fpk, Fcell, off, cfine, Fn = arrays
+    xw, bC, g1, top, fi, keep, gq, qq, s, spread, st = S
+    z_on, min2, tau2, tau3, z2_min, z3_min = prm[0], prm[1], prm[2], prm[3], prm[5], prm[6]
+    k = x.shape[0]
+    xx = 0.0
+    zmax = 0.0
+    for j in range(k):
+        v = np.float32(x[j] * w[j])
+        xw[j] = v
+        xx += float(v) * float(v)
+        zmax = max(zmax, float(v))
+    st[:] = 0.0
+    st[5] = xx
+    # the model's typical misfit of one touch: a reduction within it is no second finger
+    floor = prm[7] * xx
+    if zmax < z_on and not calib:
+        return 0
+    if K <= 1:
+        return 1
+    C = Ct.shape[0]
+    for c in range(C):
+        bc = _dot(Ct[c], xw)
+        bC[c] = bc
+        g1[c] = bc * bc / Cd[c] if bc > 0.0 else 0.0
+    # seeds: the best one-contact candidates, each at least half the separation from the rest;
+    # then every seed with every coarse candidate far enough from it (pruned: multi_contact.pairs)
+    n_seeds, pa, pb = seeds_and_pair(bC, g1, Cg, Cd, Cpos, min2, top, pair, pair_s)
+    # one contact, refined (its residual is what a second must improve on)
+    fi[0] = cfine[top[0]]
+    gain1 = polish(1, fi, xw, xx, arrays, 0.0, S)
+    st[0] = gain1
+    st[11] = fi[0]
+    if pa < 0:
+        return 1
+    fi[0] = cfine[pa]
+    fi[1] = cfine[pb]
+    gain2 = polish(2, fi, xw, xx, arrays, min2, S)
+    z2 = weakest_z(2, fi, s, Fpk)
+    st[1] = gain2
+    st[3] = z2
+    r1 = max(xx - gain1, 1.0)
+    r2 = max(xx - gain2, 1.0)
+    zp = prm[8]
+    two = relative_gain(r1, r2, floor) * max(z2, 0.0) ** zp >= tau2 and z2 >= z2_min
+    if not two and not calib:
+        return 1
+    count = 2 if two else 1
+    for j in range(2):
+        keep[j] = fi[j]
+        out[j, 3] = s[j]
+        out[j, 4] = spread[j]
+    if K >= 3:
+        best3 = -1.0
+        pc = -1
+        G = np.empty((3, 3))
+        b = np.empty(3)
+        for j in range(2):
+            b[j] = _dot(Ft[fi[j]], xw)
+            for t in range(2):
+                G[j, t] = _dot(Ft[fi[j]], Ft[fi[t]])
+        for c in range(C):
+            far = far_apart(Cpos[c], Fpos[fi[0]], min2)
+            if not (far and far_apart(Cpos[c], Fpos[fi[1]], min2)):
+                continue
+            b[2] = bC[c]
+            if b[2] <= 0.0:
+                continue
+            G[2, 2] = Cd[c]
+            for j in range(2):
+                G[2, j] = G[j, 2] = _dot(Ct[c], Ft[fi[j]])
+            g = nnls(G, b, 3, s)
+            if g > best3 and s[0] > 0.0 and s[1] > 0.0 and s[2] > 0.0:
+                best3 = g
+                pc = c
+        if pc >= 0:
+            fi[2] = cfine[pc]
+            gain3 = polish(3, fi, xw, xx, arrays, min2, S)
+            z3 = weakest_z(3, fi, s, Fpk)
+            st[2] = gain3
+            st[4] = z3
+            r3 = max(xx - gain3, 1.0)
+            rho3 = relative_gain(r2, r3, floor) * max(z3, 0.0) ** zp
+            if two and rho3 >= tau3 and z3 >= z3_min:
+                count = 3
+                for j in range(3):
+                    keep[j] = fi[j]
+                    out[j, 3] = s[j]
+                    out[j, 4] = spread[j]
+    if count == 1:
+        return 1
+    for j in range(count):
+        st[8 + j] = keep[j]  # the contacts' fine rows, for the caller's polish
+        for t in range(3):
+            out[j, t] = Fpos[keep[j], t]
+    # strongest first (at most 3 rows: insertion sort)
+    for j in range(1, count):
+        t = j
+        while t > 0 and out[t, 3] > out[t - 1, 3]:
+            for col in range(N_COLS):
+                out[t, col], out[t - 1, col] = out[t - 1, col], out[t, col]
+            st[8 + t], st[7 + t] = st[7 + t], st[8 + t]
+            t -= 1
+    return count
+
+
+@jit()
+def single_into(
+    x: np.ndarray, w: np.ndarray, z_on: float, out7: np.ndarray, out: np.ndarray
+) -> int:  # pragma: no cover - compiled
+    """The detection rule and the strength of one contact; returns 0 (nothing) or 1.
+
+    ``out7`` is the single-contact answer (``Engine.localise_into``'s layout); the contact
+    goes to ``out[0]`` (5 columns).
+    """
+    zmax = 0.0
+    nrm = 0.0
+    for j in range(x.shape[0]):
+        v = float(x[j])
+        zmax = max(zmax, v * w[j])
+        if v > 0.0:
+            nrm += v * v
+    if zmax < z_on:
+        return 0
+    for t in range(3):
+        out[0, t] = out7[3 + t]
+    out[0, 3] = math.sqrt(nrm)
+    out[0, 4] = out7[6]
+    return 1

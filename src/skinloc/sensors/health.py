@@ -1,0 +1,137 @@
+"""Dead, weak and noisy sensors and lines: the one rule, used by ``skinloc sensors`` and the app.
+
+A TX or RX line fails as a whole far more often than one crossing (a broken trace, a loose
+connector), and one crossing's gain is estimated from a handful of nearby touches, so:
+
+* **weak / dead lines** are judged on the line's median gain (the fitted peak response of its
+  crossings, ``sensors.sensor_map``): below ``WEAK_FRACTION`` of the median line the line is
+  weak, below ``DEAD_FRACTION`` dead. A single crossing is never called weak, only dead (its
+  gain below ``DEAD_FRACTION`` of the median crossing).
+* **noisy** sensors have a no-touch noise above ``NOISY_FACTOR`` times the median and at least
+  ``NOISY_MARGIN_COUNTS`` above it (the margin keeps quantised counts on a very quiet skin,
+  median noise under a count, from flagging); a line is noisy when more than half its sensors
+  are.
+* **stuck** sensors (no change over a window of live frames, or at the ADC's rails) are dead; a
+  line is dead when more than half its sensors are.
+
+Without gains (a live stream and no calibration yet) only the noise and stuck rules apply.
+Precedence per sensor: dead, then its line's state, then noisy.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = [
+    "DEAD_FRACTION",
+    "NOISY_FACTOR",
+    "NOISY_MARGIN_COUNTS",
+    "WEAK_FRACTION",
+    "SensorHealth",
+    "classify_sensors",
+]
+
+#: A line whose median gain is below this fraction of the median line is weak ...
+WEAK_FRACTION = 0.55
+#: ... and below this fraction, dead (a crossing too, against the median crossing).
+DEAD_FRACTION = 0.12
+#: A sensor whose no-touch noise exceeds this multiple of the median is noisy ...
+NOISY_FACTOR = 3.0
+#: ... if it is also this far above the median, counts.
+NOISY_MARGIN_COUNTS = 2.0
+
+
+@dataclass(frozen=True)
+class SensorHealth:
+    """The state of every sensor and line of a TX x RX skin.
+
+    Attributes
+    ----------
+    status : (n_tx * n_rx,) str
+        ``ok``, ``weak``, ``dead`` or ``noisy`` per sensor, TX-major.
+    lines : dict
+        ``{"tx": [n_tx states], "rx": [n_rx states]}``.
+    line_gain : dict or None
+        ``{"tx": [...], "rx": [...]}``: each line's median gain (median crossing 1); None
+        without gains.
+    """
+
+    status: np.ndarray
+    lines: dict[str, list[str]]
+    line_gain: dict[str, list[float]] | None = None
+
+    def bad_lines(self, kind: str) -> list[dict[str, object]]:
+        """The lines of ``kind`` (``tx`` or ``rx``) that are not ok: ``{"index", "status"}``."""
+        return [{"index": i, "status": s} for i, s in enumerate(self.lines[kind]) if s != "ok"]
+
+
+def classify_sensors(
+    n_tx: int,
+    n_rx: int,
+    *,
+    gain: np.ndarray | None = None,
+    noise: np.ndarray | None = None,
+    stuck: np.ndarray | None = None,
+) -> SensorHealth:
+    """Classify every sensor and line (the rule of the module docstring).
+
+    Parameters
+    ----------
+    n_tx, n_rx : int
+        The grid.
+    gain : (n_tx * n_rx,) float, optional
+        Each crossing's gain (any scale; NaN where unknown).
+    noise : (n_tx * n_rx,) float, optional
+        Each sensor's no-touch noise, counts (NaN where unknown).
+    stuck : (n_tx * n_rx,) bool, optional
+        Sensors that did not change, or sit at the ADC's rails.
+
+    Returns
+    -------
+    SensorHealth
+    """
+    n = n_tx * n_rx
+    noisy = np.zeros(n, dtype=bool)
+    if noise is not None:
+        noise = np.asarray(noise, dtype=np.float64).reshape(n)
+        if np.isfinite(noise).any():
+            med = float(np.nanmedian(noise))
+            limit = max(NOISY_FACTOR * med, med + NOISY_MARGIN_COUNTS)
+            noisy = np.isfinite(noise) & (noise > limit)
+    dead = np.zeros(n, dtype=bool) if stuck is None else np.asarray(stuck, dtype=bool).reshape(n)
+    line_gain = None
+    if gain is not None:
+        gain = np.asarray(gain, dtype=np.float64).reshape(n)
+        ref = float(np.nanmedian(gain))
+        dead = dead | (gain < DEAD_FRACTION * ref)
+        G = gain.reshape(n_tx, n_rx)
+        line_gain = {"tx": np.nanmedian(G, axis=1), "rx": np.nanmedian(G, axis=0)}
+    D, N = dead.reshape(n_tx, n_rx), noisy.reshape(n_tx, n_rx)
+    status = np.full((n_tx, n_rx), "ok", dtype=object)
+    lines: dict[str, list[str]] = {}
+    for kind, axis in (("tx", 1), ("rx", 0)):
+        n_lines = n_tx if kind == "tx" else n_rx
+        ref = float(np.nanmedian(line_gain[kind])) if line_gain is not None else np.nan
+        states = []
+        for i in range(n_lines):
+            sl = (i, slice(None)) if axis == 1 else (slice(None), i)
+            g = line_gain[kind][i] if line_gain is not None else np.nan
+            if g < DEAD_FRACTION * ref or D[sl].mean() > 0.5:
+                s = "dead"
+            elif g < WEAK_FRACTION * ref:
+                s = "weak"
+            elif N[sl].mean() > 0.5:
+                s = "noisy"
+            else:
+                s = "ok"
+            states.append(s)
+            if s != "ok":
+                status[sl] = np.where(status[sl] == "dead", "dead", s)
+        lines[kind] = states
+    flat = status.ravel()
+    flat[dead] = "dead"
+    flat[(flat == "ok") & noisy] = "noisy"
+    gains = None if line_gain is None else {k: [float(v) for v in g] for k, g in line_gain.items()}
+    return SensorHealth(flat.astype(str), lines, gains)

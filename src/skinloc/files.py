@@ -10,7 +10,7 @@ from __future__ import annotations
 import errno
 import os
 import re
-import tempfile
+import secrets
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -29,20 +29,6 @@ __all__ = [
 
 #: ``errno`` values that mean the disk refused a write (full, over quota, read-only, failing).
 _DISK_ERRORS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.EIO})
-
-
-def _umask() -> int:
-    """The process umask (read without changing it where /proc allows)."""
-    try:
-        with open("/proc/self/status") as fh:
-            for line in fh:
-                if line.startswith("Umask:"):
-                    return int(line.split()[1], 8)
-    except OSError:
-        pass
-    mask = os.umask(0o022)  # elsewhere: set and restore (a race only with other umask users)
-    os.umask(mask)
-    return mask
 
 
 def os_error_reason(exc: OSError) -> str:
@@ -96,22 +82,26 @@ def atomic_write(path: str | Path, write: Callable[[Path], object]) -> None:
     path = Path(path)
     if not path.parent.is_dir():
         raise FileNotFoundError(f"cannot write {path}: folder {path.parent} does not exist")
+    # Named before it is made, not by mkstemp: a Ctrl-C landing just after the file was
+    # created (inside mkstemp, or before the next line) would leave it behind.
+    tmp = path.parent / f".{path.name}.{secrets.token_hex(6)}.tmp"
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    except OSError as exc:
+        os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))  # minus the umask
+    except OSError as exc:  # FileExistsError included: that file is not ours to remove
         raise cannot_write(path, exc) from None
-    os.close(fd)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
     try:
-        os.chmod(tmp, 0o666 & ~_umask())
-        write(Path(tmp))
+        write(tmp)
         with open(tmp, "rb") as fh:
             os.fsync(fh.fileno())
         os.replace(tmp, path)
     except OSError as exc:
-        Path(tmp).unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
         raise cannot_write(path, exc) from None
     except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
         raise
 
 

@@ -25,6 +25,7 @@ uvicorn = pytest.importorskip("uvicorn")
 
 from skinloc.app.server import create_app  # noqa: E402
 from skinloc.app.workspace import AppConfig  # noqa: E402
+from tests._helpers import wait_until  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 ARTIFACTS = Path(os.environ.get("SKINLOC_ARTIFACTS", ROOT / "build" / "test-artifacts" / "app"))
@@ -68,11 +69,13 @@ def server(tmp_path):
     srv = uvicorn.Server(uvicorn.Config(app, log_level="warning", ws="websockets-sansio"))
     thread = threading.Thread(target=srv.run, kwargs={"sockets": [sock]}, daemon=True)
     thread.start()
-    deadline = time.monotonic() + 120
-    while not srv.started:
-        if time.monotonic() > deadline or not thread.is_alive():
-            pytest.fail("the app server did not start")
-        time.sleep(0.05)
+
+    def started() -> bool:
+        if not thread.is_alive():
+            pytest.fail("the app server's thread ended before it started")
+        return srv.started
+
+    wait_until(started, "the app server to start", 120.0, interval_s=0.05)
     yield f"http://127.0.0.1:{port}/", app
     srv.should_exit = True
     thread.join(timeout=30)

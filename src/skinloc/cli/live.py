@@ -32,14 +32,32 @@ def _served_urls(runner: Any) -> list[str]:
     return [url for url in (getattr(s, "url", None) for s in sinks) if url]
 
 
-def _sigterm_as_interrupt() -> Any:
-    def handler(signum: int, frame: Any) -> None:
-        raise KeyboardInterrupt
+def _stop_on_signals(runner: Any) -> dict[int, Any]:
+    """Make the first Ctrl-C or SIGTERM stop ``runner``'s loop; a second one interrupts.
 
-    try:
-        return signal.signal(signal.SIGTERM, handler)
-    except ValueError:  # not the main thread (tests)
-        return None
+    The handler only asks the loop to stop (it ends within one turn) instead of raising
+    ``KeyboardInterrupt`` wherever the main thread happens to be: an exception raised inside a
+    destructor or a weakref callback is dropped by Python, and on a loaded machine the main
+    thread is often in the middle of a frame rather than waiting in ``select``, so a raised
+    Ctrl-C could be lost and the run go on. Returns the previous handlers, to restore.
+    """
+    received: list[int] = []
+
+    def handler(signum: int, frame: Any) -> None:
+        received.append(signum)
+        if len(received) > 1:  # the stop hangs (a sink that will not close): interrupt it
+            raise KeyboardInterrupt
+        runner.stop()
+
+    old: dict[int, Any] = {}
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        try:
+            if signal.getsignal(sig) is signal.SIG_IGN:  # a script's background job: keep it
+                continue
+            old[sig] = signal.signal(sig, handler)
+        except ValueError:  # not the main thread (an embedding program, tests)
+            break
+    return old
 
 
 def _check_sources(skin_cfgs: list[Any], allow_url: bool, wait: bool) -> None:
@@ -266,36 +284,36 @@ def register(app: typer.Typer) -> None:
                 source, baud, gain, lines, tx, rx, allow_url
             )
             runner = Runner([skin_cfg], sinks=sinks)
-        previous = _sigterm_as_interrupt()
         t0 = time.monotonic()
-        try:
-            with runner:
+        # Until the loop runs (opening sources and sinks), a signal interrupts as in every
+        # command; while it runs, one stops it cleanly and the summary is printed.
+        with runner:
+            err_console.print(
+                f"running {len(runner.skins)} skin(s): "
+                + ", ".join(f"{s.name} <- {s.source}" for s in runner.skins),
+                highlight=False,
+            )
+            # Servers asked for port 0 got a free one: say which.
+            for url in _served_urls(runner):
+                err_console.print(f"serving contacts on {url}", highlight=False)
+            for skin, port in runner.waiting:
                 err_console.print(
-                    f"running {len(runner.skins)} skin(s): "
-                    + ", ".join(f"{s.name} <- {s.source}" for s in runner.skins),
+                    f"waiting for {port} (skin {skin}): not present; plug it in or press Ctrl-C",
                     highlight=False,
                 )
-                # Servers asked for port 0 got a free one: say which.
-                for url in _served_urls(runner):
-                    err_console.print(f"serving contacts on {url}", highlight=False)
-                for skin, port in runner.waiting:
-                    err_console.print(
-                        f"waiting for {port} (skin {skin}): not present; plug it in or "
-                        "press Ctrl-C",
-                        highlight=False,
-                    )
-                try:
-                    runner.run(duration)
-                except KeyboardInterrupt:
-                    pass
-                except BrokenPipeError:  # stdout closed by the reader (| head): stop quietly
-                    import os
+            previous = _stop_on_signals(runner)
+            try:
+                runner.run(duration)
+            except KeyboardInterrupt:  # a second signal: the stop did not end the loop
+                pass
+            except BrokenPipeError:  # stdout closed by the reader (| head): stop quietly
+                import os
 
-                    os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-                counters = runner.stats()
-        finally:
-            if previous is not None:
-                signal.signal(signal.SIGTERM, previous)
+                os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            finally:
+                for sig, old in previous.items():
+                    signal.signal(sig, old)
+            counters = runner.stats()
         elapsed = time.monotonic() - t0
         for c in counters:
             err_console.print(

@@ -639,12 +639,7 @@ def test_a_tab_notices_a_silent_link_by_itself(chromium, server):
 
 
 def _wait(check, what: str, timeout_s: float = 180.0) -> None:
-    """Poll ``check()`` until true; fails naming ``what``."""
-    deadline = time.monotonic() + timeout_s
-    while not check():
-        if time.monotonic() > deadline:
-            pytest.fail(f"timed out waiting for {what}")
-        time.sleep(0.05)
+    wait_until(check, what, timeout_s, interval_s=0.05)
 
 
 def _calibrate(ws, off_target_at: int | None = None) -> None:

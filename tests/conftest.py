@@ -22,6 +22,14 @@ REAL_DIR = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "hir
 LOUD_SKIPS = ("tests/app/test_app_browser.py",)
 
 
+def pytest_collection_modifyitems(config, items) -> None:
+    """``real`` on every test that reads the real recordings (through ``real_dir``), so
+    ``-m "not real"`` runs without them; a mark on a fixture itself would have no effect."""
+    for item in items:
+        if "real_dir" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.real)
+
+
 def _skip_reason(report) -> str:
     longrepr = report.longrepr
     if isinstance(longrepr, tuple) and len(longrepr) == 3:

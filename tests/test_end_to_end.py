@@ -33,6 +33,7 @@ def sessions(tmp_path_factory, cone):
     return cal, val, tmp
 
 
+@pytest.mark.slow  # two models, one a network
 def test_default_beats_paper_on_simulated_skin(sessions):
     cal, val, _ = sessions
     default = evaluate(train_localizer([cal]), [val]).stats

@@ -7,35 +7,68 @@ never half of one.
 
 from __future__ import annotations
 
+import errno
 import os
-import tempfile
+import re
+import secrets
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
 from skinloc.errors import Interrupted
 
-__all__ = ["atomic_write", "cannot_write", "side_path", "written_through_side"]
+__all__ = [
+    "atomic_write",
+    "cannot_write",
+    "os_error_line",
+    "os_error_reason",
+    "side_path",
+    "written_through_side",
+]
 
 
-def _umask() -> int:
-    """The process umask (read without changing it where /proc allows)."""
-    try:
-        with open("/proc/self/status") as fh:
-            for line in fh:
-                if line.startswith("Umask:"):
-                    return int(line.split()[1], 8)
-    except OSError:
-        pass
-    mask = os.umask(0o022)  # elsewhere: set and restore (a race only with other umask users)
-    os.umask(mask)
-    return mask
+#: ``errno`` values that mean the disk refused a write (full, over quota, read-only, failing).
+_DISK_ERRORS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.EIO})
+
+
+def os_error_reason(exc: OSError) -> str:
+    """Why ``exc`` happened, in a few words on one line (``no space left on device``).
+
+    HDF5's errors are many lines holding the system's ``errno = N``; an error that already
+    names its file (``cannot write X: why``) gives its own reason.
+    """
+    errno = exc.errno or _errno_of(exc)
+    if errno:
+        why = os.strerror(errno)
+    else:
+        why = (exc.strerror or str(exc) or type(exc).__name__).strip().splitlines()[0]
+        why = why.rpartition(": ")[2] if why.startswith("cannot write ") else why
+    return why[:1].lower() + why[1:]
+
+
+def os_error_line(exc: OSError) -> str:
+    """``exc`` as one line: its message when it is one line, else its file and reason."""
+    text = str(exc)
+    if "\n" not in text and not text.startswith("[Errno"):
+        return text
+    found = re.search(r"filename = '([^']*)'", text)
+    name = exc.filename or (found.group(1) if found else None)
+    return f"{name}: {os_error_reason(exc)}" if name else os_error_reason(exc)
 
 
 def cannot_write(path: Path, exc: OSError) -> OSError:
-    """``exc`` reworded to name the file the user asked for, not a temporary one."""
-    why = (exc.strerror or str(exc)).lower()
-    return OSError(f"cannot write {path}: {why}")
+    """``exc`` reworded to name the file the user asked for, not a temporary one.
+
+    The result keeps ``exc``'s ``errno`` (a full disk stays recognisable).
+    """
+    out = OSError(f"cannot write {path}: {os_error_reason(exc)}")
+    out.errno = exc.errno or _errno_of(exc)
+    return out
+
+
+def _errno_of(exc: OSError) -> int | None:
+    found = re.search(r"errno = (\d+)", str(exc))
+    return int(found.group(1)) if found else None
 
 
 def atomic_write(path: str | Path, write: Callable[[Path], object]) -> None:
@@ -49,22 +82,26 @@ def atomic_write(path: str | Path, write: Callable[[Path], object]) -> None:
     path = Path(path)
     if not path.parent.is_dir():
         raise FileNotFoundError(f"cannot write {path}: folder {path.parent} does not exist")
+    # Named before it is made, not by mkstemp: a Ctrl-C landing just after the file was
+    # created (inside mkstemp, or before the next line) would leave it behind.
+    tmp = path.parent / f".{path.name}.{secrets.token_hex(6)}.tmp"
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    except OSError as exc:
+        os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))  # minus the umask
+    except OSError as exc:  # FileExistsError included: that file is not ours to remove
         raise cannot_write(path, exc) from None
-    os.close(fd)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
     try:
-        os.chmod(tmp, 0o666 & ~_umask())
-        write(Path(tmp))
+        write(tmp)
         with open(tmp, "rb") as fh:
             os.fsync(fh.fileno())
         os.replace(tmp, path)
     except OSError as exc:
-        Path(tmp).unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
         raise cannot_write(path, exc) from None
     except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
         raise
 
 
@@ -112,6 +149,11 @@ def written_through_side(
         raise Interrupted(
             f"kept the {n} complete {what} (of {total}) in {side}; {target}"
         ) from None
+    except OSError as exc:
+        side.unlink(missing_ok=True)
+        if exc.errno in _DISK_ERRORS:  # a full disk: name the file the user asked for
+            raise cannot_write(path, exc) from None
+        raise
     except BaseException:
         side.unlink(missing_ok=True)
         raise

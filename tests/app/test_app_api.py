@@ -6,7 +6,6 @@ target, as in the browser; the tests wait for what the app reports, with generou
 
 from __future__ import annotations
 
-import time
 import warnings
 from pathlib import Path
 
@@ -25,6 +24,7 @@ from skinloc.app.workspace import AppConfig  # noqa: E402
 from skinloc.data.recording import read_recording  # noqa: E402
 from skinloc.geometry.mesh import cone_skin  # noqa: E402
 from skinloc.sources.base import SourceOptions  # noqa: E402
+from tests._helpers import wait_until  # noqa: E402
 
 #: The default localiser (it trains in seconds); tests may pass overrides here.
 FAST_TRAIN: dict = {}
@@ -55,14 +55,13 @@ def stream(client: TestClient, tab: str):
 
 def wait_for(client: TestClient, check, what: str, timeout_s: float = 180.0) -> dict:
     """Poll the state until ``check(state)``; fails naming ``what`` after ``timeout_s``."""
-    deadline = time.monotonic() + timeout_s
-    while True:
-        state = client.get("/api/state").json()
-        if check(state):
-            return state
-        if time.monotonic() > deadline:
-            pytest.fail(f"timed out waiting for {what}; last state: {state}")
-        time.sleep(0.05)
+    last: dict = {}
+
+    def reached() -> dict | None:
+        last.update(state=client.get("/api/state").json())
+        return last["state"] if check(last["state"]) else None
+
+    return wait_until(reached, lambda: f"{what}; last state: {last.get('state')}", timeout_s, 0.05)
 
 
 def new_session(client: TestClient, n_points: int = 8, **kw) -> str:
@@ -361,12 +360,13 @@ def _stream_until(ws, check, what: str, timeout_s: float = 20.0) -> dict:
     The WebSocket never goes quiet for long (the server sends a heartbeat when there is nothing
     else), so the deadline is checked between messages.
     """
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        msg = ws.receive_json()
-        if check(msg):
-            return msg
-    pytest.fail(f"no {what} within {timeout_s} s")
+    last: dict = {}
+
+    def received() -> dict | None:
+        last.update(msg=ws.receive_json())
+        return last["msg"] if check(last["msg"]) else None
+
+    return wait_until(received, what, timeout_s, interval_s=0)
 
 
 def test_heartbeat_when_nothing_else_is_sent(tmp_path):
@@ -473,6 +473,10 @@ def test_active_sampling_then_the_coverage_map_of_the_trained_model(tmp_path):
         assert pts.ndim == 2 and pts.shape[1] == 3 and err.shape == (len(pts),)
         assert np.isfinite(err).all() and (err > 0).all() and cov["unit"] == "mm"
         assert cov["expected_error_mm"]["mean"] == pytest.approx(err.mean(), abs=0.05)
+        # Its colours span its own spread; the measured errors come with it, to compare.
+        lo, hi = cov["scale_mm"]
+        assert lo < hi and lo <= np.percentile(err, 5) + 0.1 and hi >= np.percentile(err, 95) - 0.1
+        assert cov["measured"]["holdout"]["p95_mm"] > 0
         # On the skin: every point within a millimetre of the cone's surface.
         from skinloc.geometry.mesh import nearest_on_surface
 

@@ -75,6 +75,16 @@ def test_lifting_during_capture_is_flagged_short_and_a_faint_touch_weak():
     assert flags == ["weak"]
 
 
+def test_a_touch_pressed_into_the_end_of_the_range_is_flagged_saturated():
+    cap = make_capture()
+    (touch,) = feed(cap, [frame(True, level=64535.0)] * 8)  # 1000 + 64535: the 16-bit top
+    flags, _ = touch_flags(touch, BASE, cap.detector, reference_peak=None)
+    assert flags == ["saturated"]
+    cap = make_capture()
+    (touch,) = feed(cap, [frame(True, level=60000.0)] * 8)
+    assert touch_flags(touch, BASE, cap.detector, reference_peak=None)[0] == []
+
+
 @pytest.fixture(scope="module")
 def sim_session(tmp_path_factory):
     mesh = cone_skin()

@@ -10,6 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests._helpers import scaled, wait_until
+
 # the benchmark scripts' helper is not part of the package: import it from bench/
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
 from live_delivery import blind, score_gestures, score_tracks  # noqa: E402
@@ -153,22 +155,23 @@ def test_scripted_gestures_through_a_faulty_virtual_skin_are_delivered_once(tmp_
                 runner.close()
                 time.sleep(0.2)
         try:
-            deadline = time.monotonic() + 120
-            while not runner.cores[0].calibrated and time.monotonic() < deadline:
-                time.sleep(0.05)
-            assert runner.cores[0].calibrated, "no baseline within 120 s"
+            wait_until(lambda: runner.cores[0].calibrated, "a baseline", 120.0, interval_s=0.05)
             hand.t0 = time.monotonic()
             time.sleep(hand.end_s + 1.5)  # the last lift, the last tap's window, the pty
-            stats = runner.stats()[0]
         finally:
             runner.close()
+        # Counted once the loop has stopped: read while it runs, a loaded machine still
+        # working through the last frames recognises a gesture after the count was taken.
+        stats = runner.stats()[0]
         downtimes = list(dev.downtimes)
         assert len(downtimes) == dev.counts["disconnects"]
     lines = [json.loads(ln) for ln in out.read_text().splitlines()]
     contacts = [e for e in lines if "event" not in e]
     events = [e for e in lines if e.get("event") == "gesture"]
     truth = hand.truth()
-    tracks = score_tracks(contacts, truth["strokes"], downtimes)
+    # A frame is stamped when the host reads it: on a loaded machine a track's last frames are
+    # read later after the lift than the 0.15 s an idle one needs (once 0.19 s at load 12).
+    tracks = score_tracks(contacts, truth["strokes"], downtimes, lag_s=scaled(0.15))
     gest = score_gestures(
         events,
         truth["truth_gestures"],

@@ -9,6 +9,7 @@ from skinloc.bench.online import model_code_stamp, train_bench_models
 from tests._live import model_path
 
 
+@pytest.mark.slow  # a multi-process benchmark
 def test_many_skins_in_worker_processes_with_one_contact_per_frame():
     m = many_skins(
         model_path("map"), n_skins=4, rate_hz=50.0, duration_s=2.0, max_contacts=1, workers=2
@@ -53,6 +54,7 @@ def test_model_code_stamp_is_stable():
     assert a == model_code_stamp() and len(a) == 16 and int(a, 16) >= 0
 
 
+@pytest.mark.slow  # a multi-process benchmark
 def test_many_skins_in_worker_processes_with_the_ros2_sink(monkeypatch):
     from skinloc.bench.sinks import LOOPBACK_DDS
 

@@ -13,6 +13,7 @@ from typer.testing import CliRunner
 from skinloc.data.recording import read_recording
 from skinloc.sim.gestures import GESTURE_KINDS
 from skinloc.sources.replay import read_stream
+from tests._helpers import one_line_error
 
 runner = CliRunner()
 
@@ -21,16 +22,6 @@ def run(*args: object):
     from skinloc.cli.main import app
 
     return runner.invoke(app, [str(a) for a in args])
-
-
-def one_line_error(res, *needles: str) -> str:
-    assert res.exit_code not in (0, None), res.output
-    assert "Traceback" not in res.output
-    err = res.output.strip()
-    assert err.startswith("error:") and err.count("\n") == 0, err
-    for n in needles:
-        assert n in err, err
-    return err
 
 
 @pytest.fixture(scope="module")

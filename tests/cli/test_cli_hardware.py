@@ -7,7 +7,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 
 import h5py
 import numpy as np
@@ -19,6 +18,7 @@ from skinloc.data.recording import read_recording
 from skinloc.errors import RecordingError
 from skinloc.sim.virtual_device import VirtualSkin
 from skinloc.sources.replay import ReplaySource, read_stream
+from tests._helpers import start_skinloc, wait_until
 
 runner = CliRunner()
 posix_only = pytest.mark.skipif(sys.platform == "win32", reason="needs a POSIX pty")
@@ -154,24 +154,19 @@ def test_collect_on_virtual_skin_survives_a_crash(tmp_path):
             "--out",
             str(out),
         ]
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "skinloc", *args],
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.PIPE,
-        )
-        try:
-            deadline = time.monotonic() + 180  # a fresh interpreter on a busy machine
-            n_done = 0
-            while n_done < 1 and proc.poll() is None and time.monotonic() < deadline:
-                time.sleep(0.05)
-                try:
-                    n_done = read_recording(out).n_point_logs if out.exists() else 0
-                except RecordingError:
-                    pass
+        proc = start_skinloc(*args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+
+        def n_done() -> int:
+            try:
+                return read_recording(out).n_point_logs if out.exists() else 0
+            except RecordingError:  # caught mid-write
+                return 0
+
+        try:  # a fresh interpreter on a busy machine
+            wait_until(n_done, "a first point log", 180.0, interval_s=0.05, proc=proc)
         finally:
             proc.send_signal(signal.SIGKILL)
             proc.wait()
-        assert n_done >= 1, proc.stderr.read().decode()
         res = run(*args)
         assert res.exit_code == 0, res.output
         assert "Resuming" in res.output and "3/3" in res.output

@@ -3,72 +3,52 @@
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
-import sys
-import time
-from pathlib import Path
 
-import pytest
 from typer.testing import CliRunner
 
 from skinloc.cli.main import app
 from skinloc.sim.virtual_device import VirtualSkin
+from tests._helpers import start_skinloc, stop_and_wait, wait_until
 from tests._live import model_path
-
-SRC = Path(__file__).resolve().parents[2] / "src"
 
 
 def run(*args):
     return CliRunner().invoke(app, [str(a) for a in args])
 
 
-def _poll(check, what: str, timeout_s: float, proc: subprocess.Popen, err: Path) -> None:
-    """Poll ``check()`` (bounded); fail with the process's stderr if it ends or time is up."""
-    deadline = time.monotonic() + timeout_s
-    while not check():
-        if proc.poll() is not None or time.monotonic() > deadline:
-            proc.kill()
-            pytest.fail(f"no {what}; skinloc run said: {err.read_text()[-2000:]}")
-        time.sleep(0.05)
-
-
 def test_run_waits_for_a_port_plugged_in_later_and_stops_on_one_ctrl_c(tmp_path):
     link_dir = tmp_path / "dev"
     port = link_dir / "ttySKIN0"  # appears when the virtual skin starts
     out, err = tmp_path / "out.jsonl", tmp_path / "err.txt"
-    env = {
-        **os.environ,
-        "PYTHONPATH": os.pathsep.join([str(SRC), os.environ.get("PYTHONPATH", "")]),
-    }
+
+    def said() -> str:
+        return f"skinloc run said: {err.read_text()[-2000:]}"
+
     with err.open("w") as err_fh:
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "skinloc", "run", "--model", str(model_path("map")),
-             "--source", str(port), "--name", "arm", "--format", "binary", "--emit-idle",
-             "--sink", f"jsonl:{out}", "--duration", "600"],
-            env=env, stdout=subprocess.DEVNULL, stderr=err_fh,
+        proc = start_skinloc(
+            "run", "--model", model_path("map"), "--source", port, "--name", "arm",
+            "--format", "binary", "--emit-idle", "--sink", f"jsonl:{out}", "--duration", "600",
+            stdout=subprocess.DEVNULL, stderr=err_fh,
         )  # fmt: skip
         try:
             waiting = f"waiting for {port} (skin arm): not present; plug it in or press Ctrl-C"
-            _poll(lambda: waiting in err.read_text(), "waiting line", 180.0, proc, err)
+            wait_until(lambda: waiting in err.read_text(), lambda: f"the waiting line; {said()}",
+                       180.0, interval_s=0.05, proc=proc)  # fmt: skip
             with VirtualSkin(fmt="binary", rate_hz=200, link_dir=link_dir):
-                _poll(
+                wait_until(
                     lambda: out.is_file() and out.stat().st_size > 0,
-                    "output from the plugged-in port",
+                    lambda: f"output from the plugged-in port; {said()}",
                     180.0,
-                    proc,
-                    err,
+                    interval_s=0.05,
+                    proc=proc,
                 )
-                proc.send_signal(signal.SIGINT)  # one Ctrl-C
-                try:
-                    proc.wait(timeout=90)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
-                    pytest.fail("skinloc run did not stop on one Ctrl-C")
+                stop_and_wait(proc, signal.SIGINT, "skinloc run")  # one Ctrl-C
         finally:
             if proc.poll() is None:
                 proc.kill()
+                proc.wait()
     text = err.read_text()
     assert proc.returncode == 0 and "Traceback" not in text, text[-2000:]
     assert text.count("waiting for") == 1  # said once, not at every retry

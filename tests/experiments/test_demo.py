@@ -30,6 +30,7 @@ def demo(tmp_path_factory) -> tuple[Path, object]:
     return out, run_demo(cfg)
 
 
+@pytest.mark.slow  # the demo: models per skin and curve size
 def test_expected_error_is_over_several_skins_with_the_paper_net(demo) -> None:
     _, res = demo
     main, paper = res.skins["main"], res.skins["paper"]
@@ -42,6 +43,7 @@ def test_expected_error_is_over_several_skins_with_the_paper_net(demo) -> None:
     assert res.curve[12].mean_mm == pytest.approx(main.per_skin[0][-1])
 
 
+@pytest.mark.slow  # the demo: models per skin and curve size
 def test_report_is_a_notebook_page_with_vector_figures(demo) -> None:
     out, _ = demo
     page = (out / "index.html").read_text(encoding="utf-8")

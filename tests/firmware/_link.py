@@ -9,11 +9,12 @@ from __future__ import annotations
 
 import re
 import struct
-import time
 import zlib
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from tests._helpers import wait_until
 
 SYNC = b"\xa5\x5a"
 _TEXT_FRAME = re.compile(rb"\d{1,5}(,\d{1,5})*")
@@ -106,12 +107,17 @@ class Link:
     def wait_for(self, predicate, timeout_s: float = 20.0) -> list[Item]:
         """Read until ``predicate(items_since_call)`` holds; returns those items."""
         seen: list[Item] = []
-        deadline = time.monotonic() + timeout_s
-        while not predicate(seen):
-            if time.monotonic() > deadline:
-                lines = [i.line for i in seen if i.kind == "line"]
-                raise AssertionError(f"timed out; {len(seen)} items, lines {lines[-5:]}")
-            seen += self.pump()
+
+        def done() -> bool:
+            seen.extend(self.pump())
+            return predicate(seen)
+
+        def what() -> str:
+            lines = [i.line for i in seen if i.kind == "line"]
+            return f"the board ({len(seen)} items, lines {lines[-5:]})"
+
+        if not predicate(seen):
+            wait_until(done, what, timeout_s, interval_s=0.0)
         return seen
 
     def send(self, text: str | bytes) -> None:

@@ -4,23 +4,14 @@ from __future__ import annotations
 
 import errno
 import threading
-import time
 
 import pytest
 
 from skinloc.errors import SourceNotConnectedError
 from skinloc.live.runner import Runner, SkinConfig
 from skinloc.sim.virtual_device import VirtualSkin
+from tests._helpers import wait_until
 from tests._live import model_path
-
-
-def wait_until(check, what: str, timeout_s: float = 120.0) -> None:
-    """Poll ``check()`` until true; fail naming ``what`` after ``timeout_s`` (a busy machine)."""
-    deadline = time.monotonic() + timeout_s
-    while not check():
-        if time.monotonic() > deadline:
-            pytest.fail(f"timed out after {timeout_s:g} s waiting for {what}")
-        time.sleep(0.02)
 
 
 def test_a_port_plugged_in_after_start_is_waited_for_and_read(tmp_path):
@@ -34,7 +25,9 @@ def test_a_port_plugged_in_after_start_is_waited_for_and_read(tmp_path):
         s = runner.stats()[0]
         assert s["waiting"] and not s["link_up"] and runner.cores[0].n_frames == 0
         with VirtualSkin(fmt="binary", rate_hz=200, link_dir=link_dir):
-            wait_until(lambda: runner.cores[0].n_frames > 20, "frames from the plugged-in port")
+            wait_until(
+                lambda: runner.cores[0].n_frames > 20, "frames from the plugged-in port", 120.0
+            )
             s = runner.stats()[0]
             assert runner.waiting == [] and not s["waiting"] and s["link_up"]
             assert s["reconnects"] == 0 and s["disconnects"] == 0  # a first open, not a recovery

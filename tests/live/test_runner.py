@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import threading
-import time
 
 import numpy as np
 import pytest
@@ -13,20 +12,12 @@ from skinloc.live.core import PipelineConfig
 from skinloc.live.runner import Pipeline, Runner, SkinConfig
 from skinloc.live.sinks import ListSink
 from skinloc.live.skins_file import load_skins, runner_from_config
+from tests._helpers import wait_until
 from tests._live import model_path, stream_recording
 
 
 def _threads() -> set[str]:
     return {t.name for t in threading.enumerate()}
-
-
-def wait_until(check, what: str, timeout_s: float = 60.0) -> None:
-    """Poll ``check()`` until true; fail naming ``what`` after ``timeout_s`` (a busy machine)."""
-    deadline = time.monotonic() + timeout_s
-    while not check():
-        if time.monotonic() > deadline:
-            pytest.fail(f"timed out after {timeout_s:g} s waiting for {what}")
-        time.sleep(0.02)
 
 
 def assert_no_thread_left(before: set[str]) -> None:
@@ -52,7 +43,7 @@ def test_pipeline_callback_mode_and_close():
     got = []
     pipeline = Pipeline(model_path("map"), "sim", realtime=False, sinks=[ListSink()])
     pipeline.start(got.append)
-    wait_until(lambda: len(got) >= 30, "30 contacts")
+    wait_until(lambda: len(got) >= 30, "30 contacts", 60.0)
     pipeline.close()
     assert len(got) >= 30
     assert (
@@ -107,15 +98,15 @@ def test_runner_on_a_virtual_skin_port_reconnects():
         runner.start()
         try:
             # Wait on what the runner reports, not on the clock: a busy machine is slower.
-            wait_until(lambda: runner.cores[0].calibrated, "the baseline")
+            wait_until(lambda: runner.cores[0].calibrated, "the baseline", 60.0)
             dev.skin.press(dev.skin.sensor_positions[27], pressure=1.0)
-            wait_until(lambda: "start" in [c.state for c in sink.contacts], "a touch")
+            wait_until(lambda: "start" in [c.state for c in sink.contacts], "a touch", 60.0)
 
             def reconnected() -> bool:
                 s = runner.stats()[0]
                 return s["frames"] > 200 and s["reconnects"] >= 1 and s["disconnects"] >= 1
 
-            wait_until(reconnected, "a disconnect, a reconnect and 200 frames")
+            wait_until(reconnected, "a disconnect, a reconnect and 200 frames", 60.0)
         finally:
             runner.close()
 
@@ -194,9 +185,12 @@ def test_serial_url_without_file_descriptor_uses_a_thread():
         rng = np.random.default_rng(0)
         for k in range(80):
             src.write(encode_binary(rng.integers(9000, 9010, 64), 8, 8, k))
-        deadline = time.monotonic() + 60
-        while runner.cores[0].n_frames < 80 and time.monotonic() < deadline:
+
+        def stepped() -> bool:  # the loop driven by hand, one turn per poll
             runner._step(0.05)
+            return runner.cores[0].n_frames >= 80
+
+        wait_until(stepped, "80 frames through the loop", 60.0, interval_s=0)
     finally:
         runner.close()
     assert runner.cores[0].n_frames == 80 and runner.cores[0].calibrated

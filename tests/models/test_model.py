@@ -58,6 +58,7 @@ def test_paper_arch_is_64_32_3(toy):
     assert m.config_["activation"] == "tanh"
 
 
+@pytest.mark.slow  # several ensembles
 def test_deterministic_under_seed(toy):
     mesh, X, y, Xt, _ = toy
     a = ContactLocalizer(**FAST, random_state=3).fit(X, y).predict(Xt)
@@ -87,6 +88,7 @@ def test_outputs_lie_on_surface(toy, constraint):
     assert d.max() < 1e-9
 
 
+@pytest.mark.slow  # several ensembles
 def test_uncertainty_from_ensemble(toy):
     mesh, X, y, Xt, _ = toy
     p = ContactLocalizer(**FAST).fit(X, y, mesh=mesh).predict_full(Xt)

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
@@ -15,8 +13,6 @@ from skinloc.sensors import health as H
 from skinloc.sensors import line_fields as FM
 from skinloc.sensors import sensor_map as S
 from skinloc.sim.skin import SimulatedSkin
-
-REAL = Path(__file__).resolve().parents[2] / "../shared/data/hiro-cone-skin"
 
 
 @pytest.fixture(scope="module")
@@ -111,11 +107,8 @@ def test_fit_fields_refuses_mismatched_images(sim):
         FM.fit_fields(T[:3], Y[:3], 8, 8, C, tree)
 
 
-@pytest.mark.skipif(
-    not (REAL / "ConeSkinData80Points_RND_80PL_1.mat").is_file(), reason="real data absent"
-)
-def test_real_cone_fields_predict_heldout_touches_and_see_rx3_weak():
-    rec = read_recording(REAL / "ConeSkinData80Points_RND_80PL_1.mat")
+def test_real_cone_fields_predict_heldout_touches_and_see_rx3_weak(real_dir):
+    rec = read_recording(real_dir / "ConeSkinData80Points_RND_80PL_1.mat")
     C = 1e3 * rec.surface_points
     tree = cKDTree(C)
     T, Y = 1e3 * rec.targets, rec.touch_means.astype(float)

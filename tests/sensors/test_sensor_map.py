@@ -155,6 +155,15 @@ def test_sensors_and_coverage_from_a_model(sim_path, tmp_path):
     assert res.exit_code == 1 and "not found" in res.output
 
 
+def test_coverage_from_recordings_calibrates_on_held_out_touches(sim_path):
+    # the recordings' path fits a map and a temperature from held-out touches
+    res = run("coverage", sim_path, "--json", "--points", "100")
+    assert res.exit_code == 0, res.output
+    cov = json.loads(res.output)
+    assert cov["n_points"] == 100 and cov["temperature"] > 1.0
+    assert 0 < cov["expected_error_mm"]["mean"] < 100
+
+
 def test_coverage_is_worse_where_nobody_touched(sim_path):
     rec = read_recording(sim_path)
     half = rec.targets[:, 0] < 0  # calibrate one side of the cone only

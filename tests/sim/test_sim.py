@@ -34,7 +34,6 @@ from skinloc.sim.skin import (
     sensor_image,
     silicone_thickness_at,
 )
-from skinloc.sources import SourceOptions, make_source
 
 GOLDEN = Path(__file__).parents[1] / "golden" / "sim_sensor_image.npy"
 SEED = int(os.environ.get("SKINLOC_TEST_SEED", "0"))  # any seed must pass
@@ -87,12 +86,6 @@ def test_contract(skin: SimulatedSkin) -> None:
         assert s.is_connected
         s.read()
     assert not skin.is_connected
-
-
-def test_make_source_builds_the_simulator() -> None:
-    src = make_source(SourceOptions("sim", seed=SEED, n_tx=4, n_rx=5))
-    assert isinstance(src, SimulatedSkin)
-    assert src.n_sensors == 20
 
 
 def test_frames_shape_dtype_integer_counts_and_clock(skin: SimulatedSkin) -> None:

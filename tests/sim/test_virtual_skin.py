@@ -7,7 +7,6 @@ import shutil
 import subprocess
 import sys
 import tempfile
-import time
 import zlib
 from pathlib import Path
 
@@ -19,6 +18,7 @@ from skinloc.hardware.ports import list_ports
 from skinloc.hardware.serial import SerialSource, SerialSourceConfig
 from skinloc.sim.skin import SimulatedSkin
 from skinloc.sim.virtual_device import Fate, FaultConfig, VirtualSkin
+from tests._helpers import wait_until
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="needs a POSIX pty")
 
@@ -29,15 +29,6 @@ def crc(values: np.ndarray) -> int:
 
 def read_n(src, n: int) -> list:
     return [src.read(timeout_s=30.0) for _ in range(n)]
-
-
-def wait_until(check, what: str, timeout_s: float = 30.0) -> None:
-    """Poll ``check()`` until true; fail naming ``what`` after ``timeout_s`` (a busy machine)."""
-    deadline = time.monotonic() + timeout_s
-    while not check():
-        if time.monotonic() > deadline:
-            pytest.fail(f"timed out after {timeout_s:g} s waiting for {what}")
-        time.sleep(0.01)
 
 
 @pytest.mark.parametrize("fmt", ["binary", "text"])
@@ -82,25 +73,24 @@ def test_commands_and_scripted_finger():
             x, y, z = skin.sensor_positions[9]
             src.write(f"touch {x} {y} {z}\n".encode())
             wait_until(lambda: dev.counts["touches"] > 0, "the device to take the touch")
+
             # Frames from before the touch may still be in the pty on a busy machine: read
             # until the touch shows (bounded). The scripted finger misses its target like a
             # person (5.3 mm per axis) and may press lightly, but always hard enough to be felt.
-            deadline = time.monotonic() + 60
-            while True:
+            def strongest_touched() -> tuple[int] | None:
                 touched = src.read(30.0).values - base
                 k = int(np.argmax(touched))
-                if touched[k] > 25:
-                    break
-                assert time.monotonic() < deadline, "the touch never showed in the frames"
+                return (k,) if touched[k] > 25 else None  # a tuple: sensor 0 counts too
+
+            (k,) = wait_until(strongest_touched, "the touch to show in the frames", 60.0, 0)
             assert np.linalg.norm(skin.contact - skin.sensor_positions[9]) < 0.03
             src.write(b"lift\nf text\n")
             wait_until(lambda: dev.fmt.value == "text", "the device to switch to text")
             # Frames sent before the lift may still be in the pty on a busy machine: the
             # promise is that the sensor comes back to its baseline, not when.
             src.clear()
-            deadline = time.monotonic() + 30
-            while abs(src.read(30.0).values[k] - base[k]) >= 40:
-                assert time.monotonic() < deadline, f"sensor {k} did not return to its baseline"
+            wait_until(lambda: abs(src.read(30.0).values[k] - base[k]) < 40,
+                       f"sensor {k} to return to its baseline", 30.0, 0)  # fmt: skip
     assert dev.handle_command("v").startswith("skinloc_muca 1.1.0 grid 8x8 format text")
     assert dev.handle_command("g 300").startswith("error")
     assert dev.handle_command("g 0") == "error gain must be 1-31"
@@ -132,15 +122,17 @@ def test_reconnects_after_unplug_and_never_delivers_a_wrong_frame():
                 pytest.fail(f"the source did not recover: {src.stats()}")
         got += read_n(src, 5)  # frames flow again after the last reconnect
         dev.stop()
+
         # Drain: once the reader has seen the port go, it has delivered all it read before.
         # Not "1 s without a frame": a busy machine may pause longer than that.
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline:
+        def drained() -> bool:
             try:
                 got.append(src.read(timeout_s=1.0))
             except FrameTimeoutError:
-                if not src.stats().link_up:
-                    break
+                return not src.stats().link_up
+            return False
+
+        wait_until(drained, "the reader to see the port go", 60.0, interval_s=0)
         stats = src.stats()
         src.disconnect()
     truth = dev.truth()
@@ -165,12 +157,9 @@ def test_an_unplugged_virtual_skin_takes_its_port_away():
     pty that got the closed one's number (the gesture soak once read another test's skin)."""
     faults = FaultConfig(0, 0, 0, 0, disconnect_every_s=0.05, downtime_s=3.0)
     with VirtualSkin(rate_hz=100, faults=faults) as dev:
-        deadline = time.monotonic() + 30
-        while dev.counts["disconnects"] < 1 and time.monotonic() < deadline:
-            time.sleep(0.005)
+        wait_until(lambda: dev.counts["disconnects"] >= 1, "an unplug", 30.0, 0.005)
         assert dev.counts["disconnects"] == 1 and not dev.downtimes  # still unplugged
         assert not os.path.lexists(dev.path)
-        while not dev.downtimes and time.monotonic() < deadline:
-            time.sleep(0.01)
+        wait_until(lambda: dev.downtimes, "the replug", 30.0, 0.01)
         a, b = dev.downtimes[0]  # plugged back in (and the link made anew) after the downtime
         assert b - a >= 3.0

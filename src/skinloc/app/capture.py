@@ -128,6 +128,10 @@ class TouchCapture:
         return touch
 
 
+#: The range of a sensor's raw counts (16 bits): a value at either end is clipped.
+COUNTS_MIN, COUNTS_MAX = 0.0, 65535.0
+
+
 def touch_flags(
     touch: CapturedTouch,
     baseline: np.ndarray,
@@ -137,11 +141,13 @@ def touch_flags(
     weak_ratio: float = 0.3,
     short_fraction: float = 0.2,
 ) -> tuple[list[str], float]:
-    """Flags of one touch by itself: ``weak`` and ``short``; and its peak signal (counts).
+    """Flags of one touch by itself: ``weak``, ``short``, ``saturated``; and its peak (counts).
 
     A touch is ``weak`` when its mean image is not a touch for the detector or its peak is below
     ``weak_ratio`` times ``reference_peak`` (the session's median); ``short`` when more than
-    ``short_fraction`` of its frames were not touches (the finger lifted during the capture).
+    ``short_fraction`` of its frames were not touches (the finger lifted during the capture);
+    ``saturated`` when a sensor whose baseline is inside the counts' range (0, 65535) reaches
+    either end of it in a frame (pressed too hard: its image is clipped).
     """
     mean = touch.frames.astype(np.float64).mean(axis=0)
     peak = float((mean - baseline).max())
@@ -152,6 +158,10 @@ def touch_flags(
         flags.append("weak")
     if touch.n_untouched > short_fraction * len(touch.frames):
         flags.append("short")
+    inside = (baseline > COUNTS_MIN) & (baseline < COUNTS_MAX)
+    clipped = (touch.frames <= COUNTS_MIN) | (touch.frames >= COUNTS_MAX)
+    if np.any(clipped[:, inside]):
+        flags.append("saturated")
     return flags, peak
 
 

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from skinloc.calibration.session import TouchDetector
 from skinloc.errors import FrameTimeoutError, SourceNotConnectedError
 from skinloc.sensors.health import classify_sensors
 from skinloc.sources.base import Frame, FrameSource, SourceKind, SourceOptions, make_source
@@ -34,15 +35,20 @@ LINK_TIMEOUT_S = 0.8
 class SensorMonitor:
     """Rolling statistics of the stream: rate, noise, SNR, flagged sensors and lines.
 
-    Noise is the robust spread (1.4826 x MAD) of each sensor over the last ``window`` frames, so
-    short touches barely move it. The zero level is the median of the first frames after
+    Noise is the robust spread (1.4826 x MAD) of each sensor over the last ``window`` untouched
+    frames: a frame the touch detector (5 sigma of the zero frames' noise, 2 sensors) calls a
+    touch, and the ``settle`` frames after one, are left out, so a finger held down never makes
+    its sensors look noisy. The zero level is the median of the first frames after
     ``rezero``; SNR is the largest rise above it relative to the noise (the paper's Eq. 1 with
     the running peak), unless a session supplies per-sensor SNR from its point logs.
     """
 
-    def __init__(self, n_tx: int, n_rx: int, window: int = 100) -> None:
+    def __init__(self, n_tx: int, n_rx: int, window: int = 100, settle: int = 10) -> None:
         self.n_tx, self.n_rx = n_tx, n_rx
         self.window = window
+        self.settle = settle
+        self._detector: TouchDetector | None = None
+        self._after_touch = 0
         self._frames: collections.deque[np.ndarray] = collections.deque(maxlen=window)
         self._times: collections.deque[float] = collections.deque(maxlen=window)
         self.zero: np.ndarray | None = None
@@ -59,6 +65,7 @@ class SensorMonitor:
     def rezero(self) -> None:
         """Measure the zero level again from the next 30 frames."""
         self.zero, self._zero_frames = None, []
+        self._detector = None
         self.peak = np.zeros(self.n_tx * self.n_rx)
 
     def restart_rate(self) -> None:
@@ -71,15 +78,25 @@ class SensorMonitor:
     def add(self, values: np.ndarray, wall_s: float) -> None:
         """Take one frame of raw counts."""
         self.n_frames += 1
-        self._frames.append(values)
         self._times.append(wall_s)
         if self.zero is None:
+            self._frames.append(values)
             self._zero_frames.append(values)
             if len(self._zero_frames) >= 30:
-                self.zero = np.median(np.stack(self._zero_frames), axis=0)
+                Z = np.stack(self._zero_frames).astype(np.float64)
+                self.zero = np.median(Z, axis=0)
+                spread = 1.4826 * np.median(np.abs(Z - self.zero), axis=0)
+                self._detector = TouchDetector(self.zero, spread)
                 self._zero_frames = []
+            return
+        self.peak = np.maximum(self.peak, values - self.zero)
+        # Only untouched frames measure the noise: a touch is signal, not noise.
+        if self._detector is not None and self._detector.is_touched(values):
+            self._after_touch = self.settle
+        elif self._after_touch > 0:
+            self._after_touch -= 1
         else:
-            self.peak = np.maximum(self.peak, values - self.zero)
+            self._frames.append(values)
 
     @property
     def rate_hz(self) -> float:

@@ -9,10 +9,37 @@ from typing import Annotated, Any
 import typer
 from rich.table import Table
 
-from skinloc.cli.common import check_output, console, friendly_errors, print_json, progress_steps
+from skinloc.cli.common import (
+    check_output,
+    console,
+    err_console,
+    friendly_errors,
+    print_json,
+    progress_steps,
+)
 
 #: Columns of the real-recordings table.
 _REAL_COLUMNS = ("protocol", "arch", "train", "test", "per", "n", "mean_mm", "std_mm", "median_mm")
+
+
+def installed_archs(archs: tuple[str, ...]) -> tuple[tuple[str, ...], list[str]]:
+    """The architectures of ``archs`` this install can train, and what was left out, and why.
+
+    Networks train in PyTorch (the ``nets`` extra); a benchmark without it measures the rest
+    and says so.
+    """
+    from skinloc._lazy import extra_installed, missing_extra_message
+    from skinloc.models.localizer import ARCHITECTURES
+
+    if extra_installed("torch"):
+        return archs, []
+    nets = [a for a in archs if ARCHITECTURES[a]["kind"] == "network"]
+    if not nets:
+        return archs, []
+    names = " and ".join(repr(a) for a in nets)
+    what = f"training the {names} network{'s' if len(nets) > 1 else ''}"
+    kept = tuple(a for a in archs if a not in nets)
+    return kept, [missing_extra_message("torch", what)]
 
 
 def register(app: typer.Typer) -> None:
@@ -50,8 +77,9 @@ def register(app: typer.Typer) -> None:
         """
         check_output(out, option="--out", folder=True)
         if online:  # skinloc.cli.live: the live pipeline's figures (docs/benchmarks.md)
+            archs, left_out = installed_archs(("default", "mlp", "paper"))
             return __import__("skinloc.cli.live", fromlist=["bench_online"]).bench_online(
-                out, as_json
+                out, as_json, archs, left_out
             )
         import numpy as np
 
@@ -67,13 +95,22 @@ def register(app: typer.Typer) -> None:
         if real is not None and not real.is_dir():
             raise ValueError(f"--real {real} is not a folder of recordings")
         out.mkdir(exist_ok=True)
-        results: dict[str, Any] = {}
+        sim_archs, _ = installed_archs(("paper", "default"))
+        real_archs, _ = installed_archs(("default", "mlp", "paper"))
+        asked = (("paper",) if sim else ()) + (("mlp", "paper") if real is not None else ())
+        _, left_out = installed_archs(tuple(dict.fromkeys(asked)))
+        results: dict[str, Any] = {"left_out": left_out}
+        for why in results["left_out"]:
+            err_console.print(f"left out: {why}", highlight=False, soft_wrap=True)
         with progress_steps() as step:
             if sim:
-                rows = B.paper_experiment(sizes=size_list, seeds=range(seeds), step=step)
+                rows = B.paper_experiment(
+                    sizes=size_list, seeds=range(seeds), archs=sim_archs, step=step
+                )
                 results["sim"] = rows
             if real is not None:
-                results["real"] = [r.__dict__ for r in B.real_splits(real, step=step)]
+                splits = B.real_splits(real, archs=real_archs, step=step)
+                results["real"] = [r.__dict__ for r in splits]
             if timing:
                 results["timing"] = B.timing(step=step)
         (out / "results.json").write_text(json.dumps(results, indent=2, default=float))

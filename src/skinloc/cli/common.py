@@ -21,7 +21,34 @@ import typer
 from rich.console import Console
 from rich.markup import escape
 
-from skinloc.errors import SkinlocError
+from skinloc._lazy import EXTRAS, missing_extra_message
+from skinloc.errors import RecordingError, SkinlocError
+from skinloc.files import os_error_line
+
+
+def _flags_read_as_flags() -> None:
+    """Show no value type after a flag in ``--help`` (``--force``, not ``--force <bool>``).
+
+    Typer 0.29's rich help prints every option's ``display_type_rich`` (``<bool>`` for a flag)
+    although a flag takes no value; its plain help already leaves the type out for flags and
+    counters, and this makes the rich help agree. Older Typer has no such method and shows no
+    type for flags: nothing to do there.
+    """
+    from typer import core
+
+    option = getattr(core, "TyperOption", None)
+    shown = getattr(option, "display_type_rich", None)
+    if shown is None or getattr(shown, "_flags_read_as_flags", False):
+        return
+
+    def display_type_rich(self: Any, ctx: Any) -> str | None:
+        return None if self.is_flag or self.count else shown(self, ctx)
+
+    display_type_rich._flags_read_as_flags = True  # type: ignore[attr-defined]
+    option.display_type_rich = display_type_rich
+
+
+_flags_read_as_flags()
 
 app = typer.Typer(
     name="skinloc",
@@ -150,10 +177,21 @@ def friendly_errors(fn: F) -> F:
             try:
                 return fn(*args, **kwargs)
             except (SkinlocError, ValueError, OSError) as exc:
+                # HDF5's errors (a full disk) are many lines: one line, file and reason
+                text = os_error_line(exc) if isinstance(exc, OSError) else str(exc)
                 # escaped: a message may hold brackets (pip install 'skinloc[nets]', paths)
                 err_console.print(
-                    f"[bold red]error:[/] {escape(str(exc))}", highlight=False, soft_wrap=True
+                    f"[bold red]error:[/] {escape(text)}", highlight=False, soft_wrap=True
                 )
+                raise typer.Exit(1) from None
+            except ModuleNotFoundError as exc:
+                # every optional import goes through require_extra (MissingExtraError, above);
+                # one that does not is still one line when it is an extra's
+                top = (exc.name or "").partition(".")[0]
+                if top not in EXTRAS:
+                    raise
+                msg = missing_extra_message(top, "this command", exc)
+                err_console.print(f"[bold red]error:[/] {escape(msg)}", highlight=False)
                 raise typer.Exit(1) from None
             except MemoryError:
                 err_console.print(
@@ -315,8 +353,21 @@ def print_json(obj: Any) -> None:
     sys.stdout.write(json.dumps(obj, indent=2, default=float) + "\n")
 
 
-def read_recordings(paths: Iterable[Path]) -> list:
-    """The recordings at ``paths``, read in order (``Recording`` each)."""
+def read_recordings(paths: Iterable[Path], *, calibration: bool = False) -> list:
+    """The recordings at ``paths``, read in order (``Recording`` each).
+
+    With ``calibration``, a recording without point logs (a raw stream from ``skinloc
+    record``) is refused with a message naming it and what is expected instead.
+    """
     from skinloc.data.recording import read_recording
 
-    return [read_recording(p) for p in paths]
+    recs = []
+    for p in paths:
+        rec = read_recording(p)
+        if calibration and rec.n_point_logs == 0:
+            raise RecordingError(
+                f"{p} is a raw stream without point logs, not a calibration: give recordings "
+                "of touches ('skinloc collect' or 'skinloc simulate')"
+            )
+        recs.append(rec)
+    return recs

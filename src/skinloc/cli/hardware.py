@@ -170,6 +170,10 @@ def open_cli_source(params: dict[str, Any], *, realtime: bool = False, mesh: Any
 FIRST_FRAME_S = 5.0
 
 
+#: Frames appended to a recording at a time by ``skinloc record`` (also at least once a second).
+_STREAM_CHUNK = 64
+
+
 def _first_frame(src, timeout_s: float):
     """The first frame after connecting, waited for at least ``FIRST_FRAME_S``."""
     return src.read(max(timeout_s, FIRST_FRAME_S))
@@ -309,52 +313,99 @@ def register(app: typer.Typer) -> None:
         """Record a no-touch baseline, then the raw stream for --seconds, to an HDF5 recording.
 
         The stream goes to the group 'stream' (frames, times_s, index) next to the usual
-        recording layout (docs/hardware.md); 'skinloc info' reads the file.
+        recording layout (docs/hardware.md); 'skinloc info' reads the file. It is written as it
+        comes, to OUT's name with .partial.h5, renamed over --out at the end: Ctrl-C, SIGTERM
+        or a full disk keep the frames so far.
 
         Example: skinloc record --port /dev/ttyACM0 --seconds 30 --out stream.h5
         """
-        from skinloc.sources.replay import write_stream_recording
+        import os
+
+        from skinloc.data.appender import StreamAppender
+        from skinloc.errors import RecordingError, SkinlocError
+        from skinloc.files import cannot_write, os_error_line, os_error_reason, side_path
 
         if out.suffix.lower() not in (".h5", ".hdf5"):
             raise ValueError(f"--out must be an .h5 file, got {out}")
         check_output(out, option="--out", inputs=[mesh], force=force)
         surface = _load_surface(mesh, units)
         src = open_cli_source(locals(), mesh=surface if source is SourceChoice.sim else None)
-        frames, times, index = [], [], []
+        side = side_path(out, "partial")
+        buf: list[tuple[np.ndarray, float, int]] = []  # frames not yet on disk
+        t_end = 0.0  # stream time of the last frame on disk, s
         with src, progress_steps() as step:
             _first_frame(src, timeout)
             base, _ = src.read_many(baseline_frames, timeout)
             step("baseline", baseline_frames, baseline_frames)
+            try:
+                writer = StreamAppender(
+                    side,
+                    n_tx=src.n_tx,
+                    n_rx=src.n_rx,
+                    mesh=surface,
+                    baseline_frames=base,
+                    meta={"source": src.name, "description": f"raw stream of {seconds:g} s"},
+                    chunk=_STREAM_CHUNK,
+                )
+            except OSError as exc:
+                raise cannot_write(out, exc) from None
+
+            def save() -> OSError | None:
+                """Append ``buf`` to the file; the disk's refusal is returned, not raised."""
+                nonlocal t_end
+                if not buf:
+                    return None
+                try:  # the appender refuses a disk too full for them, keeping the file whole
+                    writer.append(
+                        np.asarray([b[0] for b in buf], dtype=np.float32),
+                        np.asarray([b[1] for b in buf]),
+                        np.asarray([b[2] for b in buf], dtype=np.int64),
+                    )
+                except OSError as exc:
+                    return exc
+                t_end = buf[-1][1]
+                buf.clear()
+                return None
+
             t0 = None
             interrupted = False
+            refused: OSError | None = None  # the disk's refusal
+            failed: Exception | None = None  # the source's (a timeout, an unplugged port)
             try:
-                while True:
-                    f = src.read(timeout)
-                    t0 = f.timestamp_s if t0 is None else t0
-                    if f.timestamp_s - t0 > seconds:
-                        break
-                    frames.append(f.values)
-                    times.append(f.timestamp_s - t0)
-                    index.append(f.index)
-                    if len(frames) % 25 == 0:
-                        step("streaming (s)", int(f.timestamp_s - t0), int(np.ceil(seconds)))
-            except KeyboardInterrupt:  # Ctrl-C ends the stream early: keep what came
-                interrupted = True
+                try:
+                    while True:
+                        f = src.read(timeout)
+                        t0 = f.timestamp_s if t0 is None else t0
+                        if f.timestamp_s - t0 > seconds:
+                            break
+                        buf.append((f.values, f.timestamp_s - t0, f.index))
+                        if len(buf) >= _STREAM_CHUNK or f.timestamp_s - t0 - t_end >= 1.0:
+                            refused = save()
+                            if refused is not None:
+                                break
+                        if (writer.n_frames + len(buf)) % 25 == 0:
+                            step("streaming (s)", int(f.timestamp_s - t0), int(np.ceil(seconds)))
+                except KeyboardInterrupt:  # Ctrl-C or SIGTERM ends the stream early: keep it
+                    interrupted = True
+                except (SkinlocError, OSError) as exc:
+                    failed = exc
+                refused = refused or save()
+            finally:
+                try:
+                    writer.close()
+                except OSError as exc:
+                    refused = refused or exc
             summary = _stats_line(src)
-        n = src.n_sensors
-        write_stream_recording(
-            out,
-            n_tx=src.n_tx,
-            n_rx=src.n_rx,
-            mesh=surface,
-            baseline_frames=base,
-            frames=np.asarray(frames, dtype=np.float32).reshape(-1, n),
-            times_s=np.asarray(times),
-            index=np.asarray(index, dtype=np.int64),
-            meta={"source": src.name, "description": f"raw stream of {seconds:g} s"},
-        )
+        os.replace(side, out)
+        n_kept = writer.n_frames
+        held = f"{out} holds the first {n_kept} stream frames ({t_end:.1f} s of {seconds:g} s)"
+        if refused is not None:
+            raise OSError(f"cannot write {out}: {os_error_reason(refused)}; {held}")
+        if failed is not None:
+            text = os_error_line(failed) if isinstance(failed, OSError) else str(failed)
+            raise RecordingError(f"{text}; {held}")
         console.print(
-            f"Wrote {out}: {baseline_frames} baseline frames + {len(frames)} stream "
+            f"Wrote {out}: {baseline_frames} baseline frames + {writer.n_frames} stream "
             f"frames, {src.n_tx} TX x {src.n_rx} RX"
         )
         err_console.print(summary, highlight=False)

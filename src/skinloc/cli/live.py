@@ -32,14 +32,32 @@ def _served_urls(runner: Any) -> list[str]:
     return [url for url in (getattr(s, "url", None) for s in sinks) if url]
 
 
-def _sigterm_as_interrupt() -> Any:
-    def handler(signum: int, frame: Any) -> None:
-        raise KeyboardInterrupt
+def _stop_on_signals(runner: Any) -> dict[int, Any]:
+    """Make the first Ctrl-C or SIGTERM stop ``runner``'s loop; a second one interrupts.
 
-    try:
-        return signal.signal(signal.SIGTERM, handler)
-    except ValueError:  # not the main thread (tests)
-        return None
+    The handler only asks the loop to stop (it ends within one turn) instead of raising
+    ``KeyboardInterrupt`` wherever the main thread happens to be: an exception raised inside a
+    destructor or a weakref callback is dropped by Python, and on a loaded machine the main
+    thread is often in the middle of a frame rather than waiting in ``select``, so a raised
+    Ctrl-C could be lost and the run go on. Returns the previous handlers, to restore.
+    """
+    received: list[int] = []
+
+    def handler(signum: int, frame: Any) -> None:
+        received.append(signum)
+        if len(received) > 1:  # the stop hangs (a sink that will not close): interrupt it
+            raise KeyboardInterrupt
+        runner.stop()
+
+    old: dict[int, Any] = {}
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        try:
+            if signal.getsignal(sig) is signal.SIG_IGN:  # a script's background job: keep it
+                continue
+            old[sig] = signal.signal(sig, handler)
+        except ValueError:  # not the main thread (an embedding program, tests)
+            break
+    return old
 
 
 def _check_sources(skin_cfgs: list[Any], allow_url: bool, wait: bool) -> None:
@@ -266,36 +284,36 @@ def register(app: typer.Typer) -> None:
                 source, baud, gain, lines, tx, rx, allow_url
             )
             runner = Runner([skin_cfg], sinks=sinks)
-        previous = _sigterm_as_interrupt()
         t0 = time.monotonic()
-        try:
-            with runner:
+        # Until the loop runs (opening sources and sinks), a signal interrupts as in every
+        # command; while it runs, one stops it cleanly and the summary is printed.
+        with runner:
+            err_console.print(
+                f"running {len(runner.skins)} skin(s): "
+                + ", ".join(f"{s.name} <- {s.source}" for s in runner.skins),
+                highlight=False,
+            )
+            # Servers asked for port 0 got a free one: say which.
+            for url in _served_urls(runner):
+                err_console.print(f"serving contacts on {url}", highlight=False)
+            for skin, port in runner.waiting:
                 err_console.print(
-                    f"running {len(runner.skins)} skin(s): "
-                    + ", ".join(f"{s.name} <- {s.source}" for s in runner.skins),
+                    f"waiting for {port} (skin {skin}): not present; plug it in or press Ctrl-C",
                     highlight=False,
                 )
-                # Servers asked for port 0 got a free one: say which.
-                for url in _served_urls(runner):
-                    err_console.print(f"serving contacts on {url}", highlight=False)
-                for skin, port in runner.waiting:
-                    err_console.print(
-                        f"waiting for {port} (skin {skin}): not present; plug it in or "
-                        "press Ctrl-C",
-                        highlight=False,
-                    )
-                try:
-                    runner.run(duration)
-                except KeyboardInterrupt:
-                    pass
-                except BrokenPipeError:  # stdout closed by the reader (| head): stop quietly
-                    import os
+            previous = _stop_on_signals(runner)
+            try:
+                runner.run(duration)
+            except KeyboardInterrupt:  # a second signal: the stop did not end the loop
+                pass
+            except BrokenPipeError:  # stdout closed by the reader (| head): stop quietly
+                import os
 
-                    os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-                counters = runner.stats()
-        finally:
-            if previous is not None:
-                signal.signal(signal.SIGTERM, previous)
+                os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            finally:
+                for sig, old in previous.items():
+                    signal.signal(sig, old)
+            counters = runner.stats()
         elapsed = time.monotonic() - t0
         for c in counters:
             err_console.print(
@@ -357,15 +375,22 @@ def register(app: typer.Typer) -> None:
             )
 
 
-def bench_online(out: Path, as_json: bool) -> None:
-    """``skinloc bench --online``: the live path's figures, written to ``out/online.json``."""
+def bench_online(out: Path, as_json: bool, archs: tuple[str, ...], left_out: list[str]) -> None:
+    """``skinloc bench --online``: the live path's figures, written to ``out/online.json``.
+
+    ``archs`` are the models to measure; ``left_out`` says what was left out before (networks
+    without PyTorch), and what the benchmark leaves out itself is added to it.
+    """
     from skinloc.bench.online import online_bench
-    from skinloc.cli.common import console, print_json, progress_steps
+    from skinloc.cli.common import console, err_console, print_json, progress_steps
 
     out.mkdir(parents=True, exist_ok=True)
     with progress_steps() as step:
-        res = online_bench(out=out, step=step)
+        res = online_bench(out=out, step=step, archs=archs)
+    res["left_out"] = [*left_out, *res["left_out"]]
     (out / "online.json").write_text(json.dumps(res, indent=2, default=float))
+    for why in res["left_out"]:
+        err_console.print(f"left out: {why}", highlight=False, soft_wrap=True)
     if as_json:
         print_json(res)
         return

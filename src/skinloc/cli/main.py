@@ -267,7 +267,7 @@ def train(
     from skinloc.models.localizer import ContactLocalizer
 
     check_output(out, option="--out", inputs=[*data, init, mesh], force=force)
-    recs = read_recordings(data)
+    recs = read_recordings(data, calibration=True)
     if select is not None:
         recs = _select_point_logs(recs, select, strategy, seed)
     n_logs = sum(r.n_point_logs for r in recs)
@@ -343,7 +343,7 @@ def evaluate(
     from skinloc.models.localizer import ContactLocalizer
 
     loc = ContactLocalizer.load(model)
-    ev = run(loc, read_recordings(data), per_frame=per_frame)
+    ev = run(loc, read_recordings(data, calibration=True), per_frame=per_frame)
     result = {
         **ev.as_dict(),
         "per": "frame" if per_frame else "touch",

@@ -45,7 +45,7 @@ def register(app: typer.Typer) -> None:
         from skinloc.evaluation.metrics import snr_db
 
         results = []
-        for path, rec in zip(data, read_recordings(data), strict=True):
+        for path, rec in zip(data, read_recordings(data, calibration=True), strict=True):
             s = snr_db(rec.touch_means, rec.baseline_frames)
             results.append(
                 {

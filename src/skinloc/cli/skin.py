@@ -10,7 +10,7 @@ from typing import Annotated, Any
 
 import typer
 
-from skinloc.files import atomic_write
+from skinloc.files import atomic_write, cannot_write
 
 __all__ = ["register", "load_skin_input"]
 
@@ -27,7 +27,7 @@ def load_skin_input(paths: list[Path]) -> tuple[str, Any]:
     """
     import h5py
 
-    from skinloc.data.recording import read_recording
+    from skinloc.cli.common import read_recordings
     from skinloc.models.localizer import ContactLocalizer
 
     def is_model(p: Path) -> bool:
@@ -42,7 +42,7 @@ def load_skin_input(paths: list[Path]) -> tuple[str, Any]:
         if len(paths) > 1:
             raise ValueError("give one model file, or one or more recordings, not both")
         return "model", ContactLocalizer.load(models[0])
-    return "recordings", [read_recording(p) for p in paths]
+    return "recordings", read_recordings(paths, calibration=True)
 
 
 def _check_out(out: Path, inputs: list[Path], names: tuple[str, ...]) -> None:
@@ -79,7 +79,10 @@ def _report(
         out.mkdir(parents=True, exist_ok=True)
         text = json.dumps(result, indent=1) + "\n"
         atomic_write(out / names[0], lambda tmp: tmp.write_text(text))
-        plot(out / names[1])
+        try:
+            plot(out / names[1])
+        except OSError as exc:  # a full disk: name the figure
+            raise cannot_write(out / names[1], exc) from None
     if as_json:
         sys.stdout.write(json.dumps(result, indent=1) + "\n")
         return None

@@ -1,9 +1,15 @@
-"""Recordings written point log by point log, for sessions that must survive a crash."""
+"""Recordings written as they are made: point log by point log, or frame by frame.
+
+A crash, a signal or a full disk keeps what was written before it.
+"""
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import json
 import os
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -14,7 +20,20 @@ from skinloc.data.recording import Recording, _now, _write_h5
 from skinloc.errors import RecordingError
 from skinloc.files import cannot_write
 
-__all__ = ["RecordingAppender"]
+__all__ = ["DISK_RESERVE", "RecordingAppender", "StreamAppender"]
+
+#: Bytes an appender leaves free on the disk beyond what it writes, for HDF5's bookkeeping. An
+#: HDF5 file that meets a full disk is left broken (h5py may even crash on it), so an appender
+#: refuses to write before that happens, and the file keeps everything appended so far.
+DISK_RESERVE = 32 * 1024
+
+
+def _ensure_room(path: Path, nbytes: int) -> None:
+    """Raise ``OSError`` (ENOSPC) unless ``path``'s disk has room for ``nbytes`` and more."""
+    if shutil.disk_usage(path.parent).free < nbytes + DISK_RESERVE:
+        exc = OSError(f"cannot write {path}: {os.strerror(errno.ENOSPC).lower()}")
+        exc.errno = errno.ENOSPC
+        raise exc
 
 
 class RecordingAppender:
@@ -73,6 +92,7 @@ class RecordingAppender:
             )
         if not np.all(np.isfinite(frames)):
             raise RecordingError("point log frames have NaN or infinite values")
+        _ensure_room(self.path, frames.nbytes + 16 * len(frames) + 24)
         g = self._file["point_logs"]
         i = self.n_point_logs
         names = ("targets", "frames", "frame_times")
@@ -91,8 +111,10 @@ class RecordingAppender:
 
     def update_meta(self, **values: Any) -> None:
         """Merge ``values`` into the stored meta and flush."""
+        meta = json.dumps({**self.meta, **values})
+        _ensure_room(self.path, len(meta))
         self.meta.update(values)
-        self._file.attrs["meta"] = json.dumps(self.meta)
+        self._file.attrs["meta"] = meta
         self._file.flush()
 
     def close(self) -> None:
@@ -104,6 +126,164 @@ class RecordingAppender:
                 os.fsync(fh.fileno())
 
     def __enter__(self) -> RecordingAppender:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class StreamAppender:
+    """A raw-stream recording (``skinloc record``) written as the frames come.
+
+    Creates the recording's layout without point logs (header: grid, mesh, the no-touch
+    baseline capture, meta) and the group ``stream``: ``frames (n, k)`` float32 raw counts,
+    ``times_s (n,)`` s since the first frame, ``index (n,)`` the device's frame counter. Every
+    ``append`` grows them and flushes, so the file on disk always holds the frames so far and
+    stays readable (``skinloc.sources.replay.read_stream``): a crash, a signal or a full disk
+    keeps what was appended before it.
+
+    Parameters
+    ----------
+    path : str or Path
+        File to create; it must not exist unless ``exclusive`` is False.
+    n_tx, n_rx : int
+        Grid.
+    mesh : trimesh.Trimesh
+        Skin surface, m.
+    baseline_frames : (m, n_tx * n_rx) float
+        No-touch capture, raw counts.
+    meta : dict, optional
+        Stored with the recording.
+    chunk : int
+        Frames per HDF5 chunk: append about this many at a time (a partly filled compressed
+        chunk is rewritten, and the file grows, each time it is appended to).
+    columns : dict, optional
+        More per-frame datasets, ``{"group/name": (shape of one frame's value, dtype)}``,
+        filled through ``append``'s keyword arguments.
+    exclusive : bool
+        Refuse an existing ``path`` (False: replace it, for a temporary file).
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        n_tx: int,
+        n_rx: int,
+        mesh: Any,
+        baseline_frames: np.ndarray,
+        meta: dict[str, Any] | None = None,
+        chunk: int = 64,
+        columns: dict[str, tuple[tuple[int, ...], Any]] | None = None,
+        exclusive: bool = True,
+    ) -> None:
+        import h5py
+
+        from skinloc import __version__
+        from skinloc.geometry.mesh import surface_points
+
+        k = n_tx * n_rx
+        header = Recording(
+            n_tx=n_tx,
+            n_rx=n_rx,
+            vertices=mesh.vertices,
+            faces=mesh.faces,
+            surface_points=surface_points(mesh),
+            baseline_frames=baseline_frames,
+            targets=np.zeros((0, 3)),
+            frames=np.zeros((0, 1, k), dtype=np.float32),
+            meta={"sampling_mode": "none", "samples_per_touch": 0, **(meta or {})},
+        )
+        header.validate()
+        self.path = Path(path)
+        self.n_frames = 0
+        try:
+            self.file = h5py.File(self.path, "x" if exclusive else "w")
+        except OSError as exc:
+            raise cannot_write(self.path, exc) from None
+        try:
+            _write_h5(
+                self.file,
+                header,
+                {"created": _now(), **header.meta, "skinloc_version": __version__},
+            )
+            g = self.file.create_group("stream")
+            g.attrs["units"] = "frames in raw counts, times in s since the first frame"
+            self._data = {
+                "frames": g.create_dataset(
+                    "frames",
+                    (0, k),
+                    np.float32,
+                    maxshape=(None, k),
+                    chunks=(chunk, k),
+                    compression="gzip",
+                    compression_opts=4,
+                ),
+                "times_s": g.create_dataset(
+                    "times_s", (0,), np.float64, maxshape=(None,), chunks=(chunk,)
+                ),
+                "index": g.create_dataset(
+                    "index", (0,), np.int64, maxshape=(None,), chunks=(chunk,)
+                ),
+            }
+            for name, (shape, dtype) in (columns or {}).items():
+                self._data[name] = self.file.create_dataset(
+                    name, (0, *shape), dtype, maxshape=(None, *shape), chunks=(chunk, *shape)
+                )
+            self.file.flush()
+        except BaseException as exc:
+            with contextlib.suppress(OSError):  # a full disk refuses the close's flush too
+                self.file.close()
+            self.path.unlink(missing_ok=True)
+            if isinstance(exc, OSError):
+                raise cannot_write(self.path, exc) from None
+            raise
+
+    def append(
+        self, frames: np.ndarray, times_s: np.ndarray, index: np.ndarray, **columns: np.ndarray
+    ) -> None:
+        """Add frames ``(n, k)`` raw counts, their times ``(n,)`` s and counters ``(n,)``.
+
+        ``columns`` give the ``columns`` datasets' values, ``(n, ...)`` each. The frames are
+        flushed to disk; on any error (a full disk, Ctrl-C) none of them stays in the file.
+        """
+        values = {"frames": frames, "times_s": times_s, "index": index, **columns}
+        if set(values) != set(self._data):
+            raise ValueError(f"append needs exactly {sorted(self._data)}, got {sorted(values)}")
+        n = len(frames)
+        if any(len(v) != n for v in values.values()):
+            raise ValueError("append needs as many values of each dataset as frames")
+        if not n:
+            return
+        _ensure_room(self.path, sum(np.asarray(v).nbytes for v in values.values()))
+        i = self.n_frames
+        try:
+            for name, ds in self._data.items():
+                ds.resize(i + n, axis=0)
+                ds[i:] = values[name]
+            self.file.flush()
+        except BaseException:
+            with contextlib.suppress(OSError):  # a full disk may refuse this too
+                self.truncate(i)
+            raise
+        self.n_frames = i + n
+
+    def truncate(self, n: int) -> None:
+        """Keep the first ``n`` frames only (and flush)."""
+        for ds in self._data.values():
+            ds.resize(n, axis=0)
+        self.n_frames = n
+        self.file.flush()
+
+    def close(self) -> None:
+        """Flush, sync to disk and close (idempotent)."""
+        if self.file.id.valid:
+            self.file.flush()
+            self.file.close()
+            with open(self.path, "rb") as fh:
+                os.fsync(fh.fileno())
+
+    def __enter__(self) -> StreamAppender:
         return self
 
     def __exit__(self, *exc: object) -> None:

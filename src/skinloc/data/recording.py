@@ -251,7 +251,13 @@ def _read_h5(path: Path) -> Recording:
 
     try:
         with h5py.File(path, "r") as f:
-            if f.attrs.get("format") != "skinloc-recording":
+            kind = f.attrs.get("format")
+            if kind == "skinloc-model":
+                raise RecordingError(
+                    f"{path} is a model, not a recording: give a recording ('skinloc record', "
+                    "'collect' or 'simulate')"
+                )
+            if kind != "skinloc-recording":
                 raise RecordingError(f"{path} is an HDF5 file but not a skinloc recording")
             version = int(f.attrs.get("format_version", -1))
             if version > FORMAT_VERSION:

@@ -343,7 +343,8 @@ class LineHealth:
         Lines (0-based, in the order the board sends them) whose sensors read next to nothing,
         or never change (stuck).
     noisy_tx, noisy_rx : list of int
-        Lines whose median noise is over ``NOISY_FACTOR`` times the median sensor's.
+        Lines most of whose sensors are noisy (``skinloc.sensors.health``: over
+        ``NOISY_FACTOR`` times the median sensor's noise).
     median_counts : float
         Median baseline level, counts.
     median_noise : float
@@ -373,20 +374,22 @@ def line_health(frames: np.ndarray, n_tx: int, n_rx: int) -> LineHealth:
     n_tx, n_rx : int
         Grid.
     """
-    from skinloc.sensors.sensor_map import NOISY_FACTOR
+    from skinloc.sensors.health import classify_sensors
 
     frames = np.asarray(frames, dtype=np.float64)
     if frames.ndim != 2 or frames.shape[1] != n_tx * n_rx or len(frames) < 10:
         raise ValueError(f"need (>= 10, {n_tx * n_rx}) frames, got {frames.shape}")
-    level = np.median(frames, axis=0).reshape(n_tx, n_rx)
-    noise = frames.std(axis=0).reshape(n_tx, n_rx)
+    level = np.median(frames, axis=0)
+    noise = frames.std(axis=0)
     med_level = float(np.median(level))
     med_noise = float(np.median(noise))
-    bad = (level < DEAD_LEVEL * med_level) | (noise == 0) | (level >= 65535)
-    # A line is dead or noisy when most of its sensors are: one bad crossing is not a line.
-    dead_tx = [i for i in range(n_tx) if bad[i].mean() > 0.5]
-    dead_rx = [j for j in range(n_rx) if bad[:, j].mean() > 0.5]
-    limit = NOISY_FACTOR * max(med_noise, 1e-9)
-    noisy_tx = [i for i in range(n_tx) if i not in dead_tx and np.median(noise[i]) > limit]
-    noisy_rx = [j for j in range(n_rx) if j not in dead_rx and np.median(noise[:, j]) > limit]
+    # A wire that reads next to nothing is at the ADC's lower rail: stuck, like one that never
+    # changes or sits at the upper rail. The one rule (sensors.health) decides the lines.
+    stuck = (level < DEAD_LEVEL * med_level) | (noise == 0) | (level >= 65535)
+    health = classify_sensors(n_tx, n_rx, noise=noise, stuck=stuck)
+    tx, rx = health.lines["tx"], health.lines["rx"]
+    dead_tx = [i for i, s in enumerate(tx) if s == "dead"]
+    dead_rx = [j for j, s in enumerate(rx) if s == "dead"]
+    noisy_tx = [i for i, s in enumerate(tx) if s == "noisy"]
+    noisy_rx = [j for j, s in enumerate(rx) if s == "noisy"]
     return LineHealth(dead_tx, dead_rx, noisy_tx, noisy_rx, med_level, med_noise)

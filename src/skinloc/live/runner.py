@@ -238,6 +238,15 @@ class Runner:
                 os.close(fd)
         self._wake_r = self._wake_w = -1
 
+    def stop(self) -> None:
+        """Ask the loop to end after its current turn; ``close`` then closes everything.
+
+        Safe to call from a signal handler or another thread: it only sets the stop flag and
+        wakes the loop out of its wait for input.
+        """
+        self._stop_event.set()
+        self._wake()
+
     def __enter__(self) -> Runner:
         return self.open()
 

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from skinloc.errors import MissingExtraError
+from skinloc._lazy import require_extra
 from skinloc.models.engine import ModelSpec
 
 log = logging.getLogger(__name__)
@@ -54,10 +54,8 @@ def onnx_model(model: Any, *, include_surface: bool = True, opset: int = 17) -> 
     opset : int, default=17
         ONNX opset.
     """
-    try:
-        from onnx import helper, numpy_helper
-    except ImportError:
-        raise MissingExtraError("ONNX export needs onnx: pip install 'skinloc[export]'") from None
+    require_extra("onnx", "ONNX export")
+    from onnx import helper, numpy_helper
 
     s = _spec(model)
     if s.kind == "map":

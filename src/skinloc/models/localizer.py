@@ -426,19 +426,7 @@ class ContactLocalizer:
             contact_rule=getattr(self, "contact_rule_", None),
         )
         if cfg["kind"] == "map":
-            from skinloc.models.map_engine import MapSpec
-
-            coarse, cells = self.map_.search_cells()
-            amp = self.map_.amplitude
-            return MapSpec(
-                **common,
-                surface_points=self.map_.candidates,
-                table=self.map_.table,
-                coarse=coarse,
-                cells=cells,
-                noise=float(self.map_.noise),
-                unit_table=None if amp is None else amp.evaluate(self.map_.candidates)[0],
-            )
+            return self.map_.spec(**common)
         from skinloc.models.network_engine import NetworkSpec
 
         return NetworkSpec(

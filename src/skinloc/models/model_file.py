@@ -165,8 +165,16 @@ def read_model(cls: type, path: Path) -> Any:
         raise ModelFileError(f"model not found: {path}")
     try:
         with h5py.File(path, "r") as f:
-            if f.attrs.get("format") != "skinloc-model":
-                raise ModelFileError(f"{path} is not a skinloc model")
+            kind = f.attrs.get("format")
+            if kind == "skinloc-recording":
+                raise ModelFileError(
+                    f"{path} is a recording, not a model: give a model file ('skinloc train')"
+                )
+            if kind != "skinloc-model":
+                raise ModelFileError(
+                    f"{path} is an HDF5 file but not a skinloc model: give a model file "
+                    "('skinloc train')"
+                )
             version = int(f.attrs["format_version"])
             if version > MODEL_FORMAT_VERSION:
                 raise ModelFileError(

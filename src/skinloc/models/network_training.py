@@ -12,8 +12,8 @@ from typing import Any
 
 import numpy as np
 
+from skinloc._lazy import require_extra
 from skinloc._typing import Points
-from skinloc.errors import MissingExtraError
 
 __all__ = ["fit_network", "import_torch"]
 
@@ -24,13 +24,7 @@ def import_torch(purpose: str) -> Any:
     Only training networks needs PyTorch; the default model and every prediction run without
     it, so it is imported here, on demand, and never at module level.
     """
-    try:
-        import torch
-    except ImportError:
-        raise MissingExtraError(
-            f"{purpose} needs PyTorch: pip install 'skinloc[nets]' (the default model does not)"
-        ) from None
-    return torch
+    return require_extra("torch", purpose)
 
 
 def fit_network(

@@ -20,10 +20,14 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from skinloc._typing import Points
+
+if TYPE_CHECKING:
+    from skinloc.models.map_engine import MapSpec
 
 __all__ = ["AmplitudeMap", "MapLayer", "ResponseMap", "shape_features", "unit_images"]
 
@@ -252,6 +256,26 @@ class ResponseMap:
             self._table = np.concatenate(chunks).astype(np.float32)
             self._sq = (self._table**2).sum(axis=1)
         return self._table
+
+    def spec(self, **common: Any) -> MapSpec:
+        """The map as its engine's arrays; ``common`` are the ``ModelSpec`` fields.
+
+        ``n_features`` and ``clip_negative`` are required; ``spec(...).engine()`` matches
+        images against the map (``predict_batch``).
+        """
+        from skinloc.models.map_engine import MapSpec
+
+        coarse, cells = self.search_cells()
+        amp = self.amplitude
+        return MapSpec(
+            **common,
+            surface_points=self.candidates,
+            table=self.table,
+            coarse=coarse,
+            cells=cells,
+            noise=float(self.noise),
+            unit_table=None if amp is None else amp.evaluate(self.candidates)[0],
+        )
 
     def search_cells(self) -> tuple[np.ndarray, np.ndarray]:
         """A coarse level for the search: every 16th candidate, and the candidates nearest each.

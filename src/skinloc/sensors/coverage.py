@@ -186,7 +186,9 @@ def calibrate_temperature(
         if tr.sum() < 4 or te.sum() == 0:
             continue
         rmap = ResponseMap.fit(targets[tr], F[tr], candidates)
-        real[te] = 1e3 * np.linalg.norm(rmap.match(F[te])[0] - targets[te], axis=1)
+        # shape features are their own features (clipped, norm <= 1): the engine matches them
+        found = rmap.spec(n_features=F.shape[1], clip_negative=True).engine().predict_batch(F[te])
+        real[te] = 1e3 * np.linalg.norm(found[0] - targets[te], axis=1)
         gp = gp_state(rmap, F[tr])
         mu_g, mu_q = rmap.evaluate_mm(1e3 * grid), rmap.evaluate_mm(1e3 * targets[te])
         v_g = gp.noise + gp.posterior_var(1e3 * grid)

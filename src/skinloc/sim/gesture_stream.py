@@ -15,19 +15,18 @@ the stream; the side file is renamed over the output when the script is complete
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
-import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from skinloc.data.recording import Recording, write_recording
+from skinloc.data.appender import StreamAppender
 from skinloc.errors import RecordingError
-from skinloc.files import side_path, written_through_side
-from skinloc.geometry.mesh import surface_points
+from skinloc.files import cannot_write, side_path, written_through_side
 from skinloc.sim.gestures import MAX_FINGERS, GestureScript, ScriptItem, Stroke
 from skinloc.sim.signal import sensor_image
 
@@ -50,68 +49,20 @@ def make_felt(skin, stroke: Stroke) -> None:
         stroke.pressure *= 1.1 / max(second, 1e-3)
 
 
-class _Writer:
-    """Resizable stream and truth datasets in an open HDF5 file, appended chunk by chunk."""
+#: The truth, per frame, beside the stream: dataset -> (shape of one frame's value, dtype).
+_TRUTH_COLUMNS = {
+    "truth/fingers_m": ((MAX_FINGERS, 3), np.float32),
+    "truth/pressure": ((MAX_FINGERS,), np.float32),
+}
 
-    def __init__(self, path: Path, n_sensors: int, chunk: int) -> None:
-        import h5py
 
-        self.f = h5py.File(path, "a")
-        s = self.f.create_group("stream")
-        s.attrs["units"] = "frames in raw counts, times in s since the first frame"
-        n = n_sensors
-        self.frames = s.create_dataset(
-            "frames",
-            (0, n),
-            np.float32,
-            maxshape=(None, n),
-            chunks=(chunk, n),
-            compression="gzip",
-            compression_opts=4,
-        )
-        self.times = s.create_dataset("times_s", (0,), np.float64, maxshape=(None,))
-        self.index = s.create_dataset("index", (0,), np.int64, maxshape=(None,))
-        t = self.f.create_group("truth")
-        t.attrs["units"] = "finger positions in m (NaN: no finger in that slot), pressure relative"
-        self.fingers = t.create_dataset(
-            "fingers_m", (0, MAX_FINGERS, 3), np.float32, maxshape=(None, MAX_FINGERS, 3)
-        )
-        self.pressure = t.create_dataset(
-            "pressure", (0, MAX_FINGERS), np.float32, maxshape=(None, MAX_FINGERS)
-        )
-        self.n = 0
-
-    def _all(self):
-        return (self.frames, self.times, self.index, self.fingers, self.pressure)
-
-    def append(self, frames, times, index, fingers, pressure) -> None:
-        k = len(frames)
-        if not k:
-            return
-        for ds, data in zip(self._all(), (frames, times, index, fingers, pressure), strict=True):
-            ds.resize(self.n + k, axis=0)
-            ds[self.n :] = data
-        self.n += k
-        self.f.flush()
-
-    def truncate(self, n: int) -> None:
-        for ds in self._all():
-            ds.resize(n, axis=0)
-        self.n = n
-
-    def finish(self, truth: dict[str, Any]) -> None:
-        t = self.f["truth"]
-        if "gestures_json" in t:
-            del t["gestures_json"]
-        t["gestures_json"] = json.dumps(truth)
-        self.f.flush()
-
-    def close(self) -> None:
-        if self.f.id.valid:
-            path = self.f.filename
-            self.f.close()
-            with open(path, "rb") as fh:
-                os.fsync(fh.fileno())
+def _write_truth(f, truth: dict[str, Any]) -> None:
+    """Store the gestures' and touches' truth (JSON) in the open recording ``f``."""
+    t = f["truth"]
+    if "gestures_json" in t:
+        del t["gestures_json"]
+    t["gestures_json"] = json.dumps(truth)
+    f.flush()
 
 
 def record_gestures(
@@ -164,26 +115,30 @@ def record_gestures(
         skin.connect()
     skin.touch([])
     base = np.stack([skin.read().values for _ in range(baseline_frames)])
-    mesh = script.mesh
-    n = skin.n_sensors
-    header = Recording(
-        n_tx=skin.n_tx,
-        n_rx=skin.n_rx,
-        vertices=mesh.vertices,
-        faces=mesh.faces,
-        surface_points=surface_points(mesh),
-        baseline_frames=base,
-        targets=np.zeros((0, 3)),
-        frames=np.zeros((0, 1, n), dtype=np.float32),
-        meta={"sampling_mode": "none", "samples_per_touch": 0, **(meta or {})},
-    )
+    writer = None
     try:
-        write_recording(header, side)
-        writer = _Writer(side, n, chunk_frames)
-    except BaseException:
-        side.unlink(missing_ok=True)
+        writer = StreamAppender(
+            side,
+            n_tx=skin.n_tx,
+            n_rx=skin.n_rx,
+            mesh=script.mesh,
+            baseline_frames=base,
+            meta=meta,
+            chunk=chunk_frames,
+            columns=_TRUTH_COLUMNS,
+        )
+        writer.file["truth"].attrs["units"] = (
+            "finger positions in m (NaN: no finger in that slot), pressure relative"
+        )
+    except BaseException as exc:
+        if writer is not None:
+            with contextlib.suppress(OSError):
+                writer.close()
+            side.unlink(missing_ok=True)
         if not was_connected:
             skin.disconnect()
+        if isinstance(exc, OSError):  # a full disk: name the file the user asked for
+            raise cannot_write(path, exc) from None
         raise
     gestures: list[dict[str, Any]] = []
     touches: list[dict[str, Any]] = []
@@ -192,7 +147,15 @@ def record_gestures(
 
     def flush() -> None:
         if buf["frames"]:
-            writer.append(*(np.asarray(buf[k]) for k in buf))
+            writer.append(
+                np.asarray(buf["frames"]),
+                np.asarray(buf["times"]),
+                np.asarray(buf["index"]),
+                **{
+                    "truth/fingers_m": np.asarray(buf["fingers"]),
+                    "truth/pressure": np.asarray(buf["pressure"]),
+                },
+            )
             for v in buf.values():
                 v.clear()
 
@@ -231,7 +194,7 @@ def record_gestures(
                 run_until(item.start_s, None)
                 run_until(item.end_s, item)
                 flush()
-                safe = writer.n
+                safe = writer.n_frames
                 (gestures if item.kind not in ("rest", "drag") else touches).append(item.truth)
                 if progress is not None:
                     progress(done + 1, script.n_items)
@@ -249,10 +212,11 @@ def record_gestures(
                 "truth_gestures": gestures,
                 "truth_touches": sorted(touches, key=lambda d: d["start_s"]),
             }
-            if writer.f.id.valid:
-                writer.finish(truth)
+            if writer.file.id.valid:
+                _write_truth(writer.file, truth)
             writer.close()
-    return {**truth, "n_frames": writer.n, "seconds": writer.n / skin.rate_hz}
+    n = writer.n_frames
+    return {**truth, "n_frames": n, "seconds": n / skin.rate_hz}
 
 
 def read_gesture_truth(path: str | Path) -> dict[str, Any] | None:

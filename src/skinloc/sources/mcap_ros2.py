@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from skinloc._lazy import require_extra
 from skinloc.errors import RecordingError
 from skinloc.sources.base import SourceOptions
 from skinloc.sources.replay import ArrayReplaySource
@@ -32,13 +33,7 @@ _DTYPES = {
 
 
 def _reader(fh):
-    try:
-        from mcap.reader import make_reader
-    except ImportError:
-        raise ImportError(
-            "replaying a ROS 2 bag needs mcap: pip install 'skinloc[live]' (or pip install mcap)"
-        ) from None
-    return make_reader(fh)
+    return require_extra("mcap.reader", "replaying a ROS 2 bag").make_reader(fh)
 
 
 def image_topics(path: str | Path) -> list[str]:

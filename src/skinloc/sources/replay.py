@@ -62,10 +62,7 @@ def write_stream_recording(
     meta : dict, optional
         Stored with the recording.
     """
-    import h5py
-
-    from skinloc.data.recording import Recording, write_recording
-    from skinloc.geometry.mesh import surface_points
+    from skinloc.data.appender import StreamAppender
 
     n = n_tx * n_rx
     frames = np.asarray(frames, dtype=np.float32).reshape(-1, n)
@@ -76,28 +73,13 @@ def write_stream_recording(
             f"stream lengths differ: {len(frames)} frames, {len(times_s)} times, "
             f"{len(index)} indices"
         )
-    rec = Recording(
-        n_tx=n_tx,
-        n_rx=n_rx,
-        vertices=mesh.vertices,
-        faces=mesh.faces,
-        surface_points=surface_points(mesh),
-        baseline_frames=baseline_frames,
-        targets=np.zeros((0, 3)),
-        frames=np.zeros((0, 1, n), dtype=np.float32),
-        meta={"sampling_mode": "none", "samples_per_touch": 0, **(meta or {})},
-    )
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    header = dict(n_tx=n_tx, n_rx=n_rx, mesh=mesh, baseline_frames=baseline_frames, meta=meta)
 
     def write(tmp: Path) -> None:
-        write_recording(rec, tmp)
-        with h5py.File(tmp, "a") as f:
-            g = f.create_group("stream")
-            g.create_dataset("frames", data=frames, compression="gzip", compression_opts=4)
-            g["times_s"] = times_s
-            g["index"] = index
-            g.attrs["units"] = "frames in raw counts, times in s since the first frame"
+        with StreamAppender(tmp, **header, chunk=4096, exclusive=False) as out:
+            out.append(frames, times_s, index)
 
     atomic_write(path, write)
 

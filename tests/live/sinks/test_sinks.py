@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import math
 import socket
-import time
 
 import numpy as np
 import pytest
@@ -14,6 +13,7 @@ from skinloc.geometry.mesh import cone_skin
 from skinloc.live.core import Contact
 from skinloc.live.sinks import CallbackSink, SkinInfo, make_sink
 from skinloc.live.sinks.websocket import WebSocketSink
+from tests._helpers import wait_until
 
 
 def _contact(state: str = "move", k: int = 0) -> Contact:
@@ -69,15 +69,6 @@ def test_udp_datagrams():
     assert json.loads(data)["position_m"] == [0.01, 0.02, 0.03]
 
 
-def _wait_until(check, what: str, timeout_s: float = 30.0) -> None:
-    """Poll ``check()`` until true; fail naming ``what`` after ``timeout_s`` (a busy machine)."""
-    deadline = time.monotonic() + timeout_s
-    while not check():
-        if time.monotonic() > deadline:
-            pytest.fail(f"timed out after {timeout_s:g} s waiting for {what}")
-        time.sleep(0.01)
-
-
 def test_websocket_hello_then_contacts():
     from websockets.sync.client import connect
 
@@ -93,7 +84,7 @@ def test_websocket_hello_then_contacts():
             assert hello["url"] == sink.url
             assert len(hello["skins"][0]["faces"]) == len(cone_skin().faces)
             # The server learns of the client on its own thread.
-            _wait_until(lambda: sink.n_clients == 1, "the server to see the client")
+            wait_until(lambda: sink.n_clients == 1, "the server to see the client")
             sink.emit(_contact("start"))
             msg = json.loads(ws.recv(timeout=30))
         assert msg["type"] == "contact" and msg["state"] == "start"
@@ -255,7 +246,7 @@ def test_websocket_carries_every_contact_and_gestures():
     try:
         with connect(sink.url, open_timeout=30) as ws:
             json.loads(ws.recv(timeout=30))  # hello
-            _wait_until(lambda: sink.n_clients == 1, "the server to see the client")
+            wait_until(lambda: sink.n_clients == 1, "the server to see the client")
             sink.emit_contacts("arm", 4.0, _frame_contacts())
             sink.emit_gesture("arm", 4.0, GESTURE)
             msgs = [json.loads(ws.recv(timeout=30)) for _ in range(3)]

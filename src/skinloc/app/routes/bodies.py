@@ -60,3 +60,9 @@ class ValidateBody(BaseModel):
     """``POST /api/validate/start``."""
 
     n_points: int | None = Field(None, ge=1, le=500)
+
+
+class TrainBody(BaseModel):
+    """``POST /api/train``: touches (0-based) left out of the model."""
+
+    exclude: list[Annotated[int, Field(ge=0)]] = Field(default_factory=list, max_length=10_000)

@@ -6,7 +6,7 @@ from typing import Any
 
 from fastapi import FastAPI
 
-from skinloc.app.routes.bodies import FlagBody, IndexBody, ValidateBody
+from skinloc.app.routes.bodies import FlagBody, IndexBody, TrainBody, ValidateBody
 from skinloc.app.routes.common import OK, actions_router
 from skinloc.app.workspace import Workspace
 
@@ -53,8 +53,8 @@ def add_routes(app: FastAPI, workspace: Workspace) -> None:
         return OK
 
     @router.post("/api/train")
-    def train() -> dict[str, Any]:
-        workspace.train()
+    def train(body: TrainBody | None = None) -> dict[str, Any]:
+        workspace.train(body.exclude if body is not None else None)
         return OK
 
     @router.post("/api/live/start")

@@ -1,5 +1,5 @@
 // The skinloc app in the browser: pages, the live stream, and the actions.
-import { Viewer } from "/static/viewer.js";
+import { Viewer, COVERAGE_STOPS } from "/static/viewer.js";
 import { LivePage } from "/static/live.js";
 import { drawHeat } from "/static/heatmap.js";
 
@@ -75,6 +75,9 @@ async function api(path, body, method = "POST") {
   return data;
 }
 const get = (path) => fetch(path).then((r) => r.json());
+// An action from a click or a key: a refusal is shown in the message line (api does that) and
+// ends there, never as an uncaught error of the page.
+const act = (path, body) => api(path, body).catch(() => null);
 
 function showMessage(text, error = false) {
   const el = $("#message");
@@ -126,6 +129,7 @@ const handlers = {
   },
   touch() { refreshSession(); },
   train(msg) {
+    if (msg.session && msg.session !== app.state?.session?.id) return; // another session's
     renderTraining(msg);
     if (app.coverageOn && msg && !msg.running && msg.result) toggleCoverage(true); // a new model
   },
@@ -259,6 +263,9 @@ function showPage(page) {
   }
   if (page === "sessions") loadSessions();
   if (page === "connect") loadPorts();
+  // What the message line said belongs to the page it was said on, not the next one.
+  app.dismissed = app.state?.message ?? "";
+  showMessage("");
   renderSession();
   renderState(app.state);
 }
@@ -298,16 +305,14 @@ async function loadSessions() {
 
 $("#session-list").addEventListener("click", async (ev) => {
   const id = ev.target.dataset?.open;
-  if (!id) return;
-  await api(`/api/sessions/${encodeURIComponent(id)}/open`);
+  if (!id || !(await act(`/api/sessions/${encodeURIComponent(id)}/open`))) return;
   await refreshSession();
   loadSessions();
   showPage("calibrate");
 });
 $("#recording-list").addEventListener("click", async (ev) => {
   const path = ev.target.dataset?.import;
-  if (!path) return;
-  await api(`/api/recordings/import?path=${encodeURIComponent(path)}`);
+  if (!path || !(await act(`/api/recordings/import?path=${encodeURIComponent(path)}`))) return;
   await refreshSession();
   showPage("train");
 });
@@ -317,7 +322,8 @@ $("#new-session [name=mode]").addEventListener("change", (ev) => {
 $("#mesh-upload").addEventListener("change", async (ev) => {
   const file = ev.target.files[0];
   if (!file) return;
-  const info = await api(`/api/meshes?filename=${encodeURIComponent(file.name)}`, file);
+  const info = await act(`/api/meshes?filename=${encodeURIComponent(file.name)}`, file);
+  if (!info) return;
   const opt = document.createElement("option");
   opt.value = info.name;
   opt.textContent = `${info.name} (${info.n_faces} faces, ${info.extents_mm.join(" x ")} mm)`;
@@ -332,7 +338,7 @@ $("#new-session").addEventListener("submit", async (ev) => {
   for (const k of ["n_points", "samples", "baseline_frames", "seed", "n_validation"]) body[k] = Number(body[k]);
   if (!body.mesh_file) delete body.mesh_file;
   if (body.mode !== "list") delete body.targets_csv;
-  await api("/api/sessions", body);
+  if (!(await act("/api/sessions", body))) return;
   await refreshSession();
   showPage(app.state?.device ? "calibrate" : "connect");
 });
@@ -383,11 +389,10 @@ $("#connect-form").addEventListener("submit", async (ev) => {
     source: f.port.trim() || f.source,
     tx: Number(f.tx), rx: Number(f.rx), baud: Number(f.baud), format: f.format,
   };
-  await api("/api/connect", body);
-  app.pickedSource = false;
+  if (await act("/api/connect", body)) app.pickedSource = false;
 });
-$("#disconnect-btn").addEventListener("click", () => api("/api/disconnect"));
-$("#rezero").addEventListener("click", () => api("/api/rezero"));
+$("#disconnect-btn").addEventListener("click", () => act("/api/disconnect"));
+$("#rezero").addEventListener("click", () => act("/api/rezero"));
 
 function renderSensors() {
   const s = app.sensors, st = app.state?.device;
@@ -437,9 +442,12 @@ function guidedPanel(kind) {
     <div class="progress"><div class="bar-capture"></div></div>
     <div class="buttons">
       <button class="now" title="Space">Capture now <kbd>Space</kbd></button>
-      <button class="undo" title="Z or Backspace">Undo <kbd>Z</kbd></button>
+      <button class="undo" title="Z: take back the last touch (also after Complete)">Undo <kbd>Z</kbd></button>
       <button class="skip" title="S">Skip <kbd>S</kbd></button>
     </div>
+    <div class="next-step hidden">${isCal
+      ? `<p class="hint">Next: train the localiser on these touches (flagged touches are listed there first).</p><div class="buttons"><button class="primary" data-go="train">Train</button></div>`
+      : `<p class="hint">Next: use the model live, or train again after retaking touches.</p><div class="buttons"><button class="primary" data-go="live">Live</button><button data-go="train">Train</button></div>`}</div>
     <label class="check"><input type="checkbox" class="finger"> scripted finger touches each target</label>
     <div class="target-info hint"></div>
     ${isCal ? `<div class="hint sheets">Printable targets: <a class="svg" target="_blank">SVG</a> · <a class="pdf" target="_blank">PDF</a></div>` : `<div class="val-result"></div>
@@ -450,13 +458,14 @@ function guidedPanel(kind) {
       <thead><tr><th>#</th><th>Position (mm)</th>${isCal ? "" : "<th>Error (mm)</th>"}<th>Flags</th><th></th></tr></thead>
       <tbody></tbody></table></div>`;
   if (!isCal) $(".n-val", el).addEventListener("input", (ev) => { ev.target.dataset.touched = "1"; });
-  $(".start", el).addEventListener("click", () => (isCal ? api("/api/calibrate/start")
-    : api("/api/validate/start", { n_points: Number($(".n-val", el).value) })));
-  $(".stop", el).addEventListener("click", () => api("/api/capture/stop"));
-  $(".now", el).addEventListener("click", () => api("/api/capture/now"));
-  $(".undo", el).addEventListener("click", () => api("/api/capture/undo"));
-  $(".skip", el).addEventListener("click", () => api("/api/capture/skip"));
-  $(".finger", el).addEventListener("change", (ev) => api("/api/finger", { on: ev.target.checked }));
+  $(".start", el).addEventListener("click", () => (isCal ? act("/api/calibrate/start")
+    : act("/api/validate/start", { n_points: Number($(".n-val", el).value) })));
+  $(".stop", el).addEventListener("click", () => act("/api/capture/stop"));
+  $(".now", el).addEventListener("click", () => act("/api/capture/now"));
+  $(".undo", el).addEventListener("click", () => undo(kind));
+  $(".skip", el).addEventListener("click", () => act("/api/capture/skip"));
+  $(".finger", el).addEventListener("change", (ev) => act("/api/finger", { on: ev.target.checked }));
+  for (const b of $$(".next-step button", el)) b.addEventListener("click", () => showPage(b.dataset.go));
   if (!isCal) $(".coverage", el).addEventListener("change", (ev) => toggleCoverage(ev.target.checked));
   // A clicked button or box must not keep the keyboard: Space, Z and S drive the capture.
   el.addEventListener("click", (ev) => {
@@ -465,12 +474,11 @@ function guidedPanel(kind) {
   $(".reopen-btn", el).addEventListener("click", async () => {
     const id = $(".reopen-select", el).value;
     if (!id) return;
-    await api(`/api/sessions/${encodeURIComponent(id)}/open`);
-    await refreshSession();
+    if (await act(`/api/sessions/${encodeURIComponent(id)}/open`)) await refreshSession();
   });
   $(".touches", el).addEventListener("click", (ev) => {
     const i = ev.target.dataset?.retake;
-    if (i !== undefined) api("/api/capture/retake", { index: Number(i), recording: isCal ? "calibration" : "validation" });
+    if (i !== undefined) act("/api/capture/retake", { index: Number(i), recording: isCal ? "calibration" : "validation" });
   });
   return el;
 }
@@ -495,23 +503,43 @@ async function offerSessions(el) {
   $(".reopen-btn", el).disabled = !list.length;
 }
 
-// The coverage map (validate page): expected error of the trained model, GET /api/session/coverage.
+// The coverage map (validate page): expected error of the trained model, GET /api/session/coverage,
+// as a colour on the skin, its scale, and beside it the errors measured on touches.
+const VIEWER_LEGEND = $("#viewer-legend").innerHTML;
 async function toggleCoverage(on) {
   const legend = $(".coverage-legend", guidedPanel("validate"));
   app.coverageOn = on;
   app.viewer.clear("coverage");
   legend.classList.toggle("hidden", !on);
+  $("#viewer-legend").innerHTML = VIEWER_LEGEND;
   if (!on) { renderSession(); return; }
   legend.textContent = "computing the coverage map...";
   const r = await fetch("/api/session/coverage");
   const c = await r.json();
   if (!r.ok) { legend.textContent = c.detail || "no coverage map"; return; }
-  app.viewer.setCoverage(c.points, c.expected_mm);
+  app.viewer.setCoverage(c.points, c.expected_mm, c.scale_mm);
   const [lo, hi] = c.scale_mm;
   const e = c.expected_error_mm;
-  legend.innerHTML = `<div style="height:10px;border-radius:3px;background:linear-gradient(to right,hsl(119,80%,45%),hsl(60,80%,45%),hsl(0,80%,45%))"></div>
-    <div style="display:flex;justify-content:space-between"><span>${lo} mm</span><span>expected error (${c.unit})</span><span>${hi} ${c.unit} or more</span></div>
-    mean ${e.mean.toFixed(1)} mm, p90 ${e.p90.toFixed(1)} mm; ${(100 * c.blind_fraction).toFixed(0)} % above ${c.blind_threshold_mm} mm (blind spots).`;
+  const bar = `<div class="bar" style="background:linear-gradient(to right,${COVERAGE_STOPS.join(",")})"></div>
+    <div class="ticks"><span>≤ ${lo.toFixed(1)}</span><span>${((lo + hi) / 2).toFixed(1)}</span><span>≥ ${hi.toFixed(1)} mm</span></div>`;
+  // The 3D view's legend says what the colours are now: the coverage map, not validation errors.
+  $("#viewer-legend").innerHTML = `<div><b>Coverage map</b>: expected error, mm</div>${bar}
+    <div class="hint">predicted by the model at each place; the dots are the validation touches</div>`;
+  const m = c.measured || {};
+  const measured = [
+    m.holdout ? `held-out touches: mean ${m.holdout.mean_mm.toFixed(1)}, p95 ${m.holdout.p95_mm.toFixed(1)} mm` : "",
+    m.validation ? `validation: mean ${m.validation.mean_mm.toFixed(1)}, p95 ${m.validation.p95_mm.toFixed(1)} mm` : "",
+  ].filter(Boolean);
+  const worst = Math.max(...[m.holdout, m.validation].filter(Boolean).map((x) => x.p95_mm));
+  const compare = measured.length
+    ? `Measured on ${measured.join("; ")}. ${worst > 1.5 * e.p90
+      ? `The measured tail is ${(worst / e.p90).toFixed(1)} times the map's p90: the map ranks places (where the sensors see a touch poorly), it does not predict bad touches or how a finger presses; trust the measured errors for the figure.`
+      : "The map's p90 is close to the measured tail."}`
+    : "No measured error to compare with yet: validate.";
+  legend.innerHTML = `<div><b>Coverage map</b>: the trained model's <i>expected</i> error at each place on the skin, in mm
+    (predicted from its response map and the sensor noise, not measured).</div>${bar}
+    <div>Over the skin: mean ${e.mean.toFixed(1)} mm, p90 ${e.p90.toFixed(1)} mm; ${(100 * c.blind_fraction).toFixed(0)} % above ${c.blind_threshold_mm} mm by this prediction.</div>
+    <div class="measured">${esc(compare)}</div>`;
   renderSession();
 }
 
@@ -532,7 +560,9 @@ function renderGuided(kind) {
   $(".count", el).textContent = total ? `${done} of ${total} touches recorded` : "";
   $(".bar-total", el).style.width = total ? `${(100 * done) / total}%` : "0";
   $(".finger", el).checked = !!st?.finger;
-  for (const b of $$(".now, .undo, .skip", el)) b.disabled = !active || link.lost;
+  for (const b of $$(".now, .skip", el)) b.disabled = !active || link.lost;
+  // Undo takes back the last touch also once paused or complete (it prompts that target again).
+  $(".undo", el).disabled = link.lost || !st?.device || st?.mode === "baseline" || !(rec?.done?.length);
   $(".stop", el).disabled = !active;
   $(".start", el).disabled = !st?.session || !st?.device || st?.mode === "baseline" || link.lost;
   const state = $(".big-state", el);
@@ -543,7 +573,8 @@ function renderGuided(kind) {
     state.textContent = "Keep the skin untouched: baseline";
     state.className = "big-state lift";
   } else if (!active) {
-    state.textContent = !st?.device ? "Connect a skin first" : !st?.session ? "Open a session first" : done && done >= total ? "Complete" : "Paused";
+    state.textContent = !st?.device ? "Connect a skin first" : !st?.session ? "Open a session first"
+      : done && done >= total ? "Complete" : done ? `Paused at ${done} of ${total}: press Start to go on` : "Ready: press Start";
     state.className = "big-state idle";
   } else {
     const [text, cls] = PHASE_TEXT[app.frame?.capture?.phase || g.phase] || ["-", "idle"];
@@ -551,6 +582,8 @@ function renderGuided(kind) {
     state.className = `big-state ${cls}`;
   }
   $(".target-info", el).textContent = g?.target ? `Target ${g.index + 1} at ${mm(g.target)} mm` : "";
+  const complete = !active && st?.mode !== "baseline" && !!current && total > 0 && done >= total;
+  $(".next-step", el).classList.toggle("hidden", !complete || (kind === "validate" && !st?.session?.has_model));
   if (kind === "calibrate") $(".sheets", el).classList.toggle("hidden", !current);
   if (kind === "calibrate" && current) {
     $(".svg", el).href = `/api/sessions/${app.session.id}/targets.svg`;
@@ -571,56 +604,162 @@ function renderGuided(kind) {
     const err = rec.errors_mm?.[i];
     return `<tr><td>${i + 1}</td><td>${p.map((x) => (x * 1000).toFixed(0)).join(", ")}</td>${kind === "validate" ? `<td>${err != null ? err.toFixed(1) : ""}</td>` : ""}
       <td class="flags">${flags.map((f) => `<span class="flag ${f}">${f}</span>`).join("")}</td>
-      <td>${flags.length || kind === "validate" ? `<button data-retake="${i}">Retake</button>` : ""}</td></tr>`;
+      <td><button data-retake="${i}" title="take this touch back (kept in the history) and touch its target again">Retake</button></td></tr>`;
   }).reverse();
   $(".touches tbody", el).innerHTML = rows.join("") || `<tr><td colspan="5" class="hint">No touch recorded yet.</td></tr>`;
+}
+
+// Take back the last touch of the page's recording: during capture the server's undo; once
+// paused or complete, a retake of that touch (which prompts its target again).
+function undo(kind) {
+  if (app.state?.mode === kind) return act("/api/capture/undo");
+  const rec = app.session?.[kind === "calibrate" ? "calibration" : "validation"];
+  const n = rec?.done?.length ?? 0;
+  if (!n) return showMessage("nothing to undo: no touch recorded yet", true);
+  return act("/api/capture/retake", { index: n - 1, recording: kind === "calibrate" ? "calibration" : "validation" });
 }
 
 document.addEventListener("keydown", (ev) => {
   // Typing in a text field keeps its keys; a checkbox or button that has focus does not.
   const typing = ev.target.closest?.("textarea, select, input:not([type=checkbox]):not([type=radio]):not([type=button]):not([type=submit])");
-  if (!["calibrate", "validate"].includes(app.state?.mode) || typing || link.lost) return;
-  if (ev.code === "Space") { ev.preventDefault(); api("/api/capture/now"); }
-  if (ev.key === "z" || ev.key === "Z" || ev.key === "Backspace") { ev.preventDefault(); api("/api/capture/undo"); }
-  if (ev.key === "s" || ev.key === "S") { ev.preventDefault(); api("/api/capture/skip"); }
+  if (typing || link.lost || ev.ctrlKey || ev.metaKey || ev.altKey) return;
+  const kind = app.page;
+  if (!["calibrate", "validate"].includes(kind)) return;
+  // Z works on its page whenever there is a touch to take back, "Complete" included;
+  // Space and S only while capturing. Backspace does nothing: too easy to hit by accident.
+  if (ev.key === "z" || ev.key === "Z") {
+    ev.preventDefault();
+    if (app.state?.session && app.state?.device && app.state.mode !== "baseline") undo(kind);
+    return;
+  }
+  if (app.state?.mode !== kind) return;
+  if (ev.code === "Space") { ev.preventDefault(); act("/api/capture/now"); }
+  if (ev.key === "s" || ev.key === "S") { ev.preventDefault(); act("/api/capture/skip"); }
 });
 
 // ------------------------------------------------------------------ train page
-$("#train-btn").addEventListener("click", () => api("/api/train"));
+// Before training: the touches the capture flagged, each to leave out or retake. Before the
+// first training off-target touches (the image says the finger was elsewhere) are ticked to be
+// left out, the others (weak, short, forced, saturated) go in; after it, what it left out.
+const FLAG_WORDS = { "off-target": "off target", weak: "weak", short: "short", forced: "forced", saturated: "saturated" };
+function flaggedTouches() {
+  const cal = app.session?.calibration;
+  return (cal?.flags || []).map((f, i) => ({ index: i, flags: f || [] })).filter((t) => t.flags.length);
+}
+function renderGate() {
+  const el = $("#train-gate");
+  const cal = app.session?.calibration;
+  const n = cal?.done?.length ?? 0;
+  if (!app.session || !n) {
+    el.innerHTML = app.session ? `<p class="hint">No touch recorded yet: calibrate first.</p>` : "";
+    return;
+  }
+  const flagged = flaggedTouches();
+  // Ticked: what the last training left out; before any, the off-target touches.
+  const last = app.state?.session?.holdout;
+  const before = new Set((last?.left_out || []).map((t) => t.index));
+  const leave = (t) => (last ? before.has(t.index) : t.flags.includes("off-target"));
+  const key = `${app.session.id}:${n}:${JSON.stringify(flagged)}:${[...before]}:${!!last}`;
+  if (el.dataset.key === key) return; // keep what the person ticked
+  el.dataset.key = key;
+  if (!flagged.length) {
+    el.innerHTML = `<p><b>${n} touches</b> recorded; none flagged by the capture: all go in.</p>`;
+    return;
+  }
+  const counts = {};
+  for (const t of flagged) for (const f of t.flags) counts[f] = (counts[f] || 0) + 1;
+  const summary = Object.entries(counts).map(([f, k]) => `${k} ${FLAG_WORDS[f] || f}`).join(", ");
+  el.innerHTML = `<p><b>${n} touches</b> recorded; <b>${flagged.length} flagged</b> by the capture (${esc(summary)}).
+      Leave them out, or retake them on the Calibrate page; the result says what went in.</p>
+    <table class="list gate-list"><thead><tr><th>Touch</th><th>Flags</th><th>Leave out</th><th></th></tr></thead><tbody>
+    ${flagged.map((t) => `<tr data-index="${t.index}"><td>#${t.index + 1}</td>
+      <td>${t.flags.map((f) => `<span class="flag ${esc(f)}">${esc(f)}</span>`).join("")}</td>
+      <td><input type="checkbox" class="leave-out" data-index="${t.index}" ${leave(t) ? "checked" : ""}></td>
+      <td><button data-gate-retake="${t.index}">Retake</button></td></tr>`).join("")}</tbody></table>`;
+}
+function leftOut() {
+  return $$("#train-gate .leave-out").filter((b) => b.checked).map((b) => Number(b.dataset.index));
+}
+$("#train-gate").addEventListener("click", async (ev) => {
+  const i = ev.target.dataset?.gateRetake;
+  if (i === undefined) return;
+  if (await act("/api/capture/retake", { index: Number(i), recording: "calibration" })) showPage("calibrate");
+});
+$("#train-result").addEventListener("click", async (ev) => {
+  const d = ev.target.dataset || {};
+  if (d.dropTouch !== undefined) {
+    const exclude = [...new Set([...(app.state?.session?.holdout?.left_out || []).map((t) => t.index), Number(d.dropTouch)])];
+    act("/api/train", { exclude });
+  } else if (d.retakeTouch !== undefined) {
+    if (await act("/api/capture/retake", { index: Number(d.retakeTouch), recording: "calibration" })) showPage("calibrate");
+  }
+});
+$("#train-btn").addEventListener("click", () => act("/api/train", { exclude: leftOut() }));
 function renderTraining(t) {
   t = t || app.state?.training;
   const bar = $("#train-bar");
+  renderGate();
+  if (t && t.session && t.session !== app.state?.session?.id) t = null; // another session's
   if (!t) {
     const h = app.state?.session?.holdout;
+    bar.style.width = "0";
+    $("#train-phase").textContent = "";
+    $("#train-btn").disabled = !app.state?.session;
     $("#train-result").innerHTML = h ? resultHtml(h) : "";
     return;
   }
   if (t.running) {
-    const phases = ["held-out check", "final model"];
+    const phases = ["held-out check", "final model", "which touch hurts most"];
     const k = Math.max(0, phases.indexOf(t.phase));
     const frac = (k + (t.total ? t.done / t.total : 0)) / phases.length;
     bar.style.width = `${Math.round(100 * frac)}%`;
     $("#train-phase").textContent = `training: ${t.phase}`;
     $("#train-btn").disabled = true;
+    $("#train-result").innerHTML = ""; // no earlier result under the running bar
     return;
   }
   $("#train-btn").disabled = false;
   bar.style.width = t.result ? "100%" : "0";
   $("#train-phase").textContent = t.error ? `failed: ${t.error}` : "";
-  if (t.result) $("#train-result").innerHTML = resultHtml(t.result);
+  $("#train-result").innerHTML = t.result ? resultHtml(t.result) : "";
 }
+const touchList = (list) => list.map((t) => `#${t.index + 1}${t.flags?.length ? ` (${t.flags.join(", ")})` : ""}`).join(", ");
 function resultHtml(h) {
+  const rec = h.n_recorded ?? h.n_point_logs;
+  const inputs = h.left_out?.length
+    ? `Trained on ${h.n_point_logs} of ${rec} touches; left out ${esc(touchList(h.left_out))}.`
+    : `Trained on all ${h.n_point_logs} touches.`;
+  const kept = h.flagged_kept?.length ? ` Flagged but kept: ${esc(touchList(h.flagged_kept))}.` : "";
   return `<div class="result">${fmtErr(h)}</div>
     <div class="hint">error on ${h.n_test} held-out touches (median ${h.median_mm.toFixed(1)} mm, p95 ${h.p95_mm.toFixed(1)} mm);
-    the final model learnt from all ${h.n_point_logs} touches${h.train_s != null ? ` in ${h.train_s} s` : ""}.</div>`;
+    the final model learnt from all ${h.n_point_logs} touches it was given${h.train_s != null ? ` in ${h.train_s} s` : ""}.</div>
+    <p class="train-inputs">${inputs}${kept}</p>${influenceHtml(h)}
+    <p class="hint next-hint">Next: <b>Validate</b> on fresh touches, or try it on <b>Live</b>.</p>`;
+}
+// Which touch hurts the held-out error most (skinloc.evaluation.influence): the fall of the
+// other touches' cross-validated error when it is left out too.
+function influenceHtml(h) {
+  const inf = h.influence;
+  if (!inf || !inf.suspects?.length) return "";
+  const s = inf.suspects[0];
+  const flags = (app.session?.calibration?.flags || [])[s.index] || [];
+  const name = `#${s.index + 1}${flags.length ? ` (${flags.join(", ")})` : ""}`;
+  const big = s.gain_mm >= Math.max(1, 0.1 * s.others_with_mm);
+  const how = `cross-validated error of the other touches ${s.others_with_mm.toFixed(1)} mm with it, ${s.others_without_mm.toFixed(1)} mm without it (${inf.n_folds}-fold; its own error ${s.error_mm.toFixed(1)} mm)`;
+  if (!big) {
+    return `<p class="influence hint">No single touch stands out: the most suspect, ${esc(name)}, moves the ${how}.</p>`;
+  }
+  return `<div class="influence warn-box"><b>Touch ${esc(name)} hurts the held-out error most</b>: ${how}.
+    <div class="buttons"><button data-drop-touch="${s.index}">Leave it out and train again</button>
+    <button data-retake-touch="${s.index}">Retake it</button></div></div>`;
 }
 
 // ------------------------------------------------------------------ live page
 $("#live-start").addEventListener("click", () => {
   app.live.clear(true);
-  api("/api/live/start");
+  act("/api/live/start");
 });
-$("#live-stop").addEventListener("click", () => api("/api/capture/stop"));
+$("#live-stop").addEventListener("click", () => act("/api/capture/stop"));
 
 // ------------------------------------------------------------------ rendering the state
 function renderState(prev) {
@@ -628,7 +767,12 @@ function renderState(prev) {
   if (!st) return;
   const mine = !st.lease || st.lease === clientId;
   $("#busy").classList.toggle("hidden", mine);
-  showMessage(st.message);
+  // The server's message when it changes (a refusal shown meanwhile stays until then), never
+  // one said on another page before this one was opened.
+  if (st.message !== prev?.message && st.message !== app.dismissed) {
+    app.dismissed = null;
+    showMessage(st.message);
+  }
   const d = st.device;
   link.lost = linkLost();
   renderLink();
@@ -641,9 +785,22 @@ function renderState(prev) {
   ps.textContent = st.session ? st.session.name : "no session";
   ps.className = `pill ${st.session ? "" : "off"}`;
   $("#touch-toggle").classList.toggle("hidden", !d?.sim);
+  if (st.session?.id !== prev?.session?.id) {
+    // Another session: nothing of the last one stays on the pages (its coverage map, its
+    // live tracks and gestures).
+    if (app.coverageOn) {
+      app.coverageOn = false;
+      $(".coverage", guidedPanel("validate")).checked = false;
+      $(".coverage-legend", guidedPanel("validate")).classList.add("hidden");
+      $("#viewer-legend").innerHTML = VIEWER_LEGEND;
+      app.viewer.clear("coverage");
+    }
+    app.live.clear(true);
+  }
   if (st.session?.id !== prev?.session?.id || st.mode !== prev?.mode || st.guided?.index !== prev?.guided?.index) {
     refreshSession();
   }
+  if (st.mode !== prev?.mode) app.live.render();
   if (app.page === "calibrate") renderGuided("calibrate");
   if (app.page === "validate") renderGuided("validate");
   if (app.page === "train") renderTraining(st.training);
@@ -690,6 +847,7 @@ function renderSession() {
   }
   if (page === "calibrate") renderGuided("calibrate");
   if (page === "validate") renderGuided("validate");
+  if (page === "train") renderTraining();
 }
 
 function renderFrame(msg) {
@@ -722,7 +880,7 @@ function renderFrame(msg) {
 
 // ------------------------------------------------------------------ start
 app.viewer = new Viewer($("#viewer"));
-app.live = new LivePage(app.viewer, { $, esc, mm, later });
+app.live = new LivePage(app.viewer, { $, esc, mm, later, mode: () => app.state?.mode });
 app.viewer.onTouch = (p) => api("/api/sim/touch", { point: p }).catch(() => {});
 $("#mouse-touch").addEventListener("change", (ev) => {
   app.viewer.touchMode = ev.target.checked;
@@ -730,8 +888,7 @@ $("#mouse-touch").addEventListener("change", (ev) => {
 });
 for (const b of $$("#nav button")) b.addEventListener("click", () => showPage(b.dataset.page));
 $("#takeover").addEventListener("click", async () => {
-  await api("/api/lease");
-  $("#busy").classList.add("hidden");
+  if (await act("/api/lease")) $("#busy").classList.add("hidden");
 });
 connectStream();
 refreshSession();

@@ -3,6 +3,57 @@
 
 const LEGEND_H = 30;
 
+// A "nice" scale at or above v: 1, 2 or 5 x 10^k (so it does not flicker with every frame).
+function niceCeil(v) {
+  const p = 10 ** Math.floor(Math.log10(Math.max(v, 1e-9)));
+  for (const m of [1, 2, 5, 10]) if (m * p >= v) return m * p;
+  return 10 * p;
+}
+
+// The scale of a map whose caller gives none: steady, robust, lockable. It follows the second
+// largest |value| of the sensors not flagged noisy or dead (one wild sensor saturates instead
+// of setting the scale for all), rounded up to a nice step; it rises at once and falls only
+// after 2 s below the next step down. A locked scale stays as it is (the box under the map).
+const SCALE_FALL_MS = 2000;
+function steadyScale(canvas, values, minScale, status) {
+  const st = canvas._scale || (canvas._scale = { value: 0, lowSince: null, locked: false });
+  if (st.locked && st.value) return st.value;
+  const mags = (values || []).map((v, k) => (Number.isFinite(v) && !["noisy", "dead"].includes(status?.[k]) ? Math.abs(v) : 0))
+    .sort((a, b) => b - a);
+  const robust = mags.length > 1 ? mags[1] : mags[0] || 0;
+  const want = niceCeil(Math.max(minScale, robust));
+  const now = performance.now();
+  if (want >= st.value) {
+    st.value = want;
+    st.lowSince = null;
+  } else if (st.lowSince == null) {
+    st.lowSince = now;
+  } else if (now - st.lowSince > SCALE_FALL_MS) {
+    st.value = want;
+    st.lowSince = null;
+  }
+  return st.value;
+}
+
+// Under a map of sensors: the lock of its scale and what the outlines mean.
+function addControls(canvas, withStatus) {
+  if (canvas._controls) return canvas._controls;
+  const box = document.createElement("div");
+  box.className = "heat-controls hint";
+  box.innerHTML = `<label class="check" title="keep the colour scale as it is now"><input type="checkbox" class="heat-lock"> lock scale</label>` +
+    (withStatus ? `<div class="heat-key" title="outlines: flagged sensors and lines"><span class="key noisy"></span>noisy
+      <span class="key weak"></span>weak <span class="key dead"></span>dead <span class="key line"></span>flagged line</div>` : "");
+  canvas.insertAdjacentElement("afterend", box);
+  const lock = box.querySelector(".heat-lock");
+  lock.addEventListener("change", () => {
+    const st = canvas._scale || (canvas._scale = { value: 0, lowSince: null, locked: false });
+    st.locked = lock.checked;
+    lock.blur(); // the capture keys stay with the page
+  });
+  canvas._controls = box;
+  return box;
+}
+
 function colour(t) {
   // t in [-1, 1]: blue below zero, white at zero, yellow -> red above.
   if (t < 0) {
@@ -39,8 +90,8 @@ export function drawHeat(canvas, values, tx, rx, opts = {}) {
   const badRx = new Map((opts.rxLines || []).map((l) => [l.index, l.status]));
   let scale = opts.scale;
   if (!scale) {
-    scale = opts.minScale ?? 40;
-    for (const v of values || []) if (Number.isFinite(v)) scale = Math.max(scale, Math.abs(v));
+    scale = steadyScale(canvas, values, opts.minScale ?? 40, opts.status);
+    addControls(canvas, !!opts.status);
   }
   const off = opts.offset ?? 0;
   g.font = `${Math.max(9, Math.min(12, cell / 3.2))}px system-ui, sans-serif`;
@@ -82,7 +133,7 @@ export function drawHeat(canvas, values, tx, rx, opts = {}) {
     }
   }
   legend(g, pad, pad + cell * tx + 8, cell * rx, off, scale, opts);
-  canvas._heat = { values, tx, rx, pad, cell, status, unit: opts.unit || "", fmt: opts.fmt };
+  canvas._heat = { values, tx, rx, pad, cell, status, unit: opts.unit || "", fmt: opts.fmt, scale };
   hover(canvas);
   for (const [i] of badTx) {
     g.strokeStyle = "#d13b3b"; g.lineWidth = 1.5;

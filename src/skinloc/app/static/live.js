@@ -9,8 +9,8 @@ const TRACK_STALE_MS = 500;
 const ARROWS = { up: "↑", down: "↓", left: "←", right: "→" };
 
 export class LivePage {
-  constructor(viewer, { $, esc, mm, later }) {
-    Object.assign(this, { viewer, $, esc, mm, later });
+  constructor(viewer, { $, esc, mm, later, mode }) {
+    Object.assign(this, { viewer, $, esc, mm, later, mode });
     this.tracks = new Map(); // by key: the newest contact, the colour, when it came
     this.gestures = []; // newest first
     setInterval(() => this.dropStale(), 200);
@@ -29,8 +29,22 @@ export class LivePage {
       this.viewer.trackContact(key, colour, point, c.uncertainty_mm, ended);
       if (ended) this.tracks.delete(key);
       else this.tracks.set(key, { contact: c, colour, at: now });
+      this.holding(c.track_id, c.timestamp_s ?? msg.timestamp_s, ended);
     }
     this.later("live", () => this.render());
+  }
+
+  // A long press is reported once held long enough (its end_s is that moment), while the
+  // finger may still be down: its row follows the track until it lifts, so a 6 s hold says 6 s.
+  holding(trackId, t, ended) {
+    let changed = false;
+    for (const g of this.gestures) {
+      if (g.kind !== "long_press" || g.released || !(g.track_ids || []).includes(trackId)) continue;
+      if (Number.isFinite(t) && g.start_s != null) g.held_s = Math.max(g.held_s ?? 0, t - g.start_s);
+      if (ended) g.released = true;
+      changed = true;
+    }
+    if (changed) this.later("gestures", () => this.renderGestures());
   }
 
   gesture(msg) {
@@ -56,6 +70,7 @@ export class LivePage {
       if (now - t.at <= TRACK_STALE_MS) continue;
       this.tracks.delete(key);
       this.viewer.endTrack(key);
+      this.holding(t.contact.track_id, NaN, true); // its end was lost on the way: held so far
       dropped = true;
     }
     if (dropped) this.later("live", () => this.render());
@@ -65,7 +80,10 @@ export class LivePage {
     const { $, mm } = this;
     const el = $("#live-state");
     const tracks = [...this.tracks.values()].sort((a, b) => a.colour - b.colour);
-    el.textContent = tracks.length ? `${tracks.length} contact${tracks.length > 1 ? "s" : ""}` : "not touched";
+    // Whether it runs at all, then what it sees.
+    const mode = this.mode?.();
+    el.textContent = tracks.length ? `${tracks.length} contact${tracks.length > 1 ? "s" : ""}`
+      : mode === "live" ? "not touched" : mode === "baseline" ? "Keep the skin untouched: baseline" : "Stopped: press Start";
     el.className = `big-state ${tracks.length ? "touch" : "idle"}`;
     // No stale rows from the last touch: only the tracks that last.
     $("#live-tracks tbody").innerHTML = tracks.map(({ contact: c, colour }) => {
@@ -73,7 +91,8 @@ export class LivePage {
       const unc = c.uncertainty_mm != null ? `± ${c.uncertainty_mm.toFixed(1)}` : "-";
       return `<tr><td><span class="swatch" style="background:${swatch}"></span>${c.track_id >= 0 ? c.track_id : "-"}</td>
         <td>${mm(c.position_m)}</td><td>${unc}</td><td>${c.strength != null ? c.strength.toFixed(0) : "-"}</td>
-        <td><div class="progress thin"><div style="width:${Math.round(100 * (c.confidence ?? 0))}%"></div></div></td></tr>`;
+        <td class="confidence"><div class="conf"><div class="progress thin"><div style="width:${Math.round(100 * (c.confidence ?? 0))}%"></div></div>
+          <span>${c.confidence != null ? c.confidence.toFixed(2) : "-"}</span></div></td></tr>`;
     }).join("") || `<tr><td colspan="5" class="hint">No contact.</td></tr>`;
   }
 
@@ -82,7 +101,11 @@ export class LivePage {
     const time = (d) => d.toTimeString().slice(0, 8);
     $("#live-gestures").innerHTML = this.gestures.map((g) => {
       const dir = g.direction ? ` ${ARROWS[g.direction] ?? ""} ${esc(g.direction)}` : "";
-      const span = g.end_s != null && g.start_s != null ? ` · ${(g.end_s - g.start_s).toFixed(2)} s` : "";
+      let span = g.end_s != null && g.start_s != null ? ` · ${(g.end_s - g.start_s).toFixed(2)} s` : "";
+      if (g.kind === "long_press") {
+        const held = Math.max(g.held_s ?? 0, g.end_s - g.start_s);
+        span = ` · ${g.released ? "held" : "holding"} ${held.toFixed(2)} s${g.released ? "" : "…"}`;
+      }
       const n = (g.track_ids || []).length;
       const ids = n ? ` · track${n > 1 ? "s" : ""} ${g.track_ids.map(esc).join(", ")}` : "";
       return `<li><b>${esc(String(g.kind).replace(/_/g, " "))}</b>${dir}<span class="hint"> · ${time(g.received)}${span}${ids}</span></li>`;

@@ -11,6 +11,15 @@ export function errorColor(mm) {
   return new THREE.Color().setHSL((1 - t) * 0.33, 0.8, 0.45);
 }
 
+// The coverage map's colours, t in [0, 1] (low to high expected error): dark blue, teal,
+// yellow-green, orange. Not the validation errors' green-to-red, whose scale is fixed in mm.
+export const COVERAGE_STOPS = ["#2c3e8f", "#1f9e89", "#b5de2b", "#f98e09"];
+export function coverageColor(t) {
+  const x = Math.max(0, Math.min(1, t)) * (COVERAGE_STOPS.length - 1);
+  const k = Math.min(Math.floor(x), COVERAGE_STOPS.length - 2);
+  return new THREE.Color(COVERAGE_STOPS[k]).lerp(new THREE.Color(COVERAGE_STOPS[k + 1]), x - k);
+}
+
 const TRAIL = 60; // points of a track's trail
 const TRAIL_STEP_MM = 0.5; // a point joins the trail once the track has moved this far
 const TRACK_MARKS = 6; // tracks drawn at once
@@ -418,9 +427,34 @@ export class Viewer {
     for (const m of this.marks) m.clear();
   }
 
-  setCoverage(points, errorsMm) {
-    // The expected error of a touch at each point (the colours of errorColor, mm).
-    this._dots("coverage", points, errorsMm.map(errorColor), 1.2, 0.9);
+  setCoverage(points, errorsMm, [lo, hi]) {
+    // The expected error of a touch, as a colour on the skin's surface: each vertex takes the
+    // inverse-distance mean of its 4 nearest evaluation points, coloured on [lo, hi] mm.
+    this.clear("coverage");
+    if (!this.skinGeometry) return;
+    const geo = this.skinGeometry.clone();
+    const pos = geo.attributes.position;
+    const P = points.map(v3);
+    const cols = new Float32Array(pos.count * 3);
+    const at = new THREE.Vector3();
+    for (let i = 0; i < pos.count; i++) {
+      at.fromBufferAttribute(pos, i);
+      const near = P.map((p, k) => [p.distanceToSquared(at), k]).sort((a, b) => a[0] - b[0]).slice(0, 4);
+      let w = 0, e = 0;
+      for (const [d2, k] of near) {
+        const wk = 1 / Math.max(d2, 1e-6);
+        w += wk;
+        e += wk * errorsMm[k];
+      }
+      coverageColor((e / w - lo) / Math.max(hi - lo, 1e-9)).toArray(cols, 3 * i);
+    }
+    geo.setAttribute("color", new THREE.Float32BufferAttribute(cols, 3));
+    const mesh = new THREE.Mesh(geo, new THREE.MeshStandardMaterial({
+      vertexColors: true, roughness: 0.9, metalness: 0, side: THREE.DoubleSide,
+    }));
+    mesh.name = "coverage-surface";
+    this.groups.coverage.add(mesh);
+    this.dirty = true;
   }
 
   setErrors(targets, predicted, errors) {

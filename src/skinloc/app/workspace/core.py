@@ -154,10 +154,17 @@ class Workspace(
                     "mesh": a.info.get("mesh"),
                 },
                 "guided": guided,
-                "training": self.training,
+                "training": self._session_training(),
                 "data_dir": str(self.store.root),
                 "default_mesh": self.config.mesh_name,
             }
+
+    def _session_training(self) -> dict[str, Any] | None:
+        """The training job of the open session; another session's job is not shown with it."""
+        t, a = self.training, self.active
+        if t is None or a is None or t.get("session") != a.folder.id:
+            return None
+        return t
 
     def _publish_state(self) -> None:
         self.hub.publish(self.snapshot())

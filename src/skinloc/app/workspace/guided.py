@@ -171,16 +171,51 @@ class GuidedCapture:
             self._take_back(sess, rec.n_point_logs - 1, "undo")
 
     def retake(self, index: int, which: str = "calibration") -> None:
-        """Take back touch ``index`` (kept in history.h5) and prompt its target next."""
+        """Take back touch ``index`` (kept in history.h5) and prompt its target next.
+
+        Works at any time: during capture, after "complete", after training (the model is
+        kept until the next training) and in a session opened again (its recording resumed).
+        """
         with self._lock:
-            sess = self._session_of(Mode.CALIBRATE if which == "calibration" else Mode.VALIDATE)
+            mode = Mode.CALIBRATE if which == "calibration" else Mode.VALIDATE
+            if self.mode is Mode.BASELINE:
+                raise ValueError("wait for the baseline capture to end, then retake")
+            sess = self._stored_session(mode)
             rec = sess.recording
             if not 0 <= index < rec.n_point_logs:
                 raise ValueError(f"no touch {index + 1}: {rec.n_point_logs} recorded")
             self._take_back(sess, index, "retake")
-            mode = Mode.CALIBRATE if which == "calibration" else Mode.VALIDATE
             if self.mode is not mode:
                 self._begin(mode, sess)
+            self.message = f"retake: touch target {sess.n_done + 1} again"
+            if mode is Mode.CALIBRATE and self.active.model is not None:
+                self.message += "; train again afterwards for the model to use it"
+            self._publish_state()
+
+    def _stored_session(self, mode: Mode) -> CalibrationSession:
+        """The open session's calibration or validation, resumed from its file if need be."""
+        a = self._need_session()
+        sess = a.cal if mode is Mode.CALIBRATE else a.val
+        if sess is not None and sess.recording is not None:
+            return sess
+        path = a.folder.calibration if mode is Mode.CALIBRATE else a.folder.validation
+        if not path.is_file():
+            raise ValueError("nothing to retake: no touch recorded yet")
+        device = self._need_device()
+        if mode is Mode.CALIBRATE:
+            sess = self._calibration_session(a, device)
+        else:
+            sess = CalibrationSession.resume(device.source, path)
+        if sess.recording.n_sensors != device.source.n_sensors:
+            raise RecordingError(
+                f"the session has {sess.recording.n_sensors} sensors but the skin "
+                f"has {device.source.n_sensors}"
+            )
+        if mode is Mode.CALIBRATE:
+            a.cal = sess
+        else:
+            a.val = sess
+        return sess
 
     def _take_back(self, sess: CalibrationSession, index: int, reason: str) -> None:
         a = self._need_session()

@@ -173,6 +173,9 @@ class SessionActions:
     def _close_session(self) -> None:
         self._stop_using_frames()
         self.mode = Mode.IDLE
+        # The scripted finger is switched on for one session: the next one must not start
+        # touching its targets by itself.
+        self.finger_on = False
         if self.active is not None:
             SessionFolder.unlock(self.active.lock_fd)
             self.active = None
@@ -220,8 +223,9 @@ class SessionActions:
         """The trained model's expected localisation error over the skin, for the 3D view.
 
         ``points`` ``(E, 3)`` m and ``expected_mm`` ``(E,)`` mm (``skinloc.sensors.coverage``), plus
-        the summary of ``skinloc coverage`` and the colour scale's range, mm. Computed once
-        per model (about a second), outside the lock.
+        the summary of ``skinloc coverage``, the colour scale's range (the map's 5th to 95th
+        percentile), mm, and ``measured``: the session's held-out and validation errors, mm, to
+        compare with. Computed once per model (about a second), outside the lock.
         """
         from skinloc.sensors.coverage import coverage_map
 
@@ -238,14 +242,29 @@ class SessionActions:
         temperature = float(getattr(model, "meta_", {}).get("coverage_temperature", 1.0))
         cov = coverage_map(model.map_, None, n_points=n_points, temperature=temperature)
         out = {k: v for k, v in cov.as_dict().items() if k != "blind_spots_m"}
+        e = cov.expected_mm
+        # The colours span the map's own spread (5th to 95th percentile, to 0.1 mm), so a
+        # map of nearly one value still shows where it is better and worse.
+        lo, hi = np.floor(10 * np.percentile(e, 5)) / 10, np.ceil(10 * np.percentile(e, 95)) / 10
         out.update(
             points=np.round(cov.points_m, 6),
-            expected_mm=np.round(cov.expected_mm, 2),
+            expected_mm=np.round(e, 2),
             unit="mm",
-            scale_mm=[0.0, 20.0],  # the colours of the validation errors: green, yellow, red
+            scale_mm=[float(lo), float(max(hi, lo + 0.1))],
         )
         self._coverage_cache = (model, out)
-        return out
+        return {**out, "measured": self._measured_errors()}
+
+    def _measured_errors(self) -> dict[str, Any]:
+        """The errors measured on touches, to set the coverage map beside: held-out, validation."""
+        with self._lock:
+            info = self.active.info if self.active is not None else {}
+        keys = ("n", "mean_mm", "median_mm", "p95_mm")
+        return {
+            k: {key: v[key] for key in keys if key in v}
+            for k, v in (("holdout", info.get("holdout")), ("validation", info.get("validation")))
+            if v and v.get("mean_mm") is not None
+        }
 
     def session_mesh(self) -> dict[str, Any] | None:
         """The open session's skin mesh (m), for the 3D view."""

@@ -52,6 +52,9 @@ class AppConfig:
         Heat-map updates sent to the tabs per second.
     holdout_fraction : float
         Share of the point logs held out to measure the error when training.
+    influence_suspects : int
+        Touches examined after training for how much they raise the cross-validated error
+        of the others (``skinloc.evaluation.influence``); 0: none.
     """
 
     data_dir: Path = Path("skinloc-sessions")
@@ -61,6 +64,7 @@ class AppConfig:
     finger_delay_s: float = 0.4
     frame_push_hz: float = 25.0
     holdout_fraction: float = 0.2
+    influence_suspects: int = 2
 
 
 @dataclass

@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from skinloc._lazy import require_extra
 from skinloc.live.contact import track_colour
 from skinloc.live.sinks.base import Sink, SkinInfo, gesture_json
 
@@ -37,14 +38,7 @@ _MESH_REPUBLISH_S = 2.0  # clients that connect later get the mesh within this t
 
 
 def _require_foxglove() -> Any:
-    try:
-        import foxglove
-    except ImportError:
-        raise ImportError(
-            "the Foxglove sink needs foxglove-sdk: pip install 'skinloc[live]' "
-            "(or pip install foxglove-sdk)"
-        ) from None
-    return foxglove
+    return require_extra("foxglove", "the Foxglove sink")
 
 
 class FoxgloveSink(Sink):

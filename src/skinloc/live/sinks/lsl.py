@@ -23,6 +23,7 @@ import math
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
+from skinloc._lazy import require_extra
 from skinloc.live.sinks.base import Sink, SkinInfo, gesture_json
 
 if TYPE_CHECKING:
@@ -55,13 +56,7 @@ def lsl_channels(max_contacts: int) -> list[str]:
 
 
 def _require_pylsl() -> Any:
-    try:
-        import pylsl
-    except (ImportError, RuntimeError, OSError) as exc:  # pylsl raises RuntimeError w/o liblsl
-        raise ImportError(
-            f"the LSL sink needs pylsl with liblsl: pip install 'skinloc[live]' ({exc})"
-        ) from None
-    return pylsl
+    return require_extra("pylsl", "the LSL sink")  # pylsl raises RuntimeError without liblsl
 
 
 class LslSink(Sink):

@@ -30,13 +30,26 @@ class UdpSink(Sink):
             raise ValueError(f"UDP port must be 1-65535 (where datagrams go), got {port!r}")
         self.address = (host, int(port))
         self._sock: socket.socket | None = None
+        self._target: Any = None  # the resolved address
         self.n_sent = 0
         self.n_errors = 0
 
     def open(self, skins: list) -> None:
-        """Create the socket."""
+        """Resolve the host once (a name that does not resolve is refused) and create the socket.
+
+        Raises
+        ------
+        OSError
+            Naming the host, when it does not resolve.
+        """
         if self._sock is None:
-            family = socket.AF_INET6 if ":" in self.address[0] else socket.AF_INET
+            host, port = self.address
+            try:
+                family, _, _, _, target = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)[0]
+            except socket.gaierror as exc:
+                why = f"cannot resolve {host} ({exc.strerror})"
+                raise OSError(f"UDP sink {host}:{port}: {why}") from None
+            self._target = target
             self._sock = socket.socket(family, socket.SOCK_DGRAM)
             self._sock.setblocking(False)
 
@@ -52,7 +65,7 @@ class UdpSink(Sink):
         if self._sock is None:
             self.open([])
         try:
-            self._sock.sendto(text.encode(), self.address)
+            self._sock.sendto(text.encode(), self._target)
             self.n_sent += 1
         except OSError as exc:
             self.n_errors += 1

@@ -14,7 +14,6 @@ import os
 import random
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -24,6 +23,7 @@ from cyclonedds.idl.types import float32, float64, int32, sequence, uint8, uint3
 from skinloc.geometry.mesh import cone_skin
 from skinloc.live.core import Contact
 from skinloc.live.sinks import SkinInfo, make_sink
+from tests._helpers import wait_until
 
 # ----------------------------------------------------------------------------- the subscriber's
 # own ROS 2 types (ROS 2 Humble .msg files, DDS names as rmw_cyclonedds registers them)
@@ -167,8 +167,6 @@ class MkA(IdlStruct, typename="visualization_msgs::msg::dds_::MarkerArray_"):
 
 # ----------------------------------------------------------------------------- helpers
 
-SRC = Path(__file__).resolve().parents[4] / "src"
-
 _LOOPBACK = (
     "<CycloneDDS><Domain Id='any'><General><Interfaces><NetworkInterface name='lo'/>"
     "</Interfaces><AllowMulticast>false</AllowMulticast></General><Discovery>"
@@ -285,15 +283,6 @@ class _Sub:
         return self.got
 
 
-def _wait(cond, timeout_s=20.0):
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        if cond():
-            return True
-        time.sleep(0.02)
-    return False
-
-
 def _matched(sink, sub):
     """Whether the sink's writer (in its publisher process) and the subscriber matched."""
     return sink.matched(sub.topic) > 0 and len(sub.reader.get_matched_publications()) > 0
@@ -321,15 +310,15 @@ def test_dds_sink_received_by_an_independent_subscriber(domain):
         gest = _Sub(dp, "/skinloc/arm/gestures", Str)
         marks = _Sub(dp, "/skinloc/arm/markers", MkA)
         for sub in (point, poses, gest, marks):
-            assert _wait(lambda s=sub: _matched(sink, s)), f"no match on {sub.topic}"
+            wait_until(lambda s=sub: _matched(sink, s), f"a match on {sub.topic}")
         # the single-contact path: one emit per frame, no track id
         sink.emit(_contact("start", 0, (0.01, 0.02, 0.03)))
         sink.emit(_contact("move", 1, (0.011, 0.021, 0.031)))
         sink.emit(_contact("end", 2, (0.011, 0.021, 0.031)))
         sink.emit_gesture("arm", 100.05, {**GESTURE, "kind": "tap"})
-        assert _wait(lambda: len(point.take()) >= 2 and len(poses.take()) >= 3)
-        assert _wait(lambda: gest.take() and mesh.take() and tf.take())
-        assert _wait(lambda: len(marks.take()) >= 3)
+        wait_until(lambda: len(point.take()) >= 2 and len(poses.take()) >= 3, "contacts")
+        wait_until(lambda: gest.take() and mesh.take() and tf.take(), "gesture, mesh, tf")
+        wait_until(lambda: len(marks.take()) >= 3, "3 marker arrays")
     finally:
         sink.close()
     # strongest contact: only while touching
@@ -383,10 +372,10 @@ def test_dds_sink_publishes_multi_contact_frames(domain):
             "gestures": _Sub(dp, "/skinloc/arm/gestures", Str),
         }
         for name, sub in subs.items():
-            assert _wait(lambda s=sub: _matched(sink, s)), f"no match on /skinloc/arm/{name}"
+            wait_until(lambda s=sub: _matched(sink, s), f"a match on /skinloc/arm/{name}")
         _two_finger_frames(sink)
         want = {"contact": 2, "contacts": 3, "markers": 3, "gestures": 1}
-        assert _wait(lambda: all(len(subs[k].take()) >= n for k, n in want.items()))
+        wait_until(lambda: all(len(subs[k].take()) >= n for k, n in want.items()), str(want))
     finally:
         sink.close()
     _check_two_finger_frames(
@@ -642,25 +631,6 @@ def test_run_cli_replays_a_bag_and_refuses_a_broken_one(tmp_path):
     assert "broken.mcap" in res.output
 
 
-def test_bag_source_topic_choice(tmp_path):
-    from skinloc.errors import RecordingError
-    from skinloc.sources.mcap_ros2 import McapReplaySource
-
-    bag = tmp_path / "two.mcap"
-    sink = Ros2BagSink_two = make_sink(f"mcap-ros2:{bag}")
-    Ros2BagSink_two.open([SkinInfo("a", n_tx=4, n_rx=2), SkinInfo("b", n_tx=2, n_rx=2)])
-    sink.emit_frame("a", np.ones(8), 1.0, 3)
-    sink.emit_frame("b", np.ones(4), 1.0, 0)
-    sink.close()
-    src = McapReplaySource(bag, skin="a")
-    assert (src.n_tx, src.n_rx, src.topic) == (4, 2, "/skinloc/a/frames")
-    assert McapReplaySource(bag, skin="b").topic == "/skinloc/b/frames"
-    with pytest.raises(RecordingError, match="several image topics"):
-        McapReplaySource(bag, skin="c")
-    with pytest.raises(RecordingError, match="no image topic"):
-        McapReplaySource(bag, topic="/x")
-
-
 # ----------------------------------------------------------------------------- TF config
 
 
@@ -718,7 +688,7 @@ def test_frames_from_a_serial_port_are_recorded(tmp_path):
         spec = SkinConfig(model=model_path("map"), source=dev.path, wire_format="binary", name="p")
         runner = Runner([spec], sinks=[f"mcap-ros2:{bag}"])
         runner.start()
-        assert _wait(lambda: runner.stats()[0]["frames"] >= 100)
+        wait_until(lambda: runner.stats()[0]["frames"] >= 100, "100 frames")
         runner.close()
         n = runner.stats()[0]["frames"]
     frames = _read_bag(bag)["/skinloc/p/frames"]
@@ -823,10 +793,10 @@ def test_skinloc_run_publishes_to_a_subscriber_in_another_process(tmp_path, doma
     """`skinloc run --config robot.toml --sink ros2` as its own process, as a ROS user runs it."""
     import signal
     import subprocess
-    import sys
 
     from cyclonedds.domain import DomainParticipant
 
+    from tests._helpers import Lines, start_skinloc, stop_and_wait
     from tests._live import model_path
 
     cfg = tmp_path / "robot.toml"
@@ -834,35 +804,34 @@ def test_skinloc_run_publishes_to_a_subscriber_in_another_process(tmp_path, doma
         f'[[skin]]\nname = "arm"\nmodel = "{model_path("map")}"\nsource = "sim"\n'
         'parent_frame = "fr3_link5"\ntranslation = [0.0, 0.02, 0.0]\nrpy = [0.0, 0.0, 0.0]\n'
     )
-    env = {
-        **os.environ,
-        "ROS_DOMAIN_ID": str(domain),
-        "PYTHONPATH": os.pathsep.join([str(SRC), os.environ.get("PYTHONPATH", "")]),
-    }
     dp = DomainParticipant(domain)
     point = _Sub(dp, "/skinloc/arm/contact", PS)
     tf = _Sub(dp, "/tf_static", TfM, latched=True)
     mesh = _Sub(dp, "/skinloc/arm/mesh", Mk, latched=True)
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "skinloc", "run", "--config", str(cfg), "--sink", "ros2",
-         "--duration", "240"],
-        env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+    proc = start_skinloc(
+        "run", "--config", cfg, "--sink", "ros2", "--duration", "600",
+        env={"ROS_DOMAIN_ID": str(domain)}, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+        text=True,
     )  # fmt: skip
     try:
+        err = Lines(proc.stderr)
         # Generous: a loaded machine may take long to start the process (imports, the
         # compiled kernels); the wait ends as soon as everything arrived.
-        got = _wait(lambda: point.take() and tf.take() and mesh.take(), 180.0)
+        wait_until(
+            lambda: point.take() and tf.take() and mesh.take(),
+            lambda: f"contact, tf and mesh from skinloc run; its stderr: {err.text[-2000:]}",
+            180.0,
+            proc=proc,
+        )
+        stop_and_wait(proc, signal.SIGINT, "skinloc run --sink ros2")  # one Ctrl-C
     finally:
-        proc.send_signal(signal.SIGINT)  # one Ctrl-C
-        try:
-            _, err = proc.communicate(timeout=90)
-        except subprocess.TimeoutExpired:
+        if proc.poll() is None:
             proc.kill()
-            raise AssertionError("skinloc run --sink ros2 did not stop on one Ctrl-C") from None
-    assert got, f"nothing received from skinloc run; its stderr: {err.decode()[-2000:]}"
+            proc.wait()
+    text = err.rest()
     # stopped cleanly: the publisher process drained and ended, the run's summary printed
-    assert proc.returncode == 0 and "Traceback" not in err.decode(), err.decode()[-2000:]
-    assert "frames" in err.decode()
+    assert proc.returncode == 0 and "Traceback" not in text, text[-2000:]
+    assert "frames" in text
     assert point.got[0].header.frame_id == "skin/arm"
     assert math.isfinite(point.got[0].point.x)
     assert tf.got[-1].transforms[0].header.frame_id == "fr3_link5"

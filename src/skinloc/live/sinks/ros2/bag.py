@@ -17,6 +17,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
+from skinloc._lazy import require_extra
 from skinloc.live.sinks.base import SkinInfo
 from skinloc.live.sinks.ros2.topics import Ros2Topics
 
@@ -42,13 +43,8 @@ def offered_qos(latched: bool, depth: int) -> str:
 
 
 def _require_mcap() -> Any:
-    try:
-        from mcap.writer import CompressionType, Writer
-    except ImportError:
-        raise ImportError(
-            "the ROS 2 bag sink needs mcap: pip install 'skinloc[live]' (or pip install mcap)"
-        ) from None
-    return Writer, CompressionType
+    writer = require_extra("mcap.writer", "the ROS 2 bag sink")
+    return writer.Writer, writer.CompressionType
 
 
 class Ros2BagSink(Ros2Topics):

@@ -33,6 +33,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from skinloc.errors import MissingExtraError
 from skinloc.live.sinks.base import Sink, SkinInfo
 from skinloc.live.sinks.ros2.records import (
     pack_frame,
@@ -60,7 +61,12 @@ _BYTES_PER_FRAME = 256  # a frame record of up to 3 contacts, rounded up: sizes 
 #: be left with a finger that lifted (any other frame is dropped at once)
 _END_WAIT_S = 2.0
 _START_TIMEOUT_S = 120.0  # a loaded machine may take long to import cyclonedds and join
-_ERRORS = {"ValueError": ValueError, "ImportError": ImportError, "OSError": OSError}
+_ERRORS = {
+    "ValueError": ValueError,
+    "ImportError": ImportError,
+    "MissingExtraError": MissingExtraError,
+    "OSError": OSError,
+}
 
 
 def _pipe_max() -> int:

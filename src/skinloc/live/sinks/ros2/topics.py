@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from skinloc._lazy import extra_installed, require_extra
 from skinloc.live.contact import track_colour
 from skinloc.live.sinks.base import Sink, SkinInfo
 from skinloc.ros2.names import ros_name, topic_base
@@ -92,11 +93,7 @@ def rclpy_available() -> bool:
 
 def dds_available() -> bool:
     """Whether the ``cyclonedds`` Python binding imports."""
-    try:
-        import cyclonedds.domain  # noqa: F401
-    except ImportError:
-        return False
-    return True
+    return extra_installed("cyclonedds.domain")
 
 
 def ros2_available() -> bool:
@@ -105,14 +102,10 @@ def ros2_available() -> bool:
 
 
 def _require_msgs() -> Any:
-    """``skinloc.ros2.msgs`` (needs cyclonedds), or one clear ImportError."""
-    try:
-        import skinloc.ros2.msgs as ros2_msgs
-    except ImportError:
-        raise ImportError(
-            "the ROS 2 sinks need the cyclonedds Python binding (ROS 2 message types and CDR): "
-            "pip install 'skinloc[live]' (or pip install cyclonedds)"
-        ) from None
+    """``skinloc.ros2.msgs`` (needs cyclonedds), or one clear ``MissingExtraError``."""
+    require_extra("cyclonedds.idl", "the ROS 2 sink")
+    import skinloc.ros2.msgs as ros2_msgs
+
     return ros2_msgs
 
 

@@ -1,0 +1,45 @@
+"""``skinloc.files.atomic_write``: the old file or the new one, never a half, never litter."""
+
+from __future__ import annotations
+
+import os
+import stat
+
+import pytest
+
+from skinloc import files
+
+
+def test_a_write_replaces_the_file_with_normal_permissions(tmp_path):
+    out = tmp_path / "a.txt"
+    out.write_text("old")
+    files.atomic_write(out, lambda p: p.write_text("new"))
+    assert out.read_text() == "new" and [p.name for p in tmp_path.iterdir()] == ["a.txt"]
+    mask = os.umask(0o022)
+    os.umask(mask)
+    assert stat.S_IMODE(out.stat().st_mode) == 0o666 & ~mask  # not mkstemp's 0600
+
+
+@pytest.mark.parametrize("where", ["writing", "just after the temporary file was made"])
+def test_an_interruption_keeps_the_old_file_and_leaves_no_temporary_one(
+    tmp_path, monkeypatch, where
+):
+    out = tmp_path / "a.txt"
+    out.write_text("old")
+
+    def write(p):
+        p.write_text("half")
+        raise KeyboardInterrupt
+
+    if where != "writing":  # the Ctrl-C arrives as soon as the file exists
+        close = os.close
+
+        def close_then_interrupt(fd: int) -> None:
+            close(fd)
+            raise KeyboardInterrupt
+
+        monkeypatch.setattr(files.os, "close", close_then_interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        files.atomic_write(out, write)
+    monkeypatch.undo()
+    assert out.read_text() == "old" and [p.name for p in tmp_path.iterdir()] == ["a.txt"]

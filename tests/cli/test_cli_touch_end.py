@@ -9,70 +9,40 @@ with the machine's load.
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
-import sys
-import time
 from pathlib import Path
 
 import pytest
 
 from skinloc.sim.virtual_device import VirtualSkin
+from tests._helpers import start_skinloc, stop_and_wait, wait_until
 from tests._live import held_recording, model_path
 
-SRC = Path(__file__).resolve().parents[2] / "src"
 
-
-def _scaled(timeout_s: float) -> float:
-    """``timeout_s`` stretched by the load per core (1x to 8x): a shared machine is slower."""
-    try:
-        load = os.getloadavg()[0] / (os.cpu_count() or 1)
-    except OSError:
-        load = 1.0
-    return timeout_s * min(max(load, 1.0), 8.0)
-
-
-def _start(args: list[str], err: Path) -> subprocess.Popen:
-    env = {
-        **os.environ,
-        "PYTHONPATH": os.pathsep.join([str(SRC), os.environ.get("PYTHONPATH", "")]),
-    }
-
-    def ctrl_c_default() -> None:  # a job started in the background inherits SIGINT ignored
-        signal.signal(signal.SIGINT, signal.SIG_DFL)
-
+def _start(args: list[object], err: Path) -> subprocess.Popen:
+    """``skinloc run --model MODEL ARGS`` as its own process, its stderr to ``err``."""
     with err.open("w") as fh:
-        return subprocess.Popen(
-            [sys.executable, "-m", "skinloc", "run", "--model", str(model_path("map")), *args],
-            env=env,
-            stdout=subprocess.DEVNULL,
-            stderr=fh,
-            preexec_fn=ctrl_c_default,
+        return start_skinloc(
+            "run", "--model", model_path("map"), *args, stdout=subprocess.DEVNULL, stderr=fh
         )
 
 
 def _poll(check, what: str, timeout_s: float, proc: subprocess.Popen, err: Path) -> None:
-    """Poll ``check()`` (bounded, scaled); fail with the run's stderr if it ends or time is up."""
-    deadline = time.monotonic() + _scaled(timeout_s)
-    while not check():
-        if proc.poll() is not None or time.monotonic() > deadline:
-            proc.kill()
-            proc.wait()
-            pytest.fail(f"no {what}; skinloc run said: {err.read_text()[-2000:]}")
-        time.sleep(0.05)
+    """Poll ``check()`` (bounded, scaled by the load); fail with the run's stderr."""
+    wait_until(check, lambda: f"{what}; skinloc run said: {err.read_text()[-2000:]}", timeout_s,
+               proc=proc)  # fmt: skip
 
 
-def _stopped(proc: subprocess.Popen, err: Path, timeout_s: float = 90.0) -> str:
-    try:
-        proc.wait(timeout=_scaled(timeout_s))
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait()
-        pytest.fail(f"skinloc run did not stop; it said: {err.read_text()[-2000:]}")
+def _ended_cleanly(proc: subprocess.Popen, err: Path) -> None:
     text = err.read_text()
     assert proc.returncode == 0 and "Traceback" not in text, text[-2000:]
-    return text
+
+
+def _kill(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        proc.kill()
+        proc.wait()
 
 
 def _contacts(out: Path) -> list[dict]:
@@ -104,33 +74,39 @@ def _assert_every_touch_ended(out: Path) -> None:
 
 def test_end_of_a_replay_that_stops_mid_touch(tmp_path):
     out, err = tmp_path / "out.jsonl", tmp_path / "err.txt"
-    proc = _start(["--source", str(held_recording(0.5)), "--fast", "--sink", f"jsonl:{out}"], err)
-    _stopped(proc, err, 180.0)
+    proc = _start(["--source", held_recording(0.5), "--fast", "--sink", f"jsonl:{out}"], err)
+    try:
+        _poll(lambda: proc.poll() is not None, "the end of the replay", 180.0, None, err)
+    finally:
+        _kill(proc)
+    _ended_cleanly(proc, err)
     _assert_every_touch_ended(out)
 
 
 def test_duration_stops_with_the_finger_down(tmp_path):
     """The replay holds the touch for 300 s; ``--duration`` stops the run long before."""
     out, err = tmp_path / "out.jsonl", tmp_path / "err.txt"
-    src = str(held_recording(300.0))
+    src = held_recording(300.0)
     proc = _start(["--source", src, "--duration", "10", "--sink", f"jsonl:{out}"], err)
-    _stopped(proc, err, 180.0)
+    try:
+        _poll(lambda: proc.poll() is not None, "the end of --duration", 180.0, None, err)
+    finally:
+        _kill(proc)
+    _ended_cleanly(proc, err)
     _assert_every_touch_ended(out)
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
 def test_a_signal_stops_the_run_with_the_finger_down(tmp_path, sig):
     out, err = tmp_path / "out.jsonl", tmp_path / "err.txt"
-    proc = _start(["--source", str(held_recording(300.0)), "--sink", f"jsonl:{out}"], err)
+    proc = _start(["--source", held_recording(300.0), "--sink", f"jsonl:{out}"], err)
     try:
-        _poll(lambda: _touched(out), "touch", 120.0, proc, err)
+        _poll(lambda: _touched(out), "a touch", 120.0, proc, err)
         assert _open_tracks(_contacts(out))  # still touched when the signal comes
-        proc.send_signal(sig)
-        _stopped(proc, err)
+        stop_and_wait(proc, sig, "skinloc run")
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+        _kill(proc)
+    _ended_cleanly(proc, err)
     _assert_every_touch_ended(out)
 
 
@@ -143,23 +119,21 @@ def test_a_port_lost_with_the_finger_down_ends_the_touch(tmp_path):
     try:
         dev.skin.press(dev.skin.sensor_positions[27], pressure=1.0, finger_radius_m=0.008)
         proc = _start(
-            ["--source", dev.path, "--format", "binary", "--baseline", str(held_recording(0.5)),
+            ["--source", dev.path, "--format", "binary", "--baseline", held_recording(0.5),
              "--sink", f"jsonl:{out}", "--duration", "600"],
             err,
         )  # fmt: skip
         try:
-            _poll(lambda: _touched(out), "touch", 120.0, proc, err)
+            _poll(lambda: _touched(out), "a touch", 120.0, proc, err)
             dev.stop()  # unplugged, the finger still on the skin
             plugged = False
             _poll(
                 lambda: not _open_tracks(_contacts(out)), "end after the port went", 60.0, proc, err
             )
-            proc.send_signal(signal.SIGINT)
-            _stopped(proc, err)
+            stop_and_wait(proc, signal.SIGINT, "skinloc run")
         finally:
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait()
+            _kill(proc)
+        _ended_cleanly(proc, err)
     finally:
         if plugged:
             dev.stop()

@@ -23,7 +23,7 @@ from cyclonedds.idl.types import float32, float64, int32, sequence, uint8, uint3
 from skinloc.geometry.mesh import cone_skin
 from skinloc.live.core import Contact
 from skinloc.live.sinks import SkinInfo, make_sink
-from tests._helpers import wait_until
+from tests._helpers import scaled, wait_until
 
 # ----------------------------------------------------------------------------- the subscriber's
 # own ROS 2 types (ROS 2 Humble .msg files, DDS names as rmw_cyclonedds registers them)
@@ -729,7 +729,7 @@ def test_a_bag_recorded_when_the_run_stops_mid_touch_ends_with_the_finger_lifted
     )
     pipeline.start(seen.append)
     try:
-        assert _wait(lambda: any(c.state == "move" for c in seen), _scaled(120.0))
+        wait_until(lambda: any(c.state == "move" for c in seen), "a held touch", 120.0)
     finally:
         pipeline.close()
     topics = _read_bag(bag)
@@ -749,7 +749,7 @@ def test_a_frame_that_ends_a_track_waits_for_room_in_a_full_pipe(domain, monkeyp
 
     from skinloc.live.sinks.ros2 import sink as ros2_sink
 
-    monkeypatch.setattr(ros2_sink, "_END_WAIT_S", _scaled(60.0))  # a loaded machine
+    monkeypatch.setattr(ros2_sink, "_END_WAIT_S", scaled(60.0))  # a loaded machine
     sink = ros2_sink.Ros2Sink(domain_id=domain, backend="dds", queue_frames=16)
     sink.open([SkinInfo("a")])
     waiting = threading.Event()
@@ -771,10 +771,10 @@ def test_a_frame_that_ends_a_track_waits_for_room_in_a_full_pipe(domain, monkeyp
         assert dropped == 1
         end = threading.Thread(target=sink.emit, args=(_contact("end", k + 1, skin="a"),))
         end.start()
-        assert waiting.wait(_scaled(30.0))
+        assert waiting.wait(scaled(30.0))
     finally:
         os.kill(pid, signal.SIGCONT)
-    end.join(_scaled(60.0))
+    end.join(scaled(60.0))
     assert not end.is_alive()
     sink.close()
     assert sink.n_dropped == dropped  # the end went through once there was room
@@ -839,15 +839,6 @@ def test_skinloc_run_publishes_to_a_subscriber_in_another_process(tmp_path, doma
     assert mesh.got[-1].header.frame_id == "skin/arm"
 
 
-def _scaled(timeout_s: float) -> float:
-    """``timeout_s`` stretched by the load per core (1x to 8x): a shared machine is slower."""
-    try:
-        load = os.getloadavg()[0] / (os.cpu_count() or 1)
-    except OSError:
-        load = 1.0
-    return timeout_s * min(max(load, 1.0), 8.0)
-
-
 def test_a_touch_held_when_skinloc_run_stops_ends_for_a_subscriber_in_another_process(domain):
     """Ctrl-C with a finger down: the subscriber gets the empty PoseArray and the DELETEs.
 
@@ -855,56 +846,51 @@ def test_a_touch_held_when_skinloc_run_stops_ends_for_a_subscriber_in_another_pr
     """
     import signal
     import subprocess
-    import sys
 
     from cyclonedds.domain import DomainParticipant
 
+    from tests._helpers import Lines, start_skinloc, stop_and_wait
     from tests._live import held_recording, model_path
 
-    env = {
-        **os.environ,
-        "ROS_DOMAIN_ID": str(domain),
-        "PYTHONPATH": os.pathsep.join([str(SRC), os.environ.get("PYTHONPATH", "")]),
-    }
     dp = DomainParticipant(domain)
     poses = _Sub(dp, "/skinloc/skin/contacts", PA)
     markers = _Sub(dp, "/skinloc/skin/markers", MkA)
 
-    def touched() -> bool:
-        markers.take()
-        return any(m.poses for m in poses.take() if isinstance(m, PA))
-
-    def ctrl_c_default() -> None:  # a job started in the background inherits SIGINT ignored
-        signal.signal(signal.SIGINT, signal.SIG_DFL)
-
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "skinloc", "run", "--model", str(model_path("map")),
-         "--source", str(held_recording(300.0)), "--sink", "ros2", "--duration", "600"],
-        env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, preexec_fn=ctrl_c_default,
-    )  # fmt: skip
-    try:
-        got = _wait(touched, _scaled(180.0))  # ends as soon as the finger is seen
-    finally:
-        proc.send_signal(signal.SIGINT)  # one Ctrl-C, the finger still down
-        try:
-            _, err = proc.communicate(timeout=_scaled(90.0))
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            raise AssertionError("skinloc run --sink ros2 did not stop on one Ctrl-C") from None
-    assert got, f"no touch received from skinloc run; its stderr: {err.decode()[-2000:]}"
-    assert proc.returncode == 0 and "Traceback" not in err.decode(), err.decode()[-2000:]
-
     def data(sub: _Sub, cls: type) -> list:
         """The messages taken (a writer that goes away also leaves samples without data)."""
         return [m for m in sub.take() if isinstance(m, cls)]
+
+    def touched() -> bool:
+        markers.take()
+        return any(m.poses for m in data(poses, PA))
 
     def ended() -> bool:
         markers.take()
         got = data(poses, PA)
         return bool(got) and not got[-1].poses
 
+    proc = start_skinloc(
+        "run", "--model", model_path("map"), "--source", held_recording(300.0), "--sink", "ros2",
+        "--duration", "600", env={"ROS_DOMAIN_ID": str(domain)}, stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        err = Lines(proc.stderr)
+        wait_until(
+            touched,
+            lambda: f"a finger on /contacts from skinloc run; its stderr: {err.text[-2000:]}",
+            180.0,
+            proc=proc,
+        )
+        stop_and_wait(proc, signal.SIGINT, "skinloc run --sink ros2")  # the finger still down
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    text = err.rest()
+    assert proc.returncode == 0 and "Traceback" not in text, text[-2000:]
     # what was published before the publisher ended is delivered (reliable): take it all
-    assert _wait(ended, _scaled(30.0)), "the last PoseArray still holds a finger"
+    wait_until(ended, "an empty PoseArray after the last finger", 30.0)
     last_action: dict[int, int] = {}
     for msg in data(markers, MkA):
         for m in msg.markers:

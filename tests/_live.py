@@ -148,3 +148,34 @@ def gesture_recording() -> Path:
         index=np.arange(len(frames)),
     )
     return path
+
+
+@functools.cache
+def held_recording(held_s: float, rate_hz: float = 100.0) -> Path:
+    """A recording of the simulated skin (seed 0) that ends touched: 1.5 s untouched, then a
+    firm press held for ``held_s`` up to the last frame (a replay that stops mid-touch)."""
+    from skinloc.geometry.mesh import cone_skin
+    from skinloc.sim.skin import SimulatedSkin
+    from skinloc.sources.replay import write_stream_recording
+
+    mesh = cone_skin()
+    skin = SimulatedSkin(mesh, random_state=0)
+    skin.connect()
+    idle = [skin.read().values for _ in range(150)]
+    skin.press(skin.sensor_positions[27], pressure=1.0, finger_radius_m=0.008)
+    pressed = np.asarray([skin.read().values for _ in range(100)])
+    skin.disconnect()
+    n_held = max(int(round(held_s * rate_hz)), 10)
+    frames = np.concatenate([np.asarray(idle), np.resize(pressed, (n_held, pressed.shape[1]))])
+    path = _DIR / f"held_{held_s:g}s_{rate_hz:g}hz.h5"
+    write_stream_recording(
+        path,
+        n_tx=8,
+        n_rx=8,
+        mesh=mesh,
+        baseline_frames=frames[:100],
+        frames=frames,
+        times_s=np.arange(len(frames)) / rate_hz,
+        index=np.arange(len(frames)),
+    )
+    return path

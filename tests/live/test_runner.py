@@ -64,6 +64,29 @@ def test_replay_runs_to_the_end_and_ends_open_touches():
     assert p.stats()[0]["frames"] == 1500
 
 
+def test_close_with_a_finger_down_ends_every_track_before_the_sinks_close():
+    """A program's ``close`` mid-touch (the path of Ctrl-C, SIGTERM and ``--duration``)."""
+    from tests._live import held_recording
+
+    class Closing(ListSink):
+        def close(self) -> None:
+            self.closed_after = len(self.contacts)
+
+    sink, got = Closing(), []
+    pipeline = Pipeline(model_path("map"), str(held_recording(300.0)), sinks=[sink])
+    pipeline.start(got.append)
+    try:
+        wait_until(lambda: any(c.state == "move" for c in got), "a held touch")
+    finally:
+        pipeline.close()
+    last = {c.track_id: c.state for c in sink.contacts}
+    assert last and set(last.values()) == {"end"}
+    assert sink.closed_after == len(sink.contacts)  # the ends came before the sink closed
+    assert got == sink.contacts  # the callback gets them as well
+    pipeline.close()  # idempotent: no second end
+    assert len(sink.contacts) == sink.closed_after
+
+
 def test_runner_on_a_virtual_skin_port_reconnects():
     from skinloc.sim.virtual_device import FaultConfig, VirtualSkin
 

@@ -526,11 +526,29 @@ class SkinCore:
         now = time.monotonic() if now is None else now
         if not (self._touching and now - self._last_t_in > self.config.stale_s):
             return []
+        return self._end_now(now)
+
+    def end_open(self, now: float | None = None) -> list[Contact]:
+        """The pipeline stops: end the touch in progress now, stale or not.
+
+        Returns the ``end`` of every open track (none when nothing touches); gestures they
+        complete go to ``gestures``. ``now`` is ``time.monotonic()`` s, or ``math.inf`` when
+        the stream ended (the ends then carry the last frame's time).
+        """
+        if not self._touching:
+            return []
+        return self._end_now(time.monotonic() if now is None else now)
+
+    def _end_now(self, now: float) -> list[Contact]:
+        """End every track at ``now``: the last frame's time plus the time since it arrived."""
         self._touching = False
         self._below = 0
         last = self._last_contact
-        gap = now - self._last_t_in  # inf: the stream ended, the last frame's time
-        ts = (last.timestamp_s if last else 0.0) + gap if math.isfinite(gap) else self._last_ts
+        gap = max(now - self._last_t_in, 0.0)  # inf: the stream ended, the last frame's time
+        if last is not None and math.isfinite(gap):
+            ts = last.timestamp_s + gap
+        else:
+            ts = self._last_ts if self._last_ts is not None else 0.0
         out = self._end_all(ts, last.index if last else -1, math.nan, now)
         if self._recognizer is not None and out:
             self.gestures += self._recognizer.update(ts, out, releasing=True)

@@ -142,6 +142,7 @@ class Runner:
         self._sel: selectors.BaseSelector | None = None
         self._next_sweep = -math.inf  # when the loop next looks for lost ports and stale touches
         self._error: BaseException | None = None
+        self._touches_ended = False  # the ends of the open touches went out (once, at the end)
         self.n_emitted = 0
 
     # ------------------------------------------------------------------ lifecycle
@@ -211,11 +212,19 @@ class Runner:
         self._wake()
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(10.0)
+        # a loop still running on another thread owns the cores (its join above timed out)
+        running = (
+            self._thread is not None
+            and self._thread.is_alive()
+            and self._thread is not threading.current_thread()
+        )
         self._thread = None
         for feed in self._threads:
             feed.close()
         for port in self._ports:
             port.close()
+        if self._opened and not running:
+            self._end_touches(time.monotonic())
         for sink in [*self.global_sinks, *(s for sinks in self.skin_sinks for s in sinks)]:
             try:
                 sink.close()
@@ -354,14 +363,31 @@ class Runner:
             yield from self._step(0.05)
             if self.finished:
                 yield from self._step(0.0)
-                for slot, core in enumerate(self.cores):  # end touches, report what waits
-                    out: list[Contact] = []
-                    ends = core.end_stale(math.inf)
-                    core.flush_gestures()
-                    self._emit(slot, ends, out)
-                    yield from out
+                yield from self._end_touches(math.inf)
                 break
         self._raise_feed_errors()
+
+    def _end_touches(self, now: float) -> list[Contact]:
+        """The loop stops: every open touch and track ends, through the ordinary path.
+
+        Every skin's touch in progress gets the ``end`` of each of its tracks and every gesture
+        still waiting is reported, to every sink and callback, so that whoever follows the
+        contacts (a ROS 2 node, a websocket client) never keeps a finger that has gone. Called
+        once, on every way out: the end of the sources (``now`` = inf: the ends carry the last
+        frame's time) and ``close`` (Ctrl-C, SIGTERM, ``--duration``, a program's ``close``).
+        """
+        out: list[Contact] = []
+        if self._touches_ended:
+            return out
+        self._touches_ended = True
+        for slot, core in enumerate(self.cores):
+            ends = core.end_open(now)
+            core.flush_gestures()
+            try:
+                self._emit(slot, ends, out)
+            except Exception as exc:  # noqa: BLE001 - one skin's sink failing must not keep
+                log.warning("ending the touches of %s: %s", core.name, exc)  # others' ends
+        return out
 
     def _raise_feed_errors(self) -> None:
         errors = [f.error for f in self._threads if f.error is not None]

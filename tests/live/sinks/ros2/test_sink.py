@@ -23,7 +23,7 @@ from cyclonedds.idl.types import float32, float64, int32, sequence, uint8, uint3
 from skinloc.geometry.mesh import cone_skin
 from skinloc.live.core import Contact
 from skinloc.live.sinks import SkinInfo, make_sink
-from tests._helpers import wait_until
+from tests._helpers import scaled, wait_until
 
 # ----------------------------------------------------------------------------- the subscriber's
 # own ROS 2 types (ROS 2 Humble .msg files, DDS names as rmw_cyclonedds registers them)
@@ -717,6 +717,70 @@ def test_dds_sink_close_leaves_no_thread_and_no_process(domain):
     assert threads() <= before
 
 
+def test_a_bag_recorded_when_the_run_stops_mid_touch_ends_with_the_finger_lifted(tmp_path):
+    """``close`` with a finger down (Ctrl-C, SIGTERM, ``--duration``): the bag has the end."""
+    from skinloc.live.runner import Pipeline
+    from tests._live import held_recording, model_path
+
+    bag = tmp_path / "held.mcap"
+    seen = []
+    pipeline = Pipeline(
+        model_path("map"), str(held_recording(300.0)), sinks=[f"mcap-ros2:{bag}"], name="arm"
+    )
+    pipeline.start(seen.append)
+    try:
+        wait_until(lambda: any(c.state == "move" for c in seen), "a held touch", 120.0)
+    finally:
+        pipeline.close()
+    topics = _read_bag(bag)
+    poses = [m for _, _, m in topics["/skinloc/arm/contacts"]]
+    assert any(p.poses for p in poses) and not poses[-1].poses
+    last_action = {}
+    for _, _, msg in topics["/skinloc/arm/markers"]:
+        for m in msg.markers:
+            last_action[m.id] = m.action
+    assert last_action and set(last_action.values()) == {2}  # every sphere DELETEd
+
+
+def test_a_frame_that_ends_a_track_waits_for_room_in_a_full_pipe(domain, monkeypatch):
+    """Other frames are dropped when the publisher lags; an end is not (bounded wait)."""
+    import signal
+    import threading
+
+    from skinloc.live.sinks.ros2 import sink as ros2_sink
+
+    monkeypatch.setattr(ros2_sink, "_END_WAIT_S", scaled(60.0))  # a loaded machine
+    sink = ros2_sink.Ros2Sink(domain_id=domain, backend="dds", queue_frames=16)
+    sink.open([SkinInfo("a")])
+    waiting = threading.Event()
+    wait_for_room = sink._wait_for_room
+
+    def wait_and_tell(n: int, timeout_s: float) -> None:
+        waiting.set()
+        wait_for_room(n, timeout_s)
+
+    monkeypatch.setattr(sink, "_wait_for_room", wait_and_tell)
+    pid = sink._proc.pid
+    os.kill(pid, signal.SIGSTOP)  # the publisher lags: the pipe fills
+    try:
+        for k in range(10_000):
+            sink.emit(_contact("move", k, skin="a"))
+            if sink.n_dropped:
+                break
+        dropped = sink.n_dropped
+        assert dropped == 1
+        end = threading.Thread(target=sink.emit, args=(_contact("end", k + 1, skin="a"),))
+        end.start()
+        assert waiting.wait(scaled(30.0))
+    finally:
+        os.kill(pid, signal.SIGCONT)
+    end.join(scaled(60.0))
+    assert not end.is_alive()
+    sink.close()
+    assert sink.n_dropped == dropped  # the end went through once there was room
+    assert sink.stats()["sent"] == sink.n_put - dropped
+
+
 def test_an_encoder_mismatch_is_one_clear_error(monkeypatch):
     from skinloc.ros2 import cdr as ros2_cdr
 
@@ -773,6 +837,65 @@ def test_skinloc_run_publishes_to_a_subscriber_in_another_process(tmp_path, doma
     assert tf.got[-1].transforms[0].header.frame_id == "fr3_link5"
     assert tf.got[-1].transforms[0].transform.translation.y == pytest.approx(0.02)
     assert mesh.got[-1].header.frame_id == "skin/arm"
+
+
+def test_a_touch_held_when_skinloc_run_stops_ends_for_a_subscriber_in_another_process(domain):
+    """Ctrl-C with a finger down: the subscriber gets the empty PoseArray and the DELETEs.
+
+    Without them a node that follows the touches believes the skin is touched forever.
+    """
+    import signal
+    import subprocess
+
+    from cyclonedds.domain import DomainParticipant
+
+    from tests._helpers import Lines, start_skinloc, stop_and_wait
+    from tests._live import held_recording, model_path
+
+    dp = DomainParticipant(domain)
+    poses = _Sub(dp, "/skinloc/skin/contacts", PA)
+    markers = _Sub(dp, "/skinloc/skin/markers", MkA)
+
+    def data(sub: _Sub, cls: type) -> list:
+        """The messages taken (a writer that goes away also leaves samples without data)."""
+        return [m for m in sub.take() if isinstance(m, cls)]
+
+    def touched() -> bool:
+        markers.take()
+        return any(m.poses for m in data(poses, PA))
+
+    def ended() -> bool:
+        markers.take()
+        got = data(poses, PA)
+        return bool(got) and not got[-1].poses
+
+    proc = start_skinloc(
+        "run", "--model", model_path("map"), "--source", held_recording(300.0), "--sink", "ros2",
+        "--duration", "600", env={"ROS_DOMAIN_ID": str(domain)}, stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        err = Lines(proc.stderr)
+        wait_until(
+            touched,
+            lambda: f"a finger on /contacts from skinloc run; its stderr: {err.text[-2000:]}",
+            180.0,
+            proc=proc,
+        )
+        stop_and_wait(proc, signal.SIGINT, "skinloc run --sink ros2")  # the finger still down
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    text = err.rest()
+    assert proc.returncode == 0 and "Traceback" not in text, text[-2000:]
+    # what was published before the publisher ended is delivered (reliable): take it all
+    wait_until(ended, "an empty PoseArray after the last finger", 30.0)
+    last_action: dict[int, int] = {}
+    for msg in data(markers, MkA):
+        for m in msg.markers:
+            last_action[m.id] = m.action
+    assert last_action and set(last_action.values()) == {2}  # every sphere DELETEd
 
 
 def test_bench_functions_with_the_ros2_sink_run_small(domain):

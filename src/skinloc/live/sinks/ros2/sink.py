@@ -57,6 +57,9 @@ __all__ = ["Ros2Sink"]
 
 _PIPE_BUF = 4096  # POSIX: a write of at most this many bytes to a pipe is atomic
 _BYTES_PER_FRAME = 256  # a frame record of up to 3 contacts, rounded up: sizes the pipe
+#: How long a frame that ends a track waits for room in a full pipe, s: a subscriber must not
+#: be left with a finger that lifted (any other frame is dropped at once)
+_END_WAIT_S = 2.0
 _START_TIMEOUT_S = 120.0  # a loaded machine may take long to import cyclonedds and join
 _ERRORS = {
     "ValueError": ValueError,
@@ -277,12 +280,17 @@ class Ros2Sink(Sink):
         return int(self._reply(lambda m: m.get("matched") == token, timeout_s, "matched")["n"])
 
     # ------------------------------------------------------------------ the pipeline's side
-    def _put(self, record: bytes) -> None:
-        """Write one record without blocking; a full pipe (or no publisher) drops it."""
+    def _put(self, record: bytes, keep: bool = False) -> None:
+        """Write one record without blocking; a full pipe (or no publisher) drops it.
+
+        A record to ``keep`` (a frame that ends a track) waits up to ``_END_WAIT_S`` for room.
+        """
         self.n_put += 1
         if self._w < 0:
             self.n_dropped += 1
             return
+        if keep:
+            self._wait_for_room(len(record), _END_WAIT_S)
         try:
             if len(record) > _PIPE_BUF and not self._room_for(len(record)):
                 self.n_dropped += 1
@@ -304,6 +312,14 @@ class Ros2Sink(Sink):
                 os.write(self._w, record[n:])
             finally:
                 os.set_blocking(self._w, False)
+
+    def _wait_for_room(self, n: int, timeout_s: float) -> None:
+        """Wait (bounded) until ``n`` bytes fit in the pipe or the publisher has gone."""
+        end = time.monotonic() + timeout_s
+        while not self._room_for(n) and time.monotonic() < end:
+            if self._proc is None or self._proc.poll() is not None:
+                return
+            time.sleep(0.001)
 
     def _room_for(self, n: int) -> bool:
         """Whether ``n`` bytes fit in the pipe now (Linux; elsewhere assume they do)."""
@@ -331,12 +347,14 @@ class Ros2Sink(Sink):
     def emit(self, contact: Contact) -> None:
         """Queue the one contact of a single-contact pipeline's frame (see ``Ros2Topics.emit``)."""
         self._put(
-            pack_frame(self._skin(contact.skin), contact.timestamp_s, time.monotonic(), (contact,))
+            pack_frame(self._skin(contact.skin), contact.timestamp_s, time.monotonic(), (contact,)),
+            contact.state == "end",
         )
 
     def emit_contacts(self, skin: str, timestamp_s: float, contacts: Sequence[Contact]) -> None:
         """Queue one frame of ``skin`` for the publisher (see ``Ros2Topics.emit_contacts``)."""
-        self._put(pack_frame(self._skin(skin), timestamp_s, time.monotonic(), contacts))
+        keep = any(c.state == "end" for c in contacts)
+        self._put(pack_frame(self._skin(skin), timestamp_s, time.monotonic(), contacts), keep)
 
     def emit_gesture(self, skin: str, timestamp_s: float, event: Mapping[str, Any]) -> None:
         """Queue a gesture event of ``skin`` (published as JSON on ``/skinloc/S/gestures``)."""

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import itertools
+import json
 import math
+import os
 
 import numpy as np
 import pytest
@@ -397,3 +399,60 @@ def test_pair_prior_fits_at_most_max_fits_per_touch_whatever_the_timestamps():
     _step(tr, 1.0, A, start=True)
     _step(tr, 1.0 + 1e-6, A)
     assert prior.refit.calls == 6
+
+
+_REPLAY = """
+import json
+import sys
+from numba.core.registry import CPUDispatcher
+from skinloc.live.core import SkinCore
+from skinloc.sim.gestures import GestureScript
+from skinloc.sim.hand import ScriptedHand, script_items
+from skinloc.sim.skin import SimulatedSkin
+
+def compiled():
+    return {f"{m}.{a}": len(v.signatures) for m, mod in list(sys.modules.items())
+            if m.startswith("skinloc") for a, v in vars(mod).items()
+            if isinstance(v, CPUDispatcher)}
+
+core = SkinCore(sys.argv[1])
+before = compiled()
+skin = SimulatedSkin(random_state=0)
+script = GestureScript(skin.mesh, 5, n_touches=0, random_state=3,
+                       draw_touch=lambda rng: skin.draw_touch(rng, weak=False))
+items = script_items(script, 60.0, skin)
+hand = ScriptedHand(items, t0=1.0, ramp_s=script.timing.ramp_s)
+slots = set()
+with skin:
+    for k in range(int((hand.end_s + 2.0) * 100)):
+        fingers = hand(k * 0.01)
+        if fingers is not None:
+            skin.touch(fingers)
+        slots |= {c.slot for c in core.process_frame(skin.read().values, k * 0.01, k)}
+after = compiled()
+print(json.dumps({"slots": sorted(slots),
+                  "late": sorted(n for n in after if after[n] != before.get(n, 0))}))
+"""
+
+
+def test_no_kernel_compiles_on_a_touch_the_core_warms_them_all_up():
+    # A kernel compiled on a touch holds up the live loop (seconds on a cold numba cache): the
+    # frames read after it all carry one late arrival time, and a two-finger tap's second
+    # finger became a one-frame track half a second after its lift. A fresh process (where
+    # nothing was compiled yet) replays a gesture script, a two-finger tap first, through a
+    # core: every kernel it calls must have been compiled (or loaded) with the core.
+    import subprocess
+    import sys
+
+    from tests._helpers import SRC
+
+    path = os.pathsep.join(p for p in (str(SRC), os.environ.get("PYTHONPATH")) if p)
+    env = {**os.environ, "PYTHONPATH": path}
+    res = subprocess.run(
+        [sys.executable, "-c", _REPLAY, str(model_path("map"))],
+        capture_output=True, text=True, env=env, timeout=600,
+    )  # fmt: skip
+    assert res.returncode == 0, res.stderr[-2000:]
+    got = json.loads(res.stdout.strip().splitlines()[-1])
+    assert got["slots"] == [0, 1]  # the two-finger tap was seen as two fingers
+    assert got["late"] == [], "compiled on a touch, not with the core"

@@ -173,6 +173,10 @@ class SkinCore:
             _prep(np.zeros(n, dtype=dtype), base, self._inv_sigma, scratch, 0.0, 1.0, 0)
         _one_euro(np.zeros(8), 0.0, 0.0, 0.0, 0.0, self._filt_prm, np.zeros(3))
         self.engine.constrain_into(0.0, 0.0, 0.0, np.zeros(3))
+        if self._tracker is not None and self._tracker.pair is not None:
+            # the pair prior fits in a touch's first frames: compiled there, it stalled the
+            # loop, and the frames read after the stall arrived at once, stamped late
+            self._tracker.pair.refit.warm_up()
 
     # ------------------------------------------------------------------ baseline
     def set_baseline(self, frames: np.ndarray) -> None:

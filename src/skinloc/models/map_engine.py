@@ -193,6 +193,20 @@ class MapEngine(Engine):
         """One image ``x (n_features,)`` float32 counts into ``out (7,)`` (see ``Engine``)."""
         _match_one(x, self._clip, self._groups, self._fine, self._scratch, out)
 
+    def warm_up(self) -> MapEngine:
+        """As ``Engine.warm_up``, and the search's stage for several contacts (``_peel``).
+
+        One point's touch never reaches it: two fingers far apart, each a candidate's image,
+        do. Compiled on a live skin's first two-finger touch instead, it held up the loop for
+        a second on a cold cache.
+        """
+        super().warm_up()
+        t = self.search_tables()
+        w, Ft, Fpos = t.arrays[0], t.arrays[6], t.arrays[7]
+        far = int(np.argmax(np.linalg.norm(Fpos - Fpos[0], axis=1)))
+        self.contacts((1e3 * (Ft[0] + Ft[far]) / w).astype(np.float32), 3)
+        return self
+
     def contacts_into(self, x: np.ndarray, max_contacts: int, out: np.ndarray) -> int:
         """Up to ``max_contacts`` contacts of ``x`` into ``out`` (see ``Engine.contacts_into``).
 

@@ -132,6 +132,17 @@ class PairRefit:
         self._out = np.zeros(3)
         self._anchor = np.zeros(3)
 
+    def warm_up(self) -> PairRefit:
+        """Compile the fit now (numba caches it on disk) rather than on a touch's frames.
+
+        The live pipeline fits in a touch's first frames: compiled there, the fit held up the
+        loop for seconds (up to 3 s on a cold cache), and the frames read after it all carried
+        one late arrival time.
+        """
+        x = np.zeros(self._arrays[0].shape[0], dtype=np.float32)  # w: one weight per sensor
+        self.fit(x, self._arrays[7][0])
+        return self
+
     def fit(self, x: np.ndarray, anchor_m: np.ndarray) -> AnchoredPair | None:
         """The anchored pair of image ``x (n_features,)`` counts; None if no pair fits.
 

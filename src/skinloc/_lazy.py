@@ -20,7 +20,7 @@ from skinloc.errors import MissingExtraError
 __all__ = ["EXTRAS", "extra_installed", "missing_extra_message", "require_extra", "resolve"]
 
 #: Each optional dependency by its top-level module: (the extra that installs it, its name).
-#: ``tests/test_extras.py`` checks this against pyproject.toml's optional dependencies.
+#: ``tests/test_lazy.py`` checks this against pyproject.toml's optional dependencies.
 EXTRAS: dict[str, tuple[str, str]] = {
     "torch": ("nets", "PyTorch"),
     "onnx": ("export", "onnx"),

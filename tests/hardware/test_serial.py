@@ -176,9 +176,9 @@ def test_list_ports_runs():
 def test_open_failures_say_what_to_do(code, hint):
     import serial
 
-    from skinloc.hardware.serial import _why_not_open
+    from skinloc.hardware.serial import why_not_open
 
-    assert hint in _why_not_open(serial.SerialException(code, "could not open port"))
+    assert hint in why_not_open(serial.SerialException(code, "could not open port"))
 
 
 def test_not_a_serial_port(tmp_path):

@@ -15,13 +15,12 @@ import os
 import re
 import time
 from dataclasses import dataclass
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from skinloc.data.recording import read_recording
+from skinloc.data.recording import read_recording, utc_now
 from skinloc.errors import RecordingError, SkinlocError
 from skinloc.files import atomic_write
 
@@ -32,10 +31,6 @@ __all__ = ["SessionBusyError", "SessionFolder", "SessionStore"]
 
 class SessionBusyError(SkinlocError):
     """The session is open elsewhere (another app process)."""
-
-
-def _now() -> str:
-    return datetime.now(UTC).isoformat(timespec="seconds")
 
 
 def _slug(text: str) -> str:
@@ -93,7 +88,7 @@ class SessionFolder:
 
     def write_info(self, info: dict[str, Any]) -> None:
         """Rewrite ``session.json`` atomically."""
-        info = {**info, "modified": _now()}
+        info = {**info, "modified": utc_now()}
         atomic_write(self.info_path, lambda tmp: tmp.write_text(json.dumps(info, indent=2)))
 
     def read_plan(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -148,7 +143,7 @@ class SessionFolder:
                         )
                     )
         entry = f"{kind}_{len(old)}"
-        old.append((entry, arrays, {**attrs, "time": _now()}))
+        old.append((entry, arrays, {**attrs, "time": utc_now()}))
 
         def write(tmp: Path) -> None:
             with h5py.File(tmp, "w") as f:
@@ -251,7 +246,7 @@ class SessionStore:
                 np.savez(fh, vertices=vertices, faces=faces, targets=targets)
 
         atomic_write(folder.plan_path, write_plan)
-        folder.write_info({"name": name, "created": _now(), **info})
+        folder.write_info({"name": name, "created": utc_now(), **info})
         return folder
 
     def recordings(self) -> list[dict[str, Any]]:

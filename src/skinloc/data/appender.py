@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from skinloc._typing import Points
-from skinloc.data.recording import Recording, _now, _write_h5
+from skinloc.data.recording import Recording, utc_now, write_h5
 from skinloc.errors import RecordingError
 from skinloc.files import cannot_write
 
@@ -62,7 +62,7 @@ class RecordingAppender:
 
         rec.validate()
         self.path = Path(path)
-        self.meta = {"created": _now(), **rec.meta, "skinloc_version": __version__}
+        self.meta = {"created": utc_now(), **rec.meta, "skinloc_version": __version__}
         self.n_point_logs = rec.n_point_logs
         self._shape = (rec.frames.shape[1] or int(rec.meta.get("samples_per_touch", 0)),)
         self._shape += (rec.n_sensors,)
@@ -73,7 +73,7 @@ class RecordingAppender:
         except OSError as exc:
             raise cannot_write(self.path, exc) from None
         try:
-            _write_h5(self._file, rec, self.meta, appendable=True)
+            write_h5(self._file, rec, self.meta, appendable=True)
             self._file.flush()
         except BaseException:
             self._file.close()
@@ -107,7 +107,7 @@ class RecordingAppender:
                 g[name].resize(i, axis=0)
             raise
         self.n_point_logs = i + 1
-        self.update_meta(modified=_now())
+        self.update_meta(modified=utc_now())
 
     def update_meta(self, **values: Any) -> None:
         """Merge ``values`` into the stored meta and flush."""
@@ -202,10 +202,10 @@ class StreamAppender:
         except OSError as exc:
             raise cannot_write(self.path, exc) from None
         try:
-            _write_h5(
+            write_h5(
                 self.file,
                 header,
-                {"created": _now(), **header.meta, "skinloc_version": __version__},
+                {"created": utc_now(), **header.meta, "skinloc_version": __version__},
             )
             g = self.file.create_group("stream")
             g.attrs["units"] = "frames in raw counts, times in s since the first frame"

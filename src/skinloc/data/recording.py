@@ -24,8 +24,10 @@ log = logging.getLogger(__name__)
 
 __all__ = [
     "FORMAT_VERSION",
-    "Recording",
     "read_recording",
+    "Recording",
+    "utc_now",
+    "write_h5",
     "write_mat",
     "write_recording",
 ]
@@ -37,7 +39,8 @@ _MAT_MAGIC = b"MATLAB 5.0 MAT-file"
 MAX_TX, MAX_RX = 21, 12
 
 
-def _now() -> str:
+def utc_now() -> str:
+    """The current UTC time as ISO 8601 to the second, as files record it."""
     return datetime.now(UTC).isoformat(timespec="seconds")
 
 
@@ -205,7 +208,7 @@ class Recording:
                 if self.frame_times is None or len(self.frames) == 1
                 else np.concatenate([self.frame_times, t])
             )
-        self.meta["modified"] = _now()
+        self.meta["modified"] = utc_now()
         self.validate()
 
 
@@ -335,7 +338,7 @@ def _read_mat(path: Path) -> Recording:
 # writing
 
 
-def _write_h5(f, rec: Recording, meta: dict[str, Any], appendable: bool = False) -> None:
+def write_h5(f, rec: Recording, meta: dict[str, Any], appendable: bool = False) -> None:
     """Write ``rec`` into the open HDF5 file ``f`` (the layout of docs/formats.md).
 
     ``appendable`` makes the point-log datasets resizable along the first axis (chunked one
@@ -375,11 +378,11 @@ def write_recording(rec: Recording, path: str | Path) -> None:
     from skinloc import __version__
 
     rec.validate()
-    meta = {"created": _now(), **rec.meta, "skinloc_version": __version__}
+    meta = {"created": utc_now(), **rec.meta, "skinloc_version": __version__}
 
     def write(tmp: Path) -> None:
         with h5py.File(tmp, "w") as f:
-            _write_h5(f, rec, meta)
+            write_h5(f, rec, meta)
 
     atomic_write(Path(path), write)
 

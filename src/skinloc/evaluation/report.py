@@ -14,15 +14,17 @@ log = logging.getLogger(__name__)
 __all__ = [
     "plot_error_curve",
     "plot_error_curves",
-    "plot_uncertainty",
     "plot_paper_fig3",
     "plot_predictions_3d",
     "plot_sensor_image",
+    "plot_uncertainty",
+    "pyplot",
     "write_html",
 ]
 
 
-def _pyplot():
+def pyplot():
+    """``matplotlib.pyplot`` on the file-only Agg backend (imported on first use)."""
     import matplotlib
 
     matplotlib.use("Agg")  # files only; never needs a display
@@ -72,7 +74,7 @@ def plot_sensor_image(
     image: np.ndarray, n_tx: int, n_rx: int, path: str | Path, title: str = "Sensor image"
 ) -> Path:
     """Heat map of one baseline-subtracted image ``(n_tx * n_rx,)`` counts, TX rows x RX columns."""
-    plt = _pyplot()
+    plt = pyplot()
     grid = np.asarray(image, dtype=float).reshape(n_tx, n_rx)
     fig, ax = plt.subplots(figsize=(4.6, 4))
     lim = max(abs(grid).max(), 1.0)
@@ -97,7 +99,7 @@ def plot_predictions_3d(
 
     Two views (from above and from the side) so that no segment hides behind the surface.
     """
-    plt = _pyplot()
+    plt = pyplot()
     from matplotlib import cm, colors
 
     t, p = np.asarray(true) * 1e3, np.asarray(predicted) * 1e3
@@ -133,7 +135,7 @@ def plot_error_curves(
 
     ``simulated[label] = (sizes, mean_mm, std_mm)`` and ``real[label] = (sizes, mean_mm)``.
     """
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6.4, 4.4))
     colours = ["tab:blue", "tab:orange", "tab:green", "tab:purple"]
     for i, (label, (xs, ys, es)) in enumerate(simulated.items()):
@@ -150,7 +152,7 @@ def plot_error_curves(
 
 def plot_uncertainty(uncertainty_mm: np.ndarray, error_mm: np.ndarray, path: str | Path) -> Path:
     """The model's predicted uncertainty against its actual error, one point per touch (mm)."""
-    plt = _pyplot()
+    plt = pyplot()
     u, e = np.asarray(uncertainty_mm, dtype=float), np.asarray(error_mm, dtype=float)
     fig, ax = plt.subplots(figsize=(4.8, 4.2))
     ok = np.isfinite(u)
@@ -175,7 +177,7 @@ def plot_error_curve(
     extra: dict[str, tuple[Sequence[int], Sequence[float]]] | None = None,
 ) -> Path:
     """Mean +- std localisation error against the number of calibration point logs."""
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(5.5, 4))
     ax.errorbar(n_points, mean_mm, yerr=std_mm, marker="o", capsize=3, label=label)
     for name, (xs, ys) in (extra or {}).items():
@@ -198,7 +200,7 @@ def plot_paper_fig3(
     title: str = "",
 ) -> Path:
     """The paper's Fig. 3: (a) mean SNR and (b) error against point logs."""
-    plt = _pyplot()
+    plt = pyplot()
     fig, (a, b) = plt.subplots(1, 2, figsize=(9, 3.6))
     a.errorbar(n_points, snr_mean, yerr=snr_std, marker="o", capsize=3)
     a.set_xlabel("calibration point logs")

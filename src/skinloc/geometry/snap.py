@@ -15,7 +15,13 @@ import numpy as np
 from skinloc._jit import jit, prange
 from skinloc._typing import Points
 
-__all__ = ["CONSTRAINTS", "SnapIndex", "Surface", "closest_on_triangles"]
+__all__ = [
+    "CONSTRAINTS",
+    "closest_on_triangles",
+    "constrain_one",
+    "SnapIndex",
+    "Surface",
+]
 
 #: Constraint name -> the code the kernels take.
 CONSTRAINTS = {"none": 0, "snap": 1, "project": 2}
@@ -191,7 +197,7 @@ def _closest_on_triangles(
 
 
 @jit()
-def _constrain_one(
+def constrain_one(
     q0: float, q1: float, q2: float, mode: int, surf: tuple, out: np.ndarray
 ) -> None:  # pragma: no cover - compiled
     """Put ``q`` on the surface by ``mode`` (0 none, 1 snap, 2 project); writes ``out (3,)``.
@@ -216,9 +222,9 @@ def _constrain_one(
 def _constrain_many(
     q: np.ndarray, mode: int, surf: tuple, out: np.ndarray
 ) -> None:  # pragma: no cover - compiled
-    """``_constrain_one`` over the rows of ``q (n, 3)``, in parallel, into ``out (n, 3)``."""
+    """``constrain_one`` over the rows of ``q (n, 3)``, in parallel, into ``out (n, 3)``."""
     for i in prange(q.shape[0]):
-        _constrain_one(q[i, 0], q[i, 1], q[i, 2], mode, surf, out[i])
+        constrain_one(q[i, 0], q[i, 1], q[i, 2], mode, surf, out[i])
 
 
 # --------------------------------------------------------------------------------------------
@@ -355,7 +361,7 @@ class Surface:
 
     def constrain_into(self, q0: float, q1: float, q2: float, out: np.ndarray) -> None:
         """Put the point ``(q0, q1, q2)`` m on the surface, into ``out (3,)``."""
-        _constrain_one(q0, q1, q2, self.mode, self.args, out)
+        constrain_one(q0, q1, q2, self.mode, self.args, out)
 
     def constrain(self, q: Points) -> Points:
         """Constrain ``q (n, 3)`` m onto the surface (in parallel); returns ``(n, 3)`` m."""

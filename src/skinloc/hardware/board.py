@@ -129,12 +129,12 @@ class BoardInfo:
 def _open(port: str, baud: int) -> Any:
     import serial
 
-    from skinloc.hardware.serial import _why_not_open
+    from skinloc.hardware.serial import why_not_open
 
     try:
         return serial.serial_for_url(port, baudrate=baud, timeout=0.05, write_timeout=1.0)
     except (serial.SerialException, OSError, ValueError) as exc:
-        raise BoardError(f"cannot open serial port {port}: {_why_not_open(exc)}") from None
+        raise BoardError(f"cannot open serial port {port}: {why_not_open(exc)}") from None
 
 
 def _binary_lock(data: bytes) -> int | None:

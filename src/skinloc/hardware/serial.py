@@ -30,13 +30,14 @@ from skinloc.sources.base import Frame, FrameSource, SourceOptions
 log = logging.getLogger(__name__)
 
 __all__ = [
+    "check_source",
+    "list_ports",
+    "parse_line_mask",
     "PortInfo",
     "SerialSource",
     "SerialSourceConfig",
     "SourceStats",
-    "check_source",
-    "list_ports",
-    "parse_line_mask",
+    "why_not_open",
 ]
 
 
@@ -269,7 +270,7 @@ class SerialSource(FrameSource):
             self._serial = self._open()
         except (serial.SerialException, OSError, ValueError) as exc:
             raise SourceNotConnectedError(
-                f"cannot open serial port {self.config.port}: {_why_not_open(exc)}"
+                f"cannot open serial port {self.config.port}: {why_not_open(exc)}"
             ) from None
         self._link_up = True
         self._stop.clear()
@@ -488,7 +489,7 @@ class SerialSource(FrameSource):
             self._cond.notify_all()
 
 
-def _why_not_open(exc: BaseException) -> str:
+def why_not_open(exc: BaseException) -> str:
     """What to tell a person whose port did not open."""
     code = getattr(exc, "errno", None)
     if code == errno.ENOENT:

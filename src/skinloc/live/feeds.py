@@ -126,10 +126,10 @@ class _PortFeed:
                 # A node that appeared but stays unreadable is told once (udev may fix the
                 # group a moment after the node appears, so this is no reason to stop).
                 if getattr(exc, "errno", None) == errno.EACCES and not self._told_denied:
-                    from skinloc.hardware.serial import _why_not_open
+                    from skinloc.hardware.serial import why_not_open
 
                     self._told_denied = True
-                    log.warning("%s (skin %s): %s", self.port, self.name, _why_not_open(exc))
+                    log.warning("%s (skin %s): %s", self.port, self.name, why_not_open(exc))
                 return
             sel.register(self.fd, selectors.EVENT_READ, self)
             if self.waiting:
@@ -152,7 +152,7 @@ def open_port_feed(slot: int, skin: SkinConfig, core: SkinCore) -> _PortFeed | N
         For a port that cannot be opened and is not waited for, in one line saying why
         (missing, permission denied: the dialout group, busy, not a serial port).
     """
-    from skinloc.hardware.serial import _why_not_open
+    from skinloc.hardware.serial import why_not_open
 
     feed = _PortFeed(slot, skin, core)
     try:
@@ -166,7 +166,7 @@ def open_port_feed(slot: int, skin: SkinConfig, core: SkinCore) -> _PortFeed | N
             feed.last_error = "not present"
             return feed
         raise SourceNotConnectedError(
-            f"cannot open serial port {skin.source}: {_why_not_open(exc)}"
+            f"cannot open serial port {skin.source}: {why_not_open(exc)}"
         ) from None
     return feed
 

@@ -25,7 +25,7 @@ import numpy as np
 
 from skinloc._jit import jit
 from skinloc._typing import Points
-from skinloc.geometry.snap import _constrain_one
+from skinloc.geometry.snap import constrain_one
 from skinloc.models.engine import Engine, ModelSpec, clip_and_norm, norm_code
 
 __all__ = ["NetworkEngine", "NetworkSpec", "activate_inplace"]
@@ -216,7 +216,7 @@ def _localise_one(
         for e in range(E):
             r += members[e, k]
         out[k] = r / E
-    _constrain_one(out[0], out[1], out[2], mode, surf, out[3:6])
+    constrain_one(out[0], out[1], out[2], mode, surf, out[3:6])
     out[6] = spread
 
 

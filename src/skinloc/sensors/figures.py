@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from skinloc._typing import Points
-from skinloc.evaluation.report import _pyplot, draw_mesh, save_figure
+from skinloc.evaluation.report import draw_mesh, pyplot, save_figure
 from skinloc.sensors.sensor_map import SensorMap
 
 __all__ = ["plot_coverage", "plot_sensor_map"]
@@ -19,7 +19,7 @@ _STATUS_COLOURS = {"ok": "tab:green", "weak": "tab:orange", "dead": "k", "noisy"
 
 
 def _skin_axes(mesh, title: str):
-    plt = _pyplot()
+    plt = pyplot()
     fig = plt.figure(figsize=(7.5, 6))
     ax = fig.add_subplot(projection="3d")
     draw_mesh(ax, mesh)

@@ -28,7 +28,7 @@ import numpy as np
 
 from skinloc.sim.layout import SkinLayout
 from skinloc.sim.params import SkinParams
-from skinloc.sim.signal import _polyline_distance2, apply_weak_lines, finger_terms, sensor_image
+from skinloc.sim.signal import apply_weak_lines, finger_terms, polyline_distance2, sensor_image
 
 __all__ = ["Finger", "multi_touch_image", "nearest_lines", "summed_image"]
 
@@ -122,6 +122,6 @@ def summed_image(layout: SkinLayout, params: SkinParams, fingers: Sequence[Finge
 def nearest_lines(layout: SkinLayout, point: np.ndarray) -> tuple[int, int]:
     """The TX and RX lines (electrical indices) whose wires pass nearest ``point (3,)`` m."""
     point = np.asarray(point, dtype=np.float64).reshape(3)
-    tx = int(np.argmin(_polyline_distance2(point, layout.tx_wires)))
-    rx = int(np.argmin(_polyline_distance2(point, layout.rx_wires)))
+    tx = int(np.argmin(polyline_distance2(point, layout.tx_wires)))
+    rx = int(np.argmin(polyline_distance2(point, layout.rx_wires)))
     return tx, rx

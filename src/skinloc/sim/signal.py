@@ -14,9 +14,10 @@ from skinloc.sim.layout import SkinLayout
 from skinloc.sim.params import SkinParams
 
 __all__ = [
-    "FingerTerms",
     "apply_weak_lines",
     "finger_terms",
+    "FingerTerms",
+    "polyline_distance2",
     "sensor_image",
     "silicone_thickness_at",
     "weak_line_mask",
@@ -28,7 +29,7 @@ def _kernel(d2: np.ndarray, width2: float, exponent: float) -> np.ndarray:
     return (1.0 + d2 / width2) ** (-exponent)
 
 
-def _polyline_distance2(point: np.ndarray, wires: np.ndarray) -> np.ndarray:
+def polyline_distance2(point: np.ndarray, wires: np.ndarray) -> np.ndarray:
     """Squared distance from ``point (3,)`` to each polyline of ``wires (w, m, 3)``, m^2."""
     a, b = wires[:, :-1], wires[:, 1:]
     ab = b - a
@@ -141,8 +142,8 @@ def finger_terms(
     d2 = ((layout.sensor_positions - contact) ** 2).sum(axis=1)
     scales = np.ones(layout.n_sensors) if layout.width_scales is None else layout.width_scales
     local = _kernel(d2, width2 * scales**2, gamma)
-    k_tx = _kernel(_polyline_distance2(contact, layout.tx_wires), width2, gamma)
-    k_rx = _kernel(_polyline_distance2(contact, layout.rx_wires), width2, gamma)
+    k_tx = _kernel(polyline_distance2(contact, layout.tx_wires), width2, gamma)
+    k_rx = _kernel(polyline_distance2(contact, layout.rx_wires), width2, gamma)
     # Parallel-plate coupling through the dielectric: the signal falls as 1 / thickness.
     relative = pressure * params.silicone_thickness_m / h
     amplitude = relative * params.peak_signal_counts

@@ -11,11 +11,17 @@ from skinloc.models.multi_contact.contacts import N_COLS, CountRule, noise_weigh
 from skinloc.models.multi_contact.pairs import PairTables, far_apart, seeds_and_pair
 
 __all__ = [
+    "REFRESH_FRAMES",
+    "RESIDUAL_GROWTH",
+    "SAFE_SCORE",
+    "SearchMemory",
     "SearchTables",
     "nnls",
     "nnls2",
     "polish",
+    "recall_into",
     "relative_gain",
+    "remember",
     "search_into",
     "single_into",
     "weakest_z",
@@ -23,6 +29,14 @@ __all__ = [
 
 #: Coarse cells searched around each contact (its own and the nearest others).
 N_NEIGHBOURS = 7
+#: A stream's frames answered from its memory before the full search runs again.
+REFRESH_FRAMES = 25
+#: How far the one-contact residual (relative to the image's energy) may grow over the one
+#: the full search saw before the full search runs again.
+RESIDUAL_GROWTH = 1.25
+#: The largest count-rule score, as a share of the rule's threshold, of a frame a memory may
+#: start from: a frame near the threshold is searched in full every time.
+SAFE_SCORE = 0.5
 
 
 # --------------------------------------------------------------------------------------------
@@ -127,6 +141,36 @@ class SearchTables:
             np.zeros(3),  # spreads, mm
             np.zeros(12),  # stats: g1, g2, g3, weakest z of 2, of 3, |xw|^2; 8..10: rows
         )
+
+
+class SearchMemory:
+    """What one stream's last full search found, so that its next frames can skip it.
+
+    A touch held on a skin is one finger frame after frame; the full search (seeds, every
+    pair) asks each frame afresh whether a second finger arrived. The memory lets a frame
+    answer "one contact" from the last full search's one-contact fit instead (``recall_into``)
+    while (a) that search counted one contact, with its rule's score at most ``SAFE_SCORE``
+    of the threshold (``remember``); (b) the one-contact fit, refined from where it was, leaves
+    a relative residual at most ``RESIDUAL_GROWTH`` times the one the full search left (a
+    second finger landing leaves its image unexplained); (c) fewer than ``REFRESH_FRAMES``
+    frames were answered so since. Anything else runs the full search. One memory per stream
+    (an engine serves several skins); ``reset`` at a touch's start.
+
+    Attributes
+    ----------
+    state : (4,) float64
+        Valid (1.0 or 0.0), the one-contact fit's fine row, its relative residual
+        ``R_1 / |xw|^2`` at the full search, frames answered since.
+    """
+
+    __slots__ = ("state",)
+
+    def __init__(self) -> None:
+        self.state = np.zeros(4)
+
+    def reset(self) -> None:
+        """Forget: the next frame is searched in full."""
+        self.state[:] = 0.0
 
 
 # --------------------------------------------------------------------------------------------
@@ -476,4 +520,68 @@ def single_into(
         out[0, t] = out7[3 + t]
     out[0, 3] = math.sqrt(nrm)
     out[0, 4] = out7[6]
+    return 1
+
+
+@jit()
+def remember(
+    K: int, n: int, prm: np.ndarray, st: np.ndarray, mem: np.ndarray
+) -> None:  # pragma: no cover - compiled
+    """Record a full search's answer ``n`` (statistics ``st``, ``S[-1]``) in ``mem``.
+
+    Only a count of one whose rule score (``relative_gain * z2 ** z_power`` over ``tau2``) is
+    at most ``SAFE_SCORE`` starts a memory (``SearchMemory``).
+    """
+    mem[0] = 0.0
+    if K <= 1 or n != 1:
+        return
+    xx = st[5]
+    r1 = max(xx - st[0], 1.0)
+    score = 0.0
+    if st[1] > 0.0:
+        r2 = max(xx - st[1], 1.0)
+        score = relative_gain(r1, r2, prm[7] * xx) * max(st[3], 0.0) ** prm[8] / prm[2]
+    if score > SAFE_SCORE or xx <= 0.0:
+        return
+    mem[0] = 1.0
+    mem[1] = st[11]
+    mem[2] = r1 / xx
+    mem[3] = 0.0
+
+
+@jit()
+def recall_into(
+    x: np.ndarray, arrays: tuple, prm: np.ndarray, S: tuple, mem: np.ndarray
+) -> int:  # pragma: no cover - compiled
+    """One frame answered from a stream's memory: -1 (search in full), 0 or 1 contacts.
+
+    0 is the full search's own first test (no sensor at ``z_on``); 1 leaves ``out`` to the
+    caller, as the full search does. The one-contact fit is refined from the memory's row as
+    the full search refines its best seed (``polish``, two rounds); the statistics go to
+    ``S[10]`` (g1, ``|xw|^2`` and the fit's row; the pair's are not computed: 0).
+    """
+    if mem[0] == 0.0 or mem[3] >= REFRESH_FRAMES:
+        return -1
+    w = arrays[0]
+    xw, fi, st = S[0], S[4], S[10]
+    xx = 0.0
+    zmax = 0.0
+    for j in range(x.shape[0]):
+        v = np.float32(x[j] * w[j])
+        xw[j] = v
+        xx += float(v) * float(v)
+        zmax = max(zmax, float(v))
+    st[:] = 0.0
+    st[5] = xx
+    if zmax < prm[0]:
+        mem[0] = 0.0
+        return 0
+    fi[0] = int(mem[1])
+    gain1 = polish(1, fi, xw, xx, arrays, 0.0, S)
+    if max(xx - gain1, 1.0) > RESIDUAL_GROWTH * mem[2] * xx:
+        return -1
+    st[0] = gain1
+    st[11] = fi[0]
+    mem[1] = fi[0]
+    mem[3] += 1.0
     return 1

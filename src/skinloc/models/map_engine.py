@@ -238,7 +238,7 @@ class MapEngine(Engine):
                     x, max_contacts, t.arrays, t.prm, t.scratch, False, out, *t.pair.kernel_args
                 )
                 if memory is not None:
-                    remember(max_contacts, n, t.prm, t.scratch[-1], memory.state)
+                    remember(max_contacts, n, t.arrays, t.prm, t.scratch, memory.state)
             if n > 1:
                 _peel(
                     x,

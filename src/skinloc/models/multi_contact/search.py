@@ -11,6 +11,7 @@ from skinloc.models.multi_contact.contacts import N_COLS, CountRule, noise_weigh
 from skinloc.models.multi_contact.pairs import PairTables, far_apart, seeds_and_pair
 
 __all__ = [
+    "PEAK_GROWTH",
     "REFRESH_FRAMES",
     "RESIDUAL_GROWTH",
     "SAFE_SCORE",
@@ -33,10 +34,14 @@ N_NEIGHBOURS = 7
 REFRESH_FRAMES = 25
 #: How far the one-contact residual (relative to the image's energy) may grow over the one
 #: the full search saw before the full search runs again.
-RESIDUAL_GROWTH = 1.25
+RESIDUAL_GROWTH = 1.15
+#: How far the one-contact fit's largest residual (noise levels) may grow over the one at the
+#: full search (a finger landing away from the first leaves its peak unexplained); below
+#: half the rule's ``z2_min`` it may grow freely.
+PEAK_GROWTH = 1.3
 #: The largest count-rule score, as a share of the rule's threshold, of a frame a memory may
 #: start from: a frame near the threshold is searched in full every time.
-SAFE_SCORE = 0.5
+SAFE_SCORE = 0.3
 
 
 # --------------------------------------------------------------------------------------------
@@ -158,15 +163,16 @@ class SearchMemory:
 
     Attributes
     ----------
-    state : (4,) float64
+    state : (7,) float64
         Valid (1.0 or 0.0), the one-contact fit's fine row, its relative residual
-        ``R_1 / |xw|^2`` at the full search, frames answered since.
+        ``R_1 / |xw|^2`` at the full search, frames answered since, the pair's two fine rows
+        (-1: no pair), the fit's largest whitened residual at the full search (noise levels).
     """
 
     __slots__ = ("state",)
 
     def __init__(self) -> None:
-        self.state = np.zeros(4)
+        self.state = np.zeros(7)
 
     def reset(self) -> None:
         """Forget: the next frame is searched in full."""
@@ -524,29 +530,50 @@ def single_into(
 
 
 @jit()
-def remember(
-    K: int, n: int, prm: np.ndarray, st: np.ndarray, mem: np.ndarray
-) -> None:  # pragma: no cover - compiled
-    """Record a full search's answer ``n`` (statistics ``st``, ``S[-1]``) in ``mem``.
+def _residual_peak(xw: np.ndarray, row: int, arrays: tuple) -> float:  # pragma: no cover
+    """The largest whitened residual of the one-contact fit at fine row ``row`` (noise levels)."""
+    Ft, Fn = arrays[6], arrays[12]
+    b = _dot(Ft[row], xw)
+    sc = b / Fn[row] if b > 0.0 and Fn[row] > 0.0 else 0.0
+    e = -np.inf
+    for j in range(xw.shape[0]):
+        e = max(e, float(xw[j]) - sc * float(Ft[row, j]))
+    return e
 
-    Only a count of one whose rule score (``relative_gain * z2 ** z_power`` over ``tau2``) is
-    at most ``SAFE_SCORE`` starts a memory (``SearchMemory``).
+
+@jit()
+def _score(
+    xx: float, g1: float, g2: float, z2: float, prm: np.ndarray
+) -> float:  # pragma: no cover - compiled
+    """The count rule's score of two contacts over one, as a share of ``tau2`` (0: no pair)."""
+    if g2 <= 0.0:
+        return 0.0
+    r1 = max(xx - g1, 1.0)
+    r2 = max(xx - g2, 1.0)
+    return relative_gain(r1, r2, prm[7] * xx) * max(z2, 0.0) ** prm[8] / prm[2]
+
+
+@jit()
+def remember(
+    K: int, n: int, arrays: tuple, prm: np.ndarray, S: tuple, mem: np.ndarray
+) -> None:  # pragma: no cover - compiled
+    """Record a full search's answer ``n`` (scratch ``S``, ``SearchTables.scratch``) in ``mem``.
+
+    Only a count of one whose rule score is at most ``SAFE_SCORE`` of ``tau2`` starts a
+    memory (``SearchMemory``): its one-contact fit's row and the pair's rows (-1: none).
     """
+    st, fi = S[10], S[4]
     mem[0] = 0.0
-    if K <= 1 or n != 1:
-        return
     xx = st[5]
-    r1 = max(xx - st[0], 1.0)
-    score = 0.0
-    if st[1] > 0.0:
-        r2 = max(xx - st[1], 1.0)
-        score = relative_gain(r1, r2, prm[7] * xx) * max(st[3], 0.0) ** prm[8] / prm[2]
-    if score > SAFE_SCORE or xx <= 0.0:
+    if K <= 1 or n != 1 or xx <= 0.0 or _score(xx, st[0], st[1], st[3], prm) > SAFE_SCORE:
         return
     mem[0] = 1.0
     mem[1] = st[11]
-    mem[2] = r1 / xx
+    mem[2] = max(xx - st[0], 1.0) / xx
     mem[3] = 0.0
+    mem[4] = fi[0] if st[1] > 0.0 else -1.0  # a count of one leaves the polished pair in fi
+    mem[5] = fi[1] if st[1] > 0.0 else -1.0
+    mem[6] = _residual_peak(S[0], int(st[11]), arrays)
 
 
 @jit()
@@ -557,13 +584,15 @@ def recall_into(
 
     0 is the full search's own first test (no sensor at ``z_on``); 1 leaves ``out`` to the
     caller, as the full search does. The one-contact fit is refined from the memory's row as
-    the full search refines its best seed (``polish``, two rounds); the statistics go to
-    ``S[10]`` (g1, ``|xw|^2`` and the fit's row; the pair's are not computed: 0).
+    the full search refines its best seed (``polish``, two rounds), the pair from the
+    memory's pair (one round); their rule score must stay at most ``SAFE_SCORE`` of ``tau2``
+    and the one-contact residual within ``RESIDUAL_GROWTH`` of the remembered one. The
+    statistics go to ``S[10]`` as the full search's (g1, g2, weakest z of 2, ``|xw|^2``).
     """
     if mem[0] == 0.0 or mem[3] >= REFRESH_FRAMES:
         return -1
     w = arrays[0]
-    xw, fi, st = S[0], S[4], S[10]
+    xw, fi, s, st = S[0], S[4], S[8], S[10]
     xx = 0.0
     zmax = 0.0
     for j in range(x.shape[0]):
@@ -580,8 +609,23 @@ def recall_into(
     gain1 = polish(1, fi, xw, xx, arrays, 0.0, S)
     if max(xx - gain1, 1.0) > RESIDUAL_GROWTH * mem[2] * xx:
         return -1
+    peak = _residual_peak(xw, fi[0], arrays)
+    if peak > PEAK_GROWTH * mem[6] and peak > 0.5 * prm[5]:
+        return -1
     st[0] = gain1
     st[11] = fi[0]
-    mem[1] = fi[0]
+    row1 = fi[0]
+    if mem[4] >= 0.0:
+        fi[0] = int(mem[4])
+        fi[1] = int(mem[5])
+        gain2 = polish(2, fi, xw, xx, arrays, prm[1], S, 1)
+        z2 = weakest_z(2, fi, s, arrays[8])
+        if _score(xx, gain1, gain2, z2, prm) > SAFE_SCORE:
+            return -1
+        st[1] = gain2
+        st[3] = z2
+        mem[4] = fi[0]
+        mem[5] = fi[1]
+    mem[1] = row1
     mem[3] += 1.0
     return 1

@@ -347,15 +347,23 @@ def polish(
     S: tuple,
     rounds: int = 2,
 ) -> float:  # pragma: no cover - compiled
-    """``rounds`` rounds of ``_refine`` over the ``m`` contacts; returns the gain."""
+    """``rounds`` rounds of ``_refine`` over the ``m`` contacts; returns the gain.
+
+    A round that moves no contact ends the polish: the next would repeat it exactly.
+    """
     gq, qq, s, spread = S[6], S[7], S[8], S[9]
     g = 0.0
     for _ in range(rounds):
+        moved = False
         for i in range(m):
+            before = fi[i]
             gi, sp = _refine(i, m, fi, xw, xx, arrays, min2, gq, qq, s)
             if gi >= 0.0:
                 g = gi
                 spread[i] = sp
+            moved = moved or fi[i] != before
+        if not moved:
+            break
     return g
 
 

@@ -273,10 +273,12 @@ def _refine(
     gq: np.ndarray,
     qq: np.ndarray,
     s_out: np.ndarray,
+    spread_on: bool = True,
 ) -> tuple:  # pragma: no cover - compiled
     """Move contact ``i`` of ``m`` (fine rows ``fi``) to its best candidate, the others fixed.
 
-    Returns ``(gain, spread_mm)``; ``fi[i]`` and the strengths ``s_out[:m]`` are updated.
+    Returns ``(gain, spread_mm)`` (spread nan unless ``spread_on``); ``fi[i]`` and the
+    strengths ``s_out[:m]`` are updated.
     """
     w, Ct, Cg, Cd, Cpos, nbr, Ft, Fpos, Fpk, Fcell, off, cfine, Fn = arrays
     G = np.empty((3, 3))  # once per call, not per candidate
@@ -317,6 +319,8 @@ def _refine(
     if n == 0:  # nowhere to go: keep the contact
         return -1.0, math.nan
     fi[i] = best_q
+    if not spread_on:
+        return best, math.nan
     rmin = max(xx - best, 0.0)
     k = xw.shape[0]
     scale = 2.0 * max(rmin / max(k - 4 * m, 1), 1.0)
@@ -346,10 +350,13 @@ def polish(
     min2: float,
     S: tuple,
     rounds: int = 2,
+    spread_on: bool = True,
 ) -> float:  # pragma: no cover - compiled
     """``rounds`` rounds of ``_refine`` over the ``m`` contacts; returns the gain.
 
-    A round that moves no contact ends the polish: the next would repeat it exactly.
+    A round that moves no contact ends the polish: the next would repeat it exactly. The
+    contacts' spreads (``S[9]``) only with ``spread_on`` (the reported contacts need them; a
+    fit that only weighs the count does not).
     """
     gq, qq, s, spread = S[6], S[7], S[8], S[9]
     g = 0.0
@@ -357,7 +364,7 @@ def polish(
         moved = False
         for i in range(m):
             before = fi[i]
-            gi, sp = _refine(i, m, fi, xw, xx, arrays, min2, gq, qq, s)
+            gi, sp = _refine(i, m, fi, xw, xx, arrays, min2, gq, qq, s, spread_on)
             if gi >= 0.0:
                 g = gi
                 spread[i] = sp
@@ -434,9 +441,10 @@ def search_into(
     # seeds: the best one-contact candidates, each at least half the separation from the rest;
     # then every seed with every coarse candidate far enough from it (pruned: multi_contact.pairs)
     n_seeds, pa, pb = seeds_and_pair(bC, g1, Cg, Cd, Cpos, min2, top, pair, pair_s)
-    # one contact, refined (its residual is what a second must improve on)
+    # one contact, refined (its residual is what a second must improve on; its spread is
+    # never reported: one contact is the model's single-contact answer)
     fi[0] = cfine[top[0]]
-    gain1 = polish(1, fi, xw, xx, arrays, 0.0, S)
+    gain1 = polish(1, fi, xw, xx, arrays, 0.0, S, 2, False)
     st[0] = gain1
     st[11] = fi[0]
     if pa < 0:
@@ -614,7 +622,7 @@ def recall_into(
         mem[0] = 0.0
         return 0
     fi[0] = int(mem[1])
-    gain1 = polish(1, fi, xw, xx, arrays, 0.0, S)
+    gain1 = polish(1, fi, xw, xx, arrays, 0.0, S, 2, False)
     if max(xx - gain1, 1.0) > RESIDUAL_GROWTH * mem[2] * xx:
         return -1
     peak = _residual_peak(xw, fi[0], arrays)
@@ -626,7 +634,7 @@ def recall_into(
     if mem[4] >= 0.0:
         fi[0] = int(mem[4])
         fi[1] = int(mem[5])
-        gain2 = polish(2, fi, xw, xx, arrays, prm[1], S, 1)
+        gain2 = polish(2, fi, xw, xx, arrays, prm[1], S, 1, False)
         z2 = weakest_z(2, fi, s, arrays[8])
         if _score(xx, gain1, gain2, z2, prm) > SAFE_SCORE:
             return -1

@@ -201,7 +201,7 @@ class MapEngine(Engine):
         _match_one(x, self._clip, self._groups, self._fine, self._scratch, out)
 
     def warm_up(self) -> MapEngine:
-        """As ``Engine.warm_up``, and the search's stage for several contacts (``_peel``).
+        """As ``Engine.warm_up``, the search's stage for several contacts (``_peel``) and its memory.
 
         One point's touch never reaches it: two fingers far apart, each a candidate's image,
         do. Compiled on a live skin's first two-finger touch instead, it held up the loop for
@@ -211,7 +211,10 @@ class MapEngine(Engine):
         t = self.search_tables()
         w, Ft, Fpos = t.arrays[0], t.arrays[6], t.arrays[7]
         far = int(np.argmax(np.linalg.norm(Fpos - Fpos[0], axis=1)))
-        self.contacts((1e3 * (Ft[0] + Ft[far]) / w).astype(np.float32), 3)
+        x = (1e3 * (Ft[0] + Ft[far]) / w).astype(np.float32)
+        self.contacts(x, 3)
+        # and a stream's memory (``SearchMemory``): the live loop passes one on every frame
+        self.contacts(x, 3, SearchMemory())
         return self
 
     def contacts_into(

@@ -201,7 +201,7 @@ class MapEngine(Engine):
         _match_one(x, self._clip, self._groups, self._fine, self._scratch, out)
 
     def warm_up(self) -> MapEngine:
-        """As ``Engine.warm_up``, the search's stage for several contacts (``_peel``) and its memory.
+        """As ``Engine.warm_up``, with the multi-contact stage (``_peel``) and its memory.
 
         One point's touch never reaches it: two fingers far apart, each a candidate's image,
         do. Compiled on a live skin's first two-finger touch instead, it held up the loop for

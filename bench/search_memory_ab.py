@@ -58,14 +58,17 @@ def real_streams(rec, rng: np.random.Generator) -> dict[str, list[tuple[np.ndarr
 
 
 def compare(eng, streams) -> dict[str, float]:
-    """Frames whose count or positions (> 1 mm) change, and who was right where counts differ."""
-    n = n_count = n_pos = old_right = new_right = 0
+    """Frames whose count or positions (> 1 mm) change, who was right where counts differ, and
+    the frames the memory answered (the others were searched in full)."""
+    n = n_count = n_pos = old_right = new_right = n_memory = 0
     for X, truth in streams:
         mem = SearchMemory()
         for x, tr in zip(X, truth, strict=True):
             a = eng.contacts(x, 3).rows.copy()
+            since = mem.state[3]
             b = eng.contacts(x, 3, mem).rows
             n += 1
+            n_memory += mem.state[0] == 1.0 and mem.state[3] == since + 1
             if len(a) != len(b):
                 n_count += 1
                 old_right += int(len(a) == tr)
@@ -74,6 +77,7 @@ def compare(eng, streams) -> dict[str, float]:
                 n_pos += 1
     return {
         "frames": n,
+        "answered_by_the_memory": int(n_memory),
         "count_changed": n_count,
         "count_changed_share": n_count / max(n, 1),
         "positions_changed_1mm": n_pos,
@@ -123,11 +127,14 @@ def timing(eng, X: np.ndarray, rounds: int) -> dict[str, dict[str, float]]:
         for label in lat:
             k = 1 if label == "K=1" else 3
             mem = SearchMemory() if label == "K=3 memory" else None
+            n_memory = 0
             for x in X:
+                since = -1.0 if mem is None else mem.state[3]
                 t0 = pc()
                 eng.contacts(x, k, mem)
                 lat[label].append(pc() - t0)
-    res = {}
+                n_memory += mem is not None and mem.state[0] == 1.0 and mem.state[3] == since + 1
+    res: dict = {"answered_by_the_memory_share": n_memory / max(len(X), 1)}
     base = np.array(lat["K=1"]) * 1e6
     for label, v in lat.items():
         a = np.array(v) * 1e6

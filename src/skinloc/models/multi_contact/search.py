@@ -627,7 +627,7 @@ def recall_into(
         return -1
     peak = _residual_peak(xw, fi[0], arrays)
     if peak > PEAK_GROWTH * mem[6] and peak > 0.5 * prm[5]:
-        return -1
+        return -2
     st[0] = gain1
     st[11] = fi[0]
     row1 = fi[0]
@@ -637,7 +637,7 @@ def recall_into(
         gain2 = polish(2, fi, xw, xx, arrays, prm[1], S, 1, False)
         z2 = weakest_z(2, fi, s, arrays[8])
         if _score(xx, gain1, gain2, z2, prm) > SAFE_SCORE:
-            return -1
+            return -3
         st[1] = gain2
         st[3] = z2
         mem[4] = fi[0]

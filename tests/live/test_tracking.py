@@ -139,7 +139,7 @@ class _Scripted:
         self.script = list(script)
         self.calls = 0
 
-    def __call__(self, x, max_contacts=3):
+    def __call__(self, x, max_contacts=3, memory=None):
         pts = self.script[min(self.calls, len(self.script) - 1)][:max_contacts]
         self.calls += 1
         n = len(pts)

@@ -38,6 +38,7 @@ from skinloc.live.one_euro import one_euro as _one_euro
 from skinloc.live.pair_prior import pair_prior
 from skinloc.live.tracking import Track, Tracker, frame_contacts
 from skinloc.models.engine import Engine, load_engine
+from skinloc.models.multi_contact.search import SearchMemory
 
 log = logging.getLogger(__name__)
 
@@ -145,6 +146,9 @@ class SkinCore:
         cfg = self.config
         self.max_contacts = cfg.max_contacts
         self._tracker: Tracker | None = None
+        #: this stream's memory of its last full multi-contact search (None: every frame
+        #: searched in full, the answers' reference)
+        self.search_memory: SearchMemory | None = SearchMemory()
         if cfg.max_contacts > 1:
             self._tracker = Tracker(
                 cfg.max_contacts,
@@ -432,8 +436,11 @@ class SkinCore:
         self, state: TouchState, ts: float, index: int, z: float, t_in: float
     ) -> list[Contact]:
         """K > 1: the frame's contacts, matched to tracks; one ``Contact`` per track."""
+        mem = self.search_memory
+        if mem is not None and state is TouchState.START:
+            mem.reset()
         pos, raw, strength, unc = frame_contacts(
-            self.engine, self._delta, self.max_contacts, self._out
+            self.engine, self._delta, self.max_contacts, self._out, mem
         )
         events = self._tracker.update(
             ts, pos, raw, strength, unc, state is TouchState.START, self._below == 0

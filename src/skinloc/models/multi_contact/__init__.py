@@ -32,6 +32,14 @@ reaches ``z_m_min``: a strong second contact needs less relative gain than a fai
 thresholds are calibrated on the training recording only
 (``skinloc.models.multi_contact.rule_calibration``: cross-validation over its point logs).
 
+In a stream (``search.SearchMemory``, one per skin's live loop) a held touch skips the full
+search: while the last full search counted one contact well below the rule's threshold, a
+frame refines that one-contact fit and the remembered pair locally, and answers one contact
+unless the pair's score comes near the threshold, the one-contact residual grows, or its
+largest residual grows (a finger landing elsewhere); every ``REFRESH_FRAMES`` frames, and at a
+touch's start, the full search runs again. Only a count of one is ever answered so; anything
+else is the full search's answer.
+
 One contact is reported by the model's own single-contact answer (``Engine.localise_into``),
 so ``max_contacts=1`` is today's answer; its strength is the L2 norm of the image's positive
 part, counts. Each contact of several is then placed by that single-contact answer on the

@@ -1,0 +1,99 @@
+"""Error against calibration touches on the real development splits, with and without the prior.
+
+Run from the repository root::
+
+    python bench/prior_eval.py --data ../shared/data/hiro-cone-skin [--json OUT]
+
+Splits (all 2023-12-10): 5 and 10 touches spread evenly (farthest-point, seeds 0-2) over
+20PL_1's targets, and all 20 of 20PL_1, each tested on 50PL_1, 80PL_1 and 30PL_1; 40 touches
+spread evenly over 80PL_1 (seeds 0-2), and all 80 of 80PL_1, each tested on 20PL_1, 50PL_1 and
+30PL_1. Per touch: mean error of the touch means; per frame: every frame, with the share of
+frames more than 30 mm off. The prior's settings were chosen on simulated skins only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from skinloc.bench.paper import REAL_DEC
+from skinloc.calibration.active import select_point_logs, subset_recordings
+from skinloc.data.recording import read_recording
+from skinloc.evaluation.metrics import localisation_errors_mm
+from skinloc.evaluation.scoring import train_localizer, training_arrays
+
+SMALL, LARGE = REAL_DEC[0], REAL_DEC[2]  # 20PL_1, 80PL_1
+
+
+def short(name: str) -> str:
+    """``ConeSkinData80Points_RND_80PL_1.mat`` -> ``80PL_1``."""
+    return name.rsplit("_RND_", 1)[-1].removesuffix(".mat")
+
+
+def splits(n: int) -> list[tuple[str, int]]:
+    """(source recording, seed) pairs for ``n`` touches; seed -1 = the whole recording."""
+    src = SMALL if n <= 20 else LARGE
+    full = 20 if src == SMALL else 80
+    return [(src, -1)] if n == full else [(src, s) for s in range(3)]
+
+
+def run(data: Path, ns: list[int], use_prior: bool, strategy: str = "even") -> dict:
+    recs = {n: read_recording(data / n) for n in REAL_DEC}
+    out: dict = {}
+    for n in ns:
+        touch, frame, fit_s = [], [], []
+        for src, seed in splits(n):
+            train = [recs[src]]
+            if seed >= 0:
+                picks = select_point_logs(train, n, strategy, random_state=seed)
+                train = subset_recordings(train, picks)
+            t0 = time.perf_counter()
+            model = train_localizer(train, prior="package" if use_prior else "none")
+            fit_s.append(time.perf_counter() - t0)
+            for name in REAL_DEC:
+                if name == src:
+                    continue
+                rec = recs[name]
+                touch.append(localisation_errors_mm(model.predict(rec.touch_means), rec.targets))
+                X, y, _ = training_arrays([rec])
+                frame.append(localisation_errors_mm(model.predict(X), y))
+        t, f = np.concatenate(touch), np.concatenate(frame)
+        out[n] = dict(
+            touch_mm=float(t.mean()),
+            frame_mm=float(f.mean()),
+            frame_p95_mm=float(np.percentile(f, 95)),
+            frames_over_30mm=float((f > 30).mean()),
+            fit_s=float(np.median(fit_s)),
+            train=f"{short(src)}" + (f" ({strategy}, seeds 0-2)" if seed >= 0 else ""),
+        )
+        r = out[n]
+        print(
+            f"{n:3d} touches {'prior' if use_prior else 'none ':5s} per touch {r['touch_mm']:5.1f}"
+            f" per frame {r['frame_mm']:5.1f} p95 {r['frame_p95_mm']:5.1f}"
+            f" >30mm {100 * r['frames_over_30mm']:4.1f}% fit {r['fit_s']:.2f}s",
+            flush=True,
+        )
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--data", type=Path, default=Path("../shared/data/hiro-cone-skin"))
+    ap.add_argument("--touches", type=int, nargs="+", default=[5, 10, 20, 40, 80])
+    ap.add_argument("--which", choices=["both", "prior", "none"], default="both")
+    ap.add_argument("--strategy", default="even")
+    ap.add_argument("--json", type=Path)
+    a = ap.parse_args()
+    res = {}
+    for use in ([False, True] if a.which == "both" else [a.which == "prior"]):
+        res["prior" if use else "no prior"] = run(a.data, a.touches, use, a.strategy)
+    if a.json:
+        a.json.write_text(json.dumps(res, indent=1))
+
+
+if __name__ == "__main__":
+    main()

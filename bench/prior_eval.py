@@ -89,7 +89,7 @@ def main() -> None:
     ap.add_argument("--json", type=Path)
     a = ap.parse_args()
     res = {}
-    for use in ([False, True] if a.which == "both" else [a.which == "prior"]):
+    for use in [False, True] if a.which == "both" else [a.which == "prior"]:
         res["prior" if use else "no prior"] = run(a.data, a.touches, use, a.strategy)
     if a.json:
         a.json.write_text(json.dumps(res, indent=1))

@@ -13,9 +13,10 @@ Two stages, each over its own skins, each run through joblib (``Parallel``/``del
 1. *hyperparameters*: the GP's maximum-likelihood hyperparameters of every skin's full
    calibration; their log mean and spread are the prior's log-normal hyperpriors, and the
    mean shape feature the common level;
-2. *shrinkage*: on other skins, the map's error from 5, 10 and 20 touches for each candidate
-   ``mean_pseudo_touches``; the least mean error is kept. The same skins give the error with
-   and without the prior (``BuildReport.curve``), on skins the prior's first stage never saw.
+2. *strength*: on other skins, the map's error from 5, 10 and 20 touches for each candidate
+   widening of the hyperpriors and ``mean_pseudo_touches``; the least mean error is kept.
+   The same skins give the error with and without the prior (``BuildReport.curve``), on
+   skins the first stage never saw, and ``max_touches``: up to where the prior helped.
 """
 
 from __future__ import annotations
@@ -32,9 +33,11 @@ from skinloc.models.map_prior import PRIOR_FORMAT_VERSION, MapPrior
 __all__ = ["BuildReport", "build_prior", "simulate_calibration", "skin_hyperparameters"]
 
 #: Candidate weights of the common level in the map's mean, in touches.
-PSEUDO_TOUCH_GRID = (0.0, 2.0, 5.0, 10.0, 20.0)
+PSEUDO_TOUCH_GRID = (0.0, 2.0, 5.0, 10.0)
+#: Candidate widenings of the hyperpriors' log spread (1: the spread between skins).
+SPREAD_GRID = (0.5, 1.0, 3.0)
 #: Calibration sizes the shrinkage is chosen on (and the curve reported at).
-CURVE_SIZES = (5, 10, 20, 40)
+CURVE_SIZES = (5, 10, 15, 20, 40)
 #: Surface points the simulated maps choose among (fewer than a real model's 14400: speed).
 _N_CANDIDATES = 4000
 #: Floor of a hyperprior's log spread: the prior narrows the search, it never pins a value.
@@ -111,13 +114,23 @@ def _errors_mm(rmap: Any, F_test: np.ndarray, y_test: np.ndarray) -> np.ndarray:
     return 1e3 * np.linalg.norm(rmap.candidates[d.argmin(axis=1)] - y_test, axis=1)
 
 
-def skin_curve(
-    seed: int, n_touches: int, prior: MapPrior, grid: tuple[float, ...] = PSEUDO_TOUCH_GRID
-) -> dict[str, Any]:
-    """Stage 2 for one skin: mean error (mm) against calibration size, without and with prior.
+def _candidates(base: MapPrior) -> dict[tuple[float, float], MapPrior]:
+    """The priors stage 2 chooses among, by (spread widening, pseudo-touches)."""
+    return {
+        (k, w): dataclasses.replace(
+            base, log_std=tuple(k * v for v in base.log_std), mean_pseudo_touches=w
+        )
+        for k in SPREAD_GRID
+        for w in PSEUDO_TOUCH_GRID
+    }
 
-    Returns ``{"none": {n: mm}, "prior": {w: {n: mm}}}`` over ``CURVE_SIZES``; the first
-    ``n`` touches are spread evenly (farthest-point) and the last 20 are the test.
+
+def skin_curve(seed: int, n_touches: int, base: MapPrior) -> dict[str, Any]:
+    """Stage 2 for one skin: mean error (mm) against calibration size, without and with priors.
+
+    Returns ``{"none": {n: mm}, "prior": {(spread, pseudo-touches): {n: mm}}}`` over
+    ``CURVE_SIZES`` and the candidates of ``_candidates(base)``; the first ``n`` touches are
+    spread evenly (farthest-point) over all but the last 20, which are the test.
     """
     from skinloc.geometry.mesh import cone_skin, farthest_point_sampling, surface_points
     from skinloc.models.response_map import ResponseMap, shape_features
@@ -126,17 +139,17 @@ def skin_curve(
     F = shape_features(means)
     cands = surface_points(cone_skin(), _N_CANDIDATES)
     pool, test = np.arange(n_touches - 20), np.arange(n_touches - 20, n_touches)
-    out: dict[str, Any] = {"none": {}, "prior": {w: {} for w in grid}}
+    priors = _candidates(base)
+    out: dict[str, Any] = {"none": {}, "prior": {key: {} for key in priors}}
     for n in CURVE_SIZES:
         if n > len(pool):
             continue
         idx = pool[farthest_point_sampling(targets[pool], n, 0)]
         fit = ResponseMap.fit(targets[idx], F[idx], cands)
         out["none"][n] = float(_errors_mm(fit, F[test], targets[test]).mean())
-        for w in grid:
-            p = dataclasses.replace(prior, mean_pseudo_touches=w)
+        for key, p in priors.items():
             fit = ResponseMap.fit(targets[idx], F[idx], cands, prior=p)
-            out["prior"][w][n] = float(_errors_mm(fit, F[test], targets[test]).mean())
+            out["prior"][key][n] = float(_errors_mm(fit, F[test], targets[test]).mean())
     return out
 
 
@@ -149,9 +162,10 @@ class BuildReport:
     prior : MapPrior
         The prior built.
     curve : dict
-        ``{"none": {n: mm}, "prior": {n: mm}}``: mean error on the stage-2 skins.
-    by_weight : dict
-        ``{w: mean mm over CURVE_SIZES[:3]}`` for every candidate ``mean_pseudo_touches``.
+        ``{"none": {n: mm}, "prior": {n: mm}}``: mean error on the stage-2 skins, the prior
+        applied at every size (``max_touches`` is where it stops helping).
+    by_candidate : dict
+        ``{(spread widening, pseudo-touches): mean mm over 5, 10 and 20 touches}``.
     seconds : float
         Wall time of the build, s.
     skins_per_minute : float
@@ -160,7 +174,7 @@ class BuildReport:
 
     prior: MapPrior
     curve: dict[str, dict[int, float]]
-    by_weight: dict[float, float]
+    by_candidate: dict[tuple[float, float], float]
     seconds: float
     skins_per_minute: float
     per_skin: list[Any] = field(default_factory=list, repr=False)
@@ -195,24 +209,30 @@ def build_prior(
         log_std=tuple(float(max(v, _MIN_LOG_STD)) for v in thetas.std(axis=0)),
         common_feature=float(np.mean([c for _, c in stage1])),
         mean_pseudo_touches=0.0,
+        max_touches=max(CURVE_SIZES),
     )
     seeds2 = range(seed + n_skins, seed + n_skins + n_eval_skins)
     stage2 = Parallel(n_jobs=n_jobs)(delayed(skin_curve)(s, n_touches, base) for s in seeds2)
     seconds = time.perf_counter() - t0
-    choose = CURVE_SIZES[:3]
-    by_weight = {
-        w: float(np.mean([r["prior"][w][n] for r in stage2 for n in choose]))
-        for w in PSEUDO_TOUCH_GRID
+    choose = (5, 10, 20)
+    by_candidate = {
+        key: float(np.mean([r["prior"][key][n] for r in stage2 for n in choose]))
+        for key in stage2[0]["prior"]
     }
-    best = min(by_weight, key=by_weight.__getitem__)
+    best = min(by_candidate, key=by_candidate.__getitem__)
     sizes = [n for n in CURVE_SIZES if n in stage2[0]["none"]]
     curve = {
         "none": {n: float(np.mean([r["none"][n] for r in stage2])) for n in sizes},
         "prior": {n: float(np.mean([r["prior"][best][n] for r in stage2])) for n in sizes},
     }
+    helps = 0  # the most touches up to which the prior lowered the error at every size
+    for n in sizes:
+        if curve["prior"][n] >= curve["none"][n]:
+            break
+        helps = n
     prior = dataclasses.replace(
-        base,
-        mean_pseudo_touches=best,
+        _candidates(base)[best],
+        max_touches=helps,
         provenance={
             "command": (
                 f"skinloc prior build --skins {n_skins} --eval-skins {n_eval_skins} "
@@ -226,11 +246,11 @@ def build_prior(
             "format": PRIOR_FORMAT_VERSION,
         },
     )
-    say(f"stage 2: {n_eval_skins} skins; pseudo-touches {best:g}")
+    say(f"stage 2: {n_eval_skins} skins; spread x{best[0]:g}, pseudo-touches {best[1]:g}")
     return BuildReport(
         prior,
         curve,
-        by_weight,
+        by_candidate,
         seconds,
         60.0 * (n_skins + n_eval_skins) / seconds,
         stage2,

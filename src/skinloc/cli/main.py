@@ -19,6 +19,7 @@ from skinloc.cli import collect as cli_collect
 from skinloc.cli import hardware as cli_hardware
 from skinloc.cli import live as cli_live
 from skinloc.cli import predict as cli_predict
+from skinloc.cli import prior as cli_prior
 from skinloc.cli import recordings as cli_recordings
 from skinloc.cli import skin as cli_skin
 from skinloc.cli import webapp as app_cli
@@ -255,6 +256,18 @@ def train(
     strategy: Annotated[
         str, typer.Option(help="How --select chooses: active, random or even (seeded by --seed).")
     ] = "active",
+    no_prior: Annotated[
+        bool,
+        typer.Option(
+            "--no-prior",
+            help="Fit the response map without the prior learned from simulated skins "
+            "(by default it is used for the few-touch calibrations where it helps).",
+        ),
+    ] = False,
+    prior: Annotated[
+        Path | None,
+        typer.Option(help="A prior file of `skinloc prior build` instead of the package's."),
+    ] = None,
 ) -> None:
     """Train a localiser on one or more calibration recordings, or recalibrate one.
 
@@ -292,8 +305,19 @@ def train(
             f"Recalibrated {init} with {n} point logs in {model.fit_time_s_:.1f} s; wrote {out}"
         )
         return
+    if (no_prior or prior is not None) and arch is not Arch.default:
+        raise ValueError("--no-prior and --prior apply to the default model (a response map)")
+    if no_prior and prior is not None:
+        raise ValueError("give --no-prior or --prior, not both")
     surface = load_mesh(mesh, units.value) if mesh is not None else None
-    overrides = {"epochs": epochs} if epochs is not None else {}
+    overrides: dict = {"epochs": epochs} if epochs is not None else {}
+    if no_prior:
+        overrides["prior"] = "none"
+    elif prior is not None:
+        from skinloc.models.map_prior import load_prior
+
+        load_prior(prior)  # a bad file fails here, in one line, before training
+        overrides["prior"] = str(prior)
     with progress_steps() as step:
         model = train_localizer(
             recs,
@@ -309,6 +333,24 @@ def train(
     console.print(
         f"Trained '{arch.value}' on {n} point logs from {len(recs)} recording(s) "
         f"in {model.fit_time_s_:.1f} s; wrote {out}"
+    )
+    if arch is Arch.default:
+        console.print(_prior_note(model, no_prior), highlight=False)
+
+
+def _prior_note(model, no_prior: bool) -> str:
+    """What ``train`` says about the map prior it used or not."""
+    if no_prior:
+        return "Without the map prior (--no-prior)."
+    p = model.map_prior()
+    if getattr(model, "prior_used_", False):
+        return (
+            f"Used the map prior learned from {p.provenance.get('skins', '?')} simulated skins "
+            f"(it helps up to {p.max_touches} touches; --no-prior to fit without it)."
+        )
+    return (
+        f"The map prior was not needed: it helps up to {p.max_touches} touches and "
+        "this calibration has more."
     )
 
 
@@ -377,6 +419,7 @@ def _register_groups() -> None:
     cli_live.register(app)  # skinloc run, export
     cli_skin.register(app)  # skinloc sensors, coverage
     cli_predict.register(app)  # skinloc predict
+    cli_prior.register(app)  # skinloc prior build, show
 
 
 _register_groups()

@@ -346,6 +346,9 @@ class ContactLocalizer:
             )
         F = shape_features(X, self.config_["clip_negative"])
         prior = self.map_prior()
+        if prior is not None and not prior.applies(len(F)):
+            prior = None
+        self.prior_used_ = prior is not None
         self.map_, self.contact_rule_ = fit_contact_model(
             ResponseMap.fit(
                 y, F, self.surface_points_, self.config_["length_scale_mm"], prior=prior
@@ -359,7 +362,11 @@ class ContactLocalizer:
         )
 
     def map_prior(self):  # -> MapPrior | None
-        """The response map's prior this configuration names (``None``: no prior)."""
+        """The response map's prior this configuration names (``None``: no prior).
+
+        ``fit`` applies it to a calibration of at most ``max_touches`` touches (the prior's
+        own measure of where it helps) and sets ``prior_used_`` to say whether it did.
+        """
         from skinloc.models.map_prior import load_prior
 
         cfg = getattr(self, "config_", None) or self.get_config()

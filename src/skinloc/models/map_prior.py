@@ -52,6 +52,10 @@ class MapPrior:
         feature takes where nothing is known), dimensionless.
     mean_pseudo_touches : float
         Weight of ``common_feature`` in the map's mean, in touches.
+    max_touches : int
+        The prior is applied to calibrations of at most this many touches: the most for
+        which it lowered the error on the simulated skins that chose it (beyond, the touches
+        determine the map alone and the prior only costs a little).
     provenance : dict
         How the prior was built (command, skins, seeds, time).
     version : int
@@ -62,6 +66,7 @@ class MapPrior:
     log_std: tuple[float, float, float]
     common_feature: float
     mean_pseudo_touches: float
+    max_touches: int
     provenance: dict[str, Any] = field(default_factory=dict)
     version: int = PRIOR_FORMAT_VERSION
 
@@ -72,6 +77,12 @@ class MapPrior:
             raise ValueError("a map prior's log means must be finite and its log stds > 0")
         if not self.mean_pseudo_touches >= 0 or not np.isfinite(self.common_feature):
             raise ValueError("a map prior's mean_pseudo_touches must be >= 0")
+        if self.max_touches < 0:
+            raise ValueError("a map prior's max_touches must be >= 0")
+
+    def applies(self, n_touches: int) -> bool:
+        """Whether a calibration of ``n_touches`` touches is fitted with this prior."""
+        return 0 < n_touches <= self.max_touches
 
     @property
     def typical(self) -> dict[str, float]:
@@ -109,6 +120,7 @@ class MapPrior:
             log_std=tuple(float(v) for v in d["log_std"]),
             common_feature=float(d["common_feature"]),
             mean_pseudo_touches=float(d["mean_pseudo_touches"]),
+            max_touches=int(d["max_touches"]),
             provenance=dict(d.get("provenance", {})),
         )
 

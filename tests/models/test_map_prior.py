@@ -46,6 +46,7 @@ def test_save_and_load_round_trip(prior, tmp_path):
         ("not json", "cannot read"),
         ('{"version": 99}', "version 99"),
         ('{"version": 1}', "cannot read"),
+        ("[1]", "cannot read"),
     ],
 )
 def test_a_bad_prior_file_is_one_line(tmp_path, content, match):

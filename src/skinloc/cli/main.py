@@ -279,7 +279,18 @@ def train(
     from skinloc.geometry.mesh import load_mesh
     from skinloc.models.localizer import ContactLocalizer
 
-    check_output(out, option="--out", inputs=[*data, init, mesh], force=force)
+    check_output(out, option="--out", inputs=[*data, init, mesh, prior], force=force)
+    if (no_prior or prior is not None) and (arch is not Arch.default or init is not None):
+        raise ValueError(
+            "--no-prior and --prior apply to training the default model (a response map) "
+            "from scratch"
+        )
+    if no_prior and prior is not None:
+        raise ValueError("give --no-prior or --prior, not both")
+    if prior is not None:
+        from skinloc.models.map_prior import load_prior
+
+        load_prior(prior)  # a bad file fails here, in one line, before anything else
     recs = read_recordings(data, calibration=True)
     if select is not None:
         recs = _select_point_logs(recs, select, strategy, seed)
@@ -305,18 +316,11 @@ def train(
             f"Recalibrated {init} with {n} point logs in {model.fit_time_s_:.1f} s; wrote {out}"
         )
         return
-    if (no_prior or prior is not None) and arch is not Arch.default:
-        raise ValueError("--no-prior and --prior apply to the default model (a response map)")
-    if no_prior and prior is not None:
-        raise ValueError("give --no-prior or --prior, not both")
     surface = load_mesh(mesh, units.value) if mesh is not None else None
     overrides: dict = {"epochs": epochs} if epochs is not None else {}
     if no_prior:
         overrides["prior"] = "none"
     elif prior is not None:
-        from skinloc.models.map_prior import load_prior
-
-        load_prior(prior)  # a bad file fails here, in one line, before training
         overrides["prior"] = str(prior)
     with progress_steps() as step:
         model = train_localizer(

@@ -130,12 +130,18 @@ def load_prior(path: str | Path | None = None) -> MapPrior:
 
     Raises ``ValueError`` with a one-line message for a file that is not a map prior.
     """
+    where = "the package's map prior" if path is None else str(path)
     try:
         if path is None:
             text = resources.files("skinloc.models").joinpath(_PACKAGE_FILE).read_text()
         else:
             text = Path(path).read_text()
-        return MapPrior.from_dict(json.loads(text))
-    except (OSError, KeyError, TypeError, json.JSONDecodeError) as exc:
-        where = "the package's map prior" if path is None else str(path)
+        data = json.loads(text)
+    except (OSError, json.JSONDecodeError) as exc:
         raise ValueError(f"cannot read {where} as a map prior: {exc}") from None
+    try:
+        return MapPrior.from_dict(data)
+    except (KeyError, TypeError, AttributeError) as exc:
+        raise ValueError(f"cannot read {where} as a map prior: no {exc}") from None
+    except ValueError as exc:
+        raise ValueError(f"{where}: {exc}") from None

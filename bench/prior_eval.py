@@ -49,7 +49,9 @@ def run(data: Path, ns: list[int], use_prior: bool, strategy: str = "even") -> d
         for src, seed in splits(n):
             train = [recs[src]]
             if seed >= 0:
-                picks = select_point_logs(train, n, strategy, random_state=seed)
+                picks = select_point_logs(
+                    train, n, strategy, random_state=seed, prior="package" if use_prior else "none"
+                )
                 train = subset_recordings(train, picks)
             t0 = time.perf_counter()
             model = train_localizer(train, prior="package" if use_prior else "none")

@@ -82,6 +82,39 @@ def run(data: Path, ns: list[int], use_prior: bool, strategy: str = "even") -> d
     return out
 
 
+def recalibration(data: Path, reps: int = 5) -> dict:
+    """2023-12 -> 2024-05-23 with k new touches: recalibrated, and new touches alone.
+
+    The 2023 model (all four 2023-12-10 recordings, 180 touches: beyond the prior's reach) is
+    recalibrated on k random touches of a 2024-05-23 recording (5 draws) and tested on the
+    rest; a model of the k touches alone is fitted with and without the prior.
+    """
+    from skinloc.bench.paper import REAL_MAY
+    from skinloc.evaluation.scoring import evaluate
+
+    recs = {n: read_recording(data / n) for n in (*REAL_DEC, *REAL_MAY)}
+    base = train_localizer([recs[n] for n in REAL_DEC])
+    out: dict = {}
+    for name in REAL_MAY:
+        rec = recs[name]
+        for k in (5, 10):
+            res: dict[str, list[float]] = {"recalibrated": [], "alone": [], "alone, prior": []}
+            for rep in range(reps):
+                idx = np.random.default_rng(rep).permutation(rec.n_point_logs)
+                cal, test = rec.subset(np.sort(idx[:k])), rec.subset(np.sort(idx[k:]))
+                X, y, g = training_arrays([cal])
+                res["recalibrated"].append(
+                    evaluate(base.recalibrate(X, y, groups=g), [test]).stats.mean_mm
+                )
+                for how, prior in (("alone", "none"), ("alone, prior", "package")):
+                    own = train_localizer([cal], prior=prior)
+                    res[how].append(evaluate(own, [test]).stats.mean_mm)
+            row = {how: float(np.mean(v)) for how, v in res.items()}
+            out[f"{short(name)} k={k}"] = row
+            print(f"recalibration {short(name)} k={k:2d}", {h: round(v, 1) for h, v in row.items()})
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--data", type=Path, default=Path("../shared/data/hiro-cone-skin"))
@@ -89,7 +122,13 @@ def main() -> None:
     ap.add_argument("--which", choices=["both", "prior", "none"], default="both")
     ap.add_argument("--strategy", default="even")
     ap.add_argument("--json", type=Path)
+    ap.add_argument("--recalibration", action="store_true", help="2023-12 -> 2024-05 instead")
     a = ap.parse_args()
+    if a.recalibration:
+        res = recalibration(a.data)
+        if a.json:
+            a.json.write_text(json.dumps(res, indent=1))
+        return
     res = {}
     for use in [False, True] if a.which == "both" else [a.which == "prior"]:
         res["prior" if use else "no prior"] = run(a.data, a.touches, use, a.strategy)

@@ -49,3 +49,16 @@ def test_the_same_build_on_another_joblib_backend(small):
 def test_too_small_a_build_is_refused():
     with pytest.raises(ValueError, match="at least"):
         build_prior(n_skins=1)
+
+
+def test_active_scores_are_made_with_the_prior_where_it_applies():
+    from skinloc.calibration.active import active_scores
+    from skinloc.geometry.mesh import cone_skin, surface_points
+
+    targets, means = simulate_calibration(3, 14)
+    cands = surface_points(cone_skin(), 1500)
+    args = (targets[:6], means[:6], targets[6:], cands[::10], cands)
+    with_prior = active_scores(*args)
+    without = active_scores(*args, prior="none")
+    assert with_prior.shape == without.shape == (8,)
+    assert np.all(np.isfinite(with_prior)) and not np.allclose(with_prior, without)

@@ -64,3 +64,11 @@ def test_prior_options_bad_input(tmp_path, rec_path):
     one_line_error(run("prior", "show", bad), "bad.json", "version")
     res = run("prior", "build", "--out", tmp_path / "d.json", "--backend", "dask")
     one_line_error(res, "pip install 'skinloc[cluster]'")
+
+
+@pytest.mark.parametrize("flag", [[], ["--no-prior"]])
+def test_active_selection_with_and_without_the_prior(tmp_path, rec_path, flag):
+    out = tmp_path / "m.h5"
+    res = run("train", rec_path, "--select", "6", "--strategy", "active", "--out", out, *flag)
+    assert res.exit_code == 0, res.output
+    assert "Chose 6 point logs" in res.output and out.is_file()

@@ -293,7 +293,8 @@ def train(
         load_prior(prior)  # a bad file fails here, in one line, before anything else
     recs = read_recordings(data, calibration=True)
     if select is not None:
-        recs = _select_point_logs(recs, select, strategy, seed)
+        choose_with = "none" if no_prior else ("package" if prior is None else str(prior))
+        recs = _select_point_logs(recs, select, strategy, seed, choose_with)
     n_logs = sum(r.n_point_logs for r in recs)
     if n_logs == 0:
         raise ValueError("the recordings hold no point logs: record a calibration session first")
@@ -358,13 +359,21 @@ def _prior_note(model, no_prior: bool) -> str:
     )
 
 
-def _select_point_logs(recs: list, n: int, strategy: str, seed: int) -> list:
-    """``train --select``: the point logs a strategy asks for (skinloc.calibration.active)."""
+def _select_point_logs(recs: list, n: int, strategy: str, seed: int, prior: str) -> list:
+    """``train --select``: the point logs a strategy asks for (skinloc.calibration.active).
+
+    ``prior`` is the map prior the active strategy fits its maps with (as the model's).
+    """
     from skinloc.calibration.active import select_point_logs, subset_recordings
 
     with progress_steps() as step:
         picks = select_point_logs(
-            recs, n, strategy, seed, progress=lambda d, t: step(f"choosing ({strategy})", d, t)
+            recs,
+            n,
+            strategy,
+            seed,
+            progress=lambda d, t: step(f"choosing ({strategy})", d, t),
+            prior=prior,
         )
     console.print(f"Chose {len(picks)} point logs ({strategy}, seed {seed})")
     return subset_recordings(recs, picks)

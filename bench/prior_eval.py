@@ -41,7 +41,9 @@ def splits(n: int) -> list[tuple[str, int]]:
     return [(src, -1)] if n == full else [(src, s) for s in range(3)]
 
 
-def run(data: Path, ns: list[int], use_prior: bool, strategy: str = "even") -> dict:
+def run(
+    data: Path, ns: list[int], use_prior: bool, strategy: str = "even", arch: str = "default"
+) -> dict:
     recs = {n: read_recording(data / n) for n in REAL_DEC}
     out: dict = {}
     for n in ns:
@@ -54,7 +56,10 @@ def run(data: Path, ns: list[int], use_prior: bool, strategy: str = "even") -> d
                 )
                 train = subset_recordings(train, picks)
             t0 = time.perf_counter()
-            model = train_localizer(train, prior="package" if use_prior else "none")
+            if arch == "default":
+                model = train_localizer(train, prior="package" if use_prior else "none")
+            else:
+                model = train_localizer(train, arch=arch)
             fit_s.append(time.perf_counter() - t0)
             for name in REAL_DEC:
                 if name == src:
@@ -74,7 +79,8 @@ def run(data: Path, ns: list[int], use_prior: bool, strategy: str = "even") -> d
         )
         r = out[n]
         print(
-            f"{n:3d} touches {'prior' if use_prior else 'none ':5s} per touch {r['touch_mm']:5.1f}"
+            f"{n:3d} touches {arch} {'prior' if use_prior else 'none ':5s}"
+            f" per touch {r['touch_mm']:5.1f}"
             f" per frame {r['frame_mm']:5.1f} p95 {r['frame_p95_mm']:5.1f}"
             f" >30mm {100 * r['frames_over_30mm']:4.1f}% fit {r['fit_s']:.2f}s",
             flush=True,
@@ -119,7 +125,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--data", type=Path, default=Path("../shared/data/hiro-cone-skin"))
     ap.add_argument("--touches", type=int, nargs="+", default=[5, 10, 20, 40, 80])
-    ap.add_argument("--which", choices=["both", "prior", "none"], default="both")
+    ap.add_argument("--which", choices=["both", "prior", "none", "paper"], default="both")
     ap.add_argument("--strategy", default="even")
     ap.add_argument("--json", type=Path)
     ap.add_argument("--recalibration", action="store_true", help="2023-12 -> 2024-05 instead")

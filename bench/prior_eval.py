@@ -136,7 +136,9 @@ def main() -> None:
             a.json.write_text(json.dumps(res, indent=1))
         return
     res = {}
-    for use in [False, True] if a.which == "both" else [a.which == "prior"]:
+    if a.which == "paper":  # the paper's 64-32-3 network (PyTorch), for scale
+        res["paper"] = run(a.data, a.touches, False, a.strategy, arch="paper")
+    for use in {"both": [False, True], "prior": [True], "none": [False]}.get(a.which, []):
         res["prior" if use else "no prior"] = run(a.data, a.touches, use, a.strategy)
     if a.json:
         a.json.write_text(json.dumps(res, indent=1))

@@ -62,3 +62,16 @@ def test_active_scores_are_made_with_the_prior_where_it_applies():
     without = active_scores(*args, prior="none")
     assert with_prior.shape == without.shape == (8,)
     assert np.all(np.isfinite(with_prior)) and not np.allclose(with_prior, without)
+
+
+def test_the_shipped_prior_was_built_by_the_documented_defaults():
+    import inspect
+
+    from skinloc.models.map_prior import load_prior
+
+    d = {k: p.default for k, p in inspect.signature(build_prior).parameters.items()}
+    want = (
+        f"skinloc prior build --skins {d['n_skins']} --eval-skins {d['n_eval_skins']} "
+        f"--touches {d['n_touches']} --seed {d['seed']}"
+    )
+    assert load_prior().provenance["command"] == want

@@ -72,3 +72,17 @@ def test_active_selection_with_and_without_the_prior(tmp_path, rec_path, flag):
     res = run("train", rec_path, "--select", "6", "--strategy", "active", "--out", out, *flag)
     assert res.exit_code == 0, res.output
     assert "Chose 6 point logs" in res.output and out.is_file()
+
+
+def test_the_build_command_defaults_are_the_library_defaults():
+    import inspect
+
+    from typer.main import get_command
+
+    from skinloc.calibration.prior_build import build_prior
+
+    cmd = get_command(app).commands["prior"].commands["build"]
+    cli = {p.name: p.default for p in cmd.params}
+    lib = {k: p.default for k, p in inspect.signature(build_prior).parameters.items()}
+    assert cli["skins"] == lib["n_skins"] and cli["eval_skins"] == lib["n_eval_skins"]
+    assert cli["touches"] == lib["n_touches"] and cli["seed"] == lib["seed"]

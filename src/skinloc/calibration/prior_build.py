@@ -182,7 +182,7 @@ class BuildReport:
 
 def build_prior(
     n_skins: int = 24,
-    n_eval_skins: int = 12,
+    n_eval_skins: int = 40,
     n_touches: int = 80,
     n_jobs: int = -1,
     seed: int = 1000,

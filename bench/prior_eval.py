@@ -121,6 +121,34 @@ def recalibration(data: Path, reps: int = 5) -> dict:
     return out
 
 
+def simulated(n_skins: int = 20, first_seed: int = 5000) -> dict:
+    """The same curve on simulated skins no stage of the prior's build saw (seeds 5000-).
+
+    Each skin: 80 touches on random mesh edges, the first n of the first 60 spread evenly,
+    the last 20 the test (per touch); the prior applied at every size.
+    """
+    from skinloc.calibration.prior_build import _errors_mm, simulate_calibration
+    from skinloc.geometry.mesh import cone_skin, farthest_point_sampling, surface_points
+    from skinloc.models.map_prior import load_prior
+    from skinloc.models.response_map import ResponseMap, shape_features
+
+    prior, cands = load_prior(), surface_points(cone_skin(), 4000)
+    errs: dict = {"no prior": {}, "prior": {}}
+    for seed in range(first_seed, first_seed + n_skins):
+        targets, means = simulate_calibration(seed, 80)
+        F = shape_features(means)
+        pool, test = np.arange(60), np.arange(60, 80)
+        for n in (5, 10, 20, 40):
+            idx = pool[farthest_point_sampling(targets[pool], n, 0)]
+            for how, p in (("no prior", None), ("prior", prior)):
+                rmap = ResponseMap.fit(targets[idx], F[idx], cands, prior=p)
+                errs[how].setdefault(n, []).append(_errors_mm(rmap, F[test], targets[test]).mean())
+    out = {how: {n: float(np.mean(v)) for n, v in d.items()} for how, d in errs.items()}
+    for how, d in out.items():
+        print(f"simulated, {how:8s}", " / ".join(f"{v:.1f}" for v in d.values()), "mm")
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--data", type=Path, default=Path("../shared/data/hiro-cone-skin"))
@@ -129,9 +157,10 @@ def main() -> None:
     ap.add_argument("--strategy", default="even")
     ap.add_argument("--json", type=Path)
     ap.add_argument("--recalibration", action="store_true", help="2023-12 -> 2024-05 instead")
+    ap.add_argument("--simulated", action="store_true", help="20 unseen simulated skins instead")
     a = ap.parse_args()
-    if a.recalibration:
-        res = recalibration(a.data)
+    if a.recalibration or a.simulated:
+        res = recalibration(a.data) if a.recalibration else simulated()
         if a.json:
             a.json.write_text(json.dumps(res, indent=1))
         return

@@ -154,6 +154,8 @@ class TrainingJobs:
                 for s in influence["suspects"]:  # the session's numbering, not the subset's
                     s["index"] = int(kept[s["index"]])
             holdout["influence"] = influence
+            # whether the map prior from simulated skins was used (few touches: models.map_prior)
+            holdout["map_prior"] = bool(getattr(model, "prior_used_", False))
             holdout["train_s"] = round(time.perf_counter() - t0, 2)
             model.save(a.folder.model, extra_meta={"holdout": holdout, "session": session})
         except Exception as exc:  # reported to the tabs; the session itself is untouched
@@ -173,8 +175,9 @@ class TrainingJobs:
                     held.info["holdout"] = holdout
             (mine or a).folder.write_info((mine or a).info)
             if mine is not None:
+                prior = " (with the map prior: few touches)" if holdout["map_prior"] else ""
                 self.message = (
-                    f"trained: held-out error {holdout['mean_mm']:.1f} +- "
+                    f"trained{prior}: held-out error {holdout['mean_mm']:.1f} +- "
                     f"{holdout['std_mm']:.1f} mm; next: validate on fresh touches, or go live"
                 )
             self.training = {"running": False, "result": holdout, "session": session}

@@ -34,6 +34,7 @@ from skinloc.live.baseline import subtract_baseline as _prep
 from skinloc.live.config import PipelineConfig, TouchState
 from skinloc.live.contact import Contact
 from skinloc.live.gestures import GestureConfig, GestureRecognizer, SkinFrame
+from skinloc.live.landing import LandingWatch
 from skinloc.live.one_euro import one_euro as _one_euro
 from skinloc.live.pair_prior import pair_prior
 from skinloc.live.tracking import Track, Tracker, frame_contacts
@@ -157,12 +158,18 @@ class SkinCore:
             )
         self.gestures: list[dict[str, Any]] = []  # events due, collected by ``take_gestures``
         self._recognizer: GestureRecognizer | None = None
+        self._landing: LandingWatch | None = None  # a second finger in time, for gestures
         if cfg.gestures:
             spec = self.engine.spec
             vertices = getattr(spec, "vertices", None)
             if vertices is not None or up is not None:
                 frame = SkinFrame(vertices, getattr(spec, "faces", None), up)
-                self._recognizer = GestureRecognizer(name, frame, gesture_config)
+                change = float(getattr(getattr(self.engine, "rule", None), "landing_change", 0))
+                self._recognizer = GestureRecognizer(
+                    name, frame, gesture_config, landing_change=change
+                )
+                if change > 0:
+                    self._landing = LandingWatch(self.engine.noise_weights())
         self._warm_up()
 
     def _warm_up(self) -> None:
@@ -177,6 +184,9 @@ class SkinCore:
             # the pair prior fits in a touch's first frames: compiled there, it stalled the
             # loop, and the frames read after the stall arrived at once, stamped late
             self._tracker.pair.refit.warm_up()
+        if self._landing is not None:
+            self._landing.step(scratch)  # compiles the change; forgotten at the first touch
+            self._landing.start()
 
     # ------------------------------------------------------------------ baseline
     def set_baseline(self, frames: np.ndarray) -> None:
@@ -257,7 +267,8 @@ class SkinCore:
             # releasing (signal below the release threshold, or the touch just ended): the
             # fading image's positions are not the finger's
             releasing = self._below > 0 or not self._touching
-            g = rec.update(timestamp_s, out, releasing) if out else rec.tick(timestamp_s)
+            change = self._landing.most if self._landing is not None else 0.0
+            g = rec.update(timestamp_s, out, releasing, change) if out else rec.tick(timestamp_s)
             if g:
                 self.gestures += g
         return out
@@ -388,6 +399,10 @@ class SkinCore:
             if cfg.emit_idle:
                 return [self._idle(timestamp_s, index, z, t_in)]
             return ()
+        if self._landing is not None:
+            if state is TouchState.START:
+                self._landing.start()
+            self._landing.step(self._delta)
         if self._tracker is not None:
             return self._localise_tracks(state, timestamp_s, index, z, t_in)
         return [self._localise(state, timestamp_s, index, z, t_in)]

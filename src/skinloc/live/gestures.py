@@ -173,6 +173,7 @@ class _Episode:
     fingers: list[_Finger] = field(default_factory=list)
     active: int = 0
     done: bool = False  # reported (a long press) or ruled out: nothing more from it
+    change: float = 0.0  # the touch's image change as fingers landed and lifted (noise levels)
 
 
 class GestureRecognizer:
@@ -186,9 +187,22 @@ class GestureRecognizer:
         Up / right on the surface.
     config : GestureConfig, optional
         Thresholds.
+    landing_change : float
+        The skin's threshold of a touch's image change as it lands and lifts, noise levels
+        (``CountRule.landing_change``, calibrated on the skin's own touches), above which a
+        tap of one track is two fingers the tracker did not separate; 0: off.
     """
 
-    def __init__(self, skin: str, frame: SkinFrame, config: GestureConfig | None = None) -> None:
+    def __init__(
+        self,
+        skin: str,
+        frame: SkinFrame,
+        config: GestureConfig | None = None,
+        landing_change: float = 0.0,
+    ) -> None:
+        if not (math.isfinite(landing_change) and landing_change >= 0):
+            raise ValueError(f"landing_change must be a number >= 0, got {landing_change!r}")
+        self.landing_change = float(landing_change)
         self.skin = skin
         self.frame = frame
         self.cfg = GestureConfig() if config is None else config
@@ -204,13 +218,18 @@ class GestureRecognizer:
 
     # ------------------------------------------------------------------ input
     def update(
-        self, ts: float, contacts: Sequence[Contact], releasing: bool = False
+        self,
+        ts: float,
+        contacts: Sequence[Contact],
+        releasing: bool = False,
+        change: float = 0.0,
     ) -> list[dict[str, Any]]:
         """One frame's contacts (one per track) at stream time ``ts``; returns due events.
 
         ``releasing``: the touch detector is ending the touch (the signal is below its release
         threshold): the positions of such a fading image are not the finger's and are left
-        out of the paths (the states still count).
+        out of the paths (the states still count). ``change``: the touch's largest image change
+        so far (``live.landing.LandingWatch``), noise levels.
         """
         for c in contacts:
             tid = c.track_id
@@ -247,6 +266,8 @@ class GestureRecognizer:
                 del self._fingers[tid]
                 if self._episode is not None:
                     self._episode.active -= 1
+        if self._episode is not None and change > self._episode.change:
+            self._episode.change = change
         return self.tick(ts)
 
     def tick(self, ts: float) -> list[dict[str, Any]]:
@@ -326,10 +347,16 @@ class GestureRecognizer:
                 return None
         return f
 
+    def _two_in_time(self, ep: _Episode) -> bool:
+        """Whether the episode's image changed as a second finger's landing or lifting does."""
+        return self.landing_change > 0.0 and ep.change >= self.landing_change
+
     def _could_pair(self, ep: _Episode, pend: _Finger) -> bool:
         """Whether episode ``ep`` may still be the second tap of the pending tap."""
         cfg = self.cfg
         if ep.done or len(ep.fingers) != 1 or ep.start_s > pend.end_s + cfg.double_tap_gap_s:
+            return False
+        if self._two_in_time(ep):
             return False
         f = ep.fingers[0]
         if math.dist(f.path[0], pend.path[-1]) > cfg.double_tap_mm * 1e-3:
@@ -350,6 +377,14 @@ class GestureRecognizer:
         main = self._main(ep)
         if main is not None and (len(fs) == 1 or not all(self._is_tap(g) for g in fs)):
             f = main
+            if len(fs) == 1 and self._is_tap(f) and self._two_in_time(ep):
+                # one track, but the image changed as a second finger's landing or lifting
+                # does: a two-finger tap whose fingers the tracker did not separate (never a
+                # tap); the confidence says how far past the skin's threshold
+                out += self._resolve_pending(ts)
+                conf = min(0.9, 0.5 * ep.change / self.landing_change)
+                out.append(self._event("two_finger_tap", fs, ts, confidence=conf))
+                return out
             if len(fs) == 1 and self._is_tap(f):
                 pend = self._pending
                 if pend is not None and self._could_pair(ep, pend):
@@ -384,7 +419,12 @@ class GestureRecognizer:
         return out
 
     def _event(
-        self, kind: str, fs: list[_Finger], ts: float, end_s: float | None = None
+        self,
+        kind: str,
+        fs: list[_Finger],
+        ts: float,
+        end_s: float | None = None,
+        confidence: float = 1.0,
     ) -> dict[str, Any]:
         start = min(f.start_s for f in fs)
         end = max(f.end_s for f in fs) if end_s is None else end_s
@@ -397,6 +437,7 @@ class GestureRecognizer:
             "end_s": end,
             "timestamp_s": ts,
             "track_ids": [f.track_id for f in fs],
+            "confidence": confidence,
         }
         if kind == "swipe":
             f = fs[0]

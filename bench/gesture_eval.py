@@ -70,7 +70,8 @@ def one_skin(skin_seed: int, seed: int, n: int, slack_s: float, tmp: Path) -> di
 
 def _sep_bin(sep_m: float) -> str:
     """The 10 mm bin of a separation, e.g. ``"30-40"``."""
-    lo = int(min(max(sep_m * 1e3 // 10, 0), 9)) * 10
+    # the script keeps a drawn separation within 1 mm: 19.6 mm is of the 20-30 mm bin
+    lo = int(min(max(round(sep_m * 1e3) // 10, 2), 5)) * 10
     return f"{lo:02d}-{lo + 10}"
 
 

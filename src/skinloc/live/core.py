@@ -164,9 +164,14 @@ class SkinCore:
             vertices = getattr(spec, "vertices", None)
             if vertices is not None or up is not None:
                 frame = SkinFrame(vertices, getattr(spec, "faces", None), up)
-                change = float(getattr(getattr(self.engine, "rule", None), "landing_change", 0))
+                rule = getattr(self.engine, "rule", None)
+                change = float(getattr(rule, "landing_change", 0.0))
                 self._recognizer = GestureRecognizer(
-                    name, frame, gesture_config, landing_change=change
+                    name,
+                    frame,
+                    gesture_config,
+                    landing_change=change,
+                    landing_hold=float(getattr(rule, "landing_hold", 0.0)),
                 )
                 if change > 0:
                     self._landing = LandingWatch(self.engine.noise_weights())

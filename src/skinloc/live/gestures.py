@@ -161,6 +161,7 @@ class _Finger:
     end_s: float = math.nan
     last_s: float = math.nan
     max_from_first: float = 0.0  # m
+    uncertain: bool = False  # a tap whose image changed too much to be sure it was one finger
 
     @property
     def ended(self) -> bool:
@@ -191,6 +192,10 @@ class GestureRecognizer:
         The skin's threshold of a touch's image change as it lands and lifts, noise levels
         (``CountRule.landing_change``, calibrated on the skin's own touches), above which a
         tap of one track is two fingers the tracker did not separate; 0: off.
+    landing_hold : float
+        The change above which a tap of one track is no longer surely one finger
+        (``CountRule.landing_hold``): such a tap is not reported (``n_held`` counts them),
+        unless it is one of a double tap; 0: off.
     """
 
     def __init__(
@@ -199,10 +204,14 @@ class GestureRecognizer:
         frame: SkinFrame,
         config: GestureConfig | None = None,
         landing_change: float = 0.0,
+        landing_hold: float = 0.0,
     ) -> None:
-        if not (math.isfinite(landing_change) and landing_change >= 0):
-            raise ValueError(f"landing_change must be a number >= 0, got {landing_change!r}")
+        for name, v in (("landing_change", landing_change), ("landing_hold", landing_hold)):
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"{name} must be a number >= 0, got {v!r}")
         self.landing_change = float(landing_change)
+        self.landing_hold = float(landing_hold)
+        self.n_held = 0  # taps not reported: the count was uncertain
         self.skin = skin
         self.frame = frame
         self.cfg = GestureConfig() if config is None else config
@@ -278,8 +287,8 @@ class GestureRecognizer:
         pend = self._pending
         if pend is not None and ts >= pend.end_s + cfg.double_tap_gap_s:
             if ep is None or ep.start_s > pend.end_s + cfg.double_tap_gap_s:
-                out.append(self._event("tap", [pend], ts))  # the window closed: a single tap
-                self._pending = pend = None
+                out += self._resolve_pending(ts)  # the window closed: a single tap
+                pend = None
         if ep is None:
             return out
         f = self._main(ep) if not ep.done else None
@@ -351,6 +360,10 @@ class GestureRecognizer:
         """Whether the episode's image changed as a second finger's landing or lifting does."""
         return self.landing_change > 0.0 and ep.change >= self.landing_change
 
+    def _uncertain(self, ep: _Episode) -> bool:
+        """Whether the image changed more than the skin's single fingers (but not enough)."""
+        return self.landing_hold > 0.0 and ep.change >= self.landing_hold
+
     def _could_pair(self, ep: _Episode, pend: _Finger) -> bool:
         """Whether episode ``ep`` may still be the second tap of the pending tap."""
         cfg = self.cfg
@@ -367,7 +380,12 @@ class GestureRecognizer:
 
     def _resolve_pending(self, ts: float) -> list[dict[str, Any]]:
         pend, self._pending = self._pending, None
-        return [] if pend is None else [self._event("tap", [pend], ts)]
+        if pend is None:
+            return []
+        if pend.uncertain:  # one finger or two: neither is reported
+            self.n_held += 1
+            return []
+        return [self._event("tap", [pend], ts)]
 
     def _classify(self, ep: _Episode, ts: float) -> list[dict[str, Any]]:
         """An episode that just ended (every finger up), not yet reported."""
@@ -386,6 +404,7 @@ class GestureRecognizer:
                 out.append(self._event("two_finger_tap", fs, ts, confidence=conf))
                 return out
             if len(fs) == 1 and self._is_tap(f):
+                f.uncertain = self._uncertain(ep)
                 pend = self._pending
                 if pend is not None and self._could_pair(ep, pend):
                     self._pending = None

@@ -92,7 +92,8 @@ def _sequence(
     """Frames ``(T, n)`` of fingers ``touches`` (each its frames ``(m, n)``) with ramps.
 
     Finger ``i`` lands ``shifts[i][0]`` frames after the first and lifts ``shifts[i][1]``
-    frames later than it would; each frame has each finger's own frame-to-frame noise.
+    frames later than it would; each frame has each finger's own frame-to-frame noise (its
+    recorded frames in a row less their mean).
     """
     profs = [_ramp(_HOLD, a, b) for a, b in shifts]
     T = max(len(p) for p in profs)
@@ -100,7 +101,10 @@ def _sequence(
     out = np.zeros((T, n))
     for F, p in zip(touches, profs, strict=True):
         mean = F.mean(axis=0)
-        rows = rng.integers(0, F.shape[0], size=T)
+        # consecutive frames, as a live touch's: a touch that creeps over its recording does
+        # not creep within a tap
+        start = int(rng.integers(0, max(F.shape[0] - T, 0) + 1))
+        rows = (start + np.arange(T)) % F.shape[0]
         p = np.concatenate([p, np.zeros(T - len(p))])
         out += p[:, None] * mean[None, :] + (F[rows] - mean[None, :])
     return out
@@ -113,6 +117,7 @@ def calibrate_landing(
     *,
     z_on: float = 8.0,
     rate: float = 0.01,
+    hold_rate: float = 0.10,
     min_separation_mm: float = 10.0,
     n_draws: int = 4,
     random_state: int = 0,
@@ -131,6 +136,9 @@ def calibrate_landing(
         Peak signal, noise levels, from which a frame is a touch's (as the live pipeline).
     rate : float
         Share of single fingers the threshold may call two.
+    hold_rate : float
+        Share of single fingers above ``hold``, the change from which a one-finger tap is
+        held back (not surely one finger).
     n_draws : int
         Synthetic touches per calibration touch (and pairs per touch).
 
@@ -140,7 +148,7 @@ def calibrate_landing(
         The least change above which at most ``rate`` of the single fingers lie (0: too few
         touches to calibrate; the cue is then off).
     report : dict
-        ``singles`` and ``pairs`` (how many), ``pairs_found`` (share of pairs above the
+        ``hold``; ``singles`` and ``pairs`` (how many), ``pairs_found`` (share of pairs above the
         threshold), ``single_p50`` and ``pair_p50`` (medians of the change).
     """
     rng = np.random.default_rng(random_state)
@@ -148,7 +156,7 @@ def calibrate_landing(
     touches = [np.asarray(F, dtype=np.float64) for F in per_touch if len(F) >= 2]
     pos = np.asarray(positions_m, dtype=np.float64)[[len(F) >= 2 for F in per_touch]]
     if len(touches) < 10:
-        return 0.0, {"singles": len(touches), "pairs": 0}
+        return 0.0, {"hold": 0.0, "singles": len(touches), "pairs": 0}
 
     def change(X: np.ndarray) -> float:
         Z = X * w[None, :]
@@ -167,10 +175,15 @@ def calibrate_landing(
     pairs_arr = np.asarray(pairs)
     k = int(np.floor(rate * len(singles)))  # singles allowed above the threshold
     threshold = float(np.sort(singles)[::-1][k]) * 1.0001
+    hold = min(float(np.percentile(singles, 100.0 * (1.0 - hold_rate))), threshold)
     return threshold, {
+        "hold": hold,
         "singles": int(len(singles)),
         "pairs": int(len(pairs_arr)),
         "pairs_found": float(np.mean(pairs_arr >= threshold)) if len(pairs_arr) else 0.0,
         "single_p50": float(np.median(singles)),
+        "single_p90": float(np.percentile(singles, 90)),
+        "single_p95": float(np.percentile(singles, 95)),
+        "single_p97": float(np.percentile(singles, 97)),
         "pair_p50": float(np.median(pairs_arr)) if len(pairs_arr) else 0.0,
     }

@@ -348,6 +348,6 @@ def fit_contact_model(
             z_on=rule.z_on,
             random_state=random_state,
         )
-        rule = replace(rule, landing_change=change)
+        rule = replace(rule, landing_change=change, landing_hold=landing["hold"])
         report = {**report, "landing": landing}
     return rmap, {**rule.as_dict(), "cv": report}

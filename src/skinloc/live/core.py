@@ -190,8 +190,7 @@ class SkinCore:
             # loop, and the frames read after the stall arrived at once, stamped late
             self._tracker.pair.refit.warm_up()
         if self._landing is not None:
-            self._landing.step(scratch)  # compiles the change; forgotten at the first touch
-            self._landing.start()
+            self._landing.warm_up()
 
     # ------------------------------------------------------------------ baseline
     def set_baseline(self, frames: np.ndarray) -> None:

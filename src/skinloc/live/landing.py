@@ -32,6 +32,11 @@ class LandingWatch:
         self.n = 0  # frames of this touch
         self.most = 0.0
 
+    def warm_up(self) -> LandingWatch:
+        """Compile the change now (numba caches it on disk), not on a touch's frames."""
+        frame_change(self._ring[0], self._ring[1])
+        return self
+
     def start(self) -> None:
         """A touch begins: forget the last one."""
         self.n = 0

@@ -232,6 +232,15 @@ def test_a_swipe_is_one_finger():
     assert run(two) == []
 
 
+def test_a_piece_of_a_swiping_finger_split_off_for_a_few_frames_leaves_the_swipe():
+    # a track of 4 frames (40 ms) within the swipe: no finger touches that briefly
+    ghost = stream(
+        [(1, 0, 100, 120, line(P, (0.0, 0.04, 0.0), 100, 120)), (2, 1, 108, 111, still(FAR))],
+        200,
+    )
+    assert [e["kind"] for e in run(ghost)] == ["swipe"]
+
+
 def test_new_thresholds_are_checked():
     with pytest.raises(ValueError, match="swipe_max_jump_frac"):
         GestureConfig(swipe_max_jump_frac=1.5)

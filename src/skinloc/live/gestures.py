@@ -44,6 +44,9 @@ MAX_PATH_POINTS = 64
 #: How long after the first finger a brief touch within it may lift and still be a piece of
 #: its image (``GestureRecognizer._main``), s.
 BRIEF_SLACK_S = 0.05
+#: Longest track, s, that is a piece of a moving finger's image (the search splitting it for
+#: a few frames) rather than a second finger: a second finger touches for 60 ms or more.
+GHOST_S = 0.045
 
 
 @dataclass
@@ -414,9 +417,10 @@ class GestureRecognizer:
                     self._pending = f
                 return out
             out += self._resolve_pending(ts)
-            if len(fs) > 1:
+            if len(fs) > 1 and any(g.end_s - g.start_s > GHOST_S for g in fs[1:]):
                 # a swipe is one finger: a brief second touch within a moving one is as likely
-                # the other finger of a two-finger tap the first track drifted towards
+                # the other finger of a two-finger tap the first track drifted towards (but a
+                # track of a few frames is a piece of the moving finger's image split off)
                 return out
             dist = math.dist(f.path[0], f.path[-1])
             dur = max(f.end_s - f.start_s, 1e-6)

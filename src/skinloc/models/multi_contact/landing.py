@@ -33,7 +33,7 @@ import numpy as np
 
 from skinloc._jit import jit
 
-__all__ = ["LAGS", "calibrate_landing", "frame_change", "touch_change"]
+__all__ = ["LAGS", "calibrate_landing", "frame_change", "landing_sets", "touch_change"]
 
 #: Frames between the two images compared (20 and 30 ms at 100 Hz: a finger's image grows
 #: over about 20 ms as it lands).
@@ -110,6 +110,57 @@ def _sequence(
     return out
 
 
+def landing_sets(
+    per_touch: list[np.ndarray],
+    weights: np.ndarray,
+    positions_m: np.ndarray,
+    *,
+    z_on: float = 8.0,
+    min_separation_mm: float = 10.0,
+    n_draws: int = 4,
+    random_state: int = 0,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The changes of synthetic single fingers and of shifted pairs made of real touches.
+
+    Each touch, ramped up, held and ramped down with its own frame-to-frame noise, is a single
+    finger (``n_draws`` each); two touches at least ``min_separation_mm`` apart, the second
+    landing and lifting 1-4 frames after the first, are a pair (``n_draws`` per touch). Only
+    frames whose peak reaches ``z_on / 2`` noise levels count (the live pipeline's touch).
+
+    Returns
+    -------
+    singles : (n_touches * n_draws,) float
+        Their changes, noise levels.
+    pairs : (m,) float
+        The pairs' changes.
+    separations_m : (m,) float
+        The pairs' separations, m.
+    """
+    rng = np.random.default_rng(random_state)
+    w = np.asarray(weights, dtype=np.float64)
+    ok = [len(F) >= 2 for F in per_touch]
+    touches = [np.asarray(F, dtype=np.float64) for F, k in zip(per_touch, ok, strict=True) if k]
+    pos = np.asarray(positions_m, dtype=np.float64)[ok]
+
+    def change(X: np.ndarray) -> float:
+        Z = X * w[None, :]
+        keep = Z.max(axis=1) >= 0.5 * z_on  # frames the pipeline would see as touched
+        return touch_change(Z[keep]) if keep.sum() > max(LAGS) else 0.0
+
+    singles = np.array(
+        [change(_sequence([F], rng, [(0, 0)])) for F in touches for _ in range(n_draws)]
+    )
+    pairs, seps = [], []
+    for i, F in enumerate(touches):
+        d = np.linalg.norm(pos - pos[i], axis=1)
+        far = np.flatnonzero(d >= 1e-3 * min_separation_mm)
+        for j in rng.choice(far, size=min(n_draws, len(far)), replace=False):
+            d0, d1 = (int(v) for v in rng.integers(1, 5, size=2))
+            pairs.append(change(_sequence([F, touches[j]], rng, [(0, 0), (d0, d1)])))
+            seps.append(d[j])
+    return singles, np.asarray(pairs), np.asarray(seps)
+
+
 def calibrate_landing(
     per_touch: list[np.ndarray],
     weights: np.ndarray,
@@ -140,39 +191,28 @@ def calibrate_landing(
         Share of single fingers above ``hold``, the change from which a one-finger tap is
         held back (not surely one finger).
     n_draws : int
-        Synthetic touches per calibration touch (and pairs per touch).
+        Synthetic touches per calibration touch (and pairs per touch): ``landing_sets``.
 
     Returns
     -------
     threshold : float
-        The least change above which at most ``rate`` of the single fingers lie (0: too few
-        touches to calibrate; the cue is then off).
+        The least change above which at most ``rate`` of the single fingers lie (0: fewer
+        than 10 touches to calibrate on; the cue is then off).
     report : dict
-        ``hold``; ``singles`` and ``pairs`` (how many), ``pairs_found`` (share of pairs above the
-        threshold), ``single_p50`` and ``pair_p50`` (medians of the change).
+        ``hold``; ``singles`` and ``pairs`` (how many), ``pairs_found`` (share of pairs above
+        the threshold), the singles' ``single_p50`` ... ``single_p97`` and ``pair_p50``.
     """
-    rng = np.random.default_rng(random_state)
-    w = np.asarray(weights, dtype=np.float64)
-    touches = [np.asarray(F, dtype=np.float64) for F in per_touch if len(F) >= 2]
-    pos = np.asarray(positions_m, dtype=np.float64)[[len(F) >= 2 for F in per_touch]]
-    if len(touches) < 10:
-        return 0.0, {"hold": 0.0, "singles": len(touches), "pairs": 0}
-
-    def change(X: np.ndarray) -> float:
-        Z = X * w[None, :]
-        keep = Z.max(axis=1) >= 0.5 * z_on  # frames the pipeline would see as touched
-        return touch_change(Z[keep]) if keep.sum() > max(LAGS) else 0.0
-
-    singles = np.array(
-        [change(_sequence([F], rng, [(0, 0)])) for F in touches for _ in range(n_draws)]
+    if sum(len(F) >= 2 for F in per_touch) < 10:
+        return 0.0, {"hold": 0.0, "singles": 0, "pairs": 0}
+    singles, pairs_arr, _ = landing_sets(
+        per_touch,
+        weights,
+        positions_m,
+        z_on=z_on,
+        min_separation_mm=min_separation_mm,
+        n_draws=n_draws,
+        random_state=random_state,
     )
-    pairs = []
-    for i, F in enumerate(touches):
-        far = np.flatnonzero(np.linalg.norm(pos - pos[i], axis=1) >= 1e-3 * min_separation_mm)
-        for j in rng.choice(far, size=min(n_draws, len(far)), replace=False):
-            d0, d1 = (int(v) for v in rng.integers(1, 5, size=2))
-            pairs.append(change(_sequence([F, touches[j]], rng, [(0, 0), (d0, d1)])))
-    pairs_arr = np.asarray(pairs)
     k = int(np.floor(rate * len(singles)))  # singles allowed above the threshold
     threshold = float(np.sort(singles)[::-1][k]) * 1.0001
     hold = min(float(np.percentile(singles, 100.0 * (1.0 - hold_rate))), threshold)

@@ -120,7 +120,7 @@ def landing_sets(
     n_draws: int = 4,
     random_state: int = 0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The changes of synthetic single fingers and of shifted pairs made of real touches.
+    """The changes of synthetic single fingers and of shifted pairs made of recorded touches.
 
     Each touch, ramped up, held and ramped down with its own frame-to-frame noise, is a single
     finger (``n_draws`` each); two touches at least ``min_separation_mm`` apart, the second
@@ -133,12 +133,13 @@ def landing_sets(
         Their changes, noise levels.
     pairs : (m,) float
         The pairs' changes.
-    separations_m : (m,) float
-        The pairs' separations, m.
+    pair_index : (m, 2) int
+        The pairs' touches (indices into ``per_touch``).
     """
     rng = np.random.default_rng(random_state)
     w = np.asarray(weights, dtype=np.float64)
     ok = [len(F) >= 2 for F in per_touch]
+    keep = np.flatnonzero(ok)
     touches = [np.asarray(F, dtype=np.float64) for F, k in zip(per_touch, ok, strict=True) if k]
     pos = np.asarray(positions_m, dtype=np.float64)[ok]
 
@@ -150,15 +151,15 @@ def landing_sets(
     singles = np.array(
         [change(_sequence([F], rng, [(0, 0)])) for F in touches for _ in range(n_draws)]
     )
-    pairs, seps = [], []
+    pairs, idx = [], []
     for i, F in enumerate(touches):
         d = np.linalg.norm(pos - pos[i], axis=1)
         far = np.flatnonzero(d >= 1e-3 * min_separation_mm)
         for j in rng.choice(far, size=min(n_draws, len(far)), replace=False):
             d0, d1 = (int(v) for v in rng.integers(1, 5, size=2))
             pairs.append(change(_sequence([F, touches[j]], rng, [(0, 0), (d0, d1)])))
-            seps.append(d[j])
-    return singles, np.asarray(pairs), np.asarray(seps)
+            idx.append((keep[i], keep[j]))
+    return singles, np.asarray(pairs), np.asarray(idx, dtype=np.int64).reshape(-1, 2)
 
 
 def calibrate_landing(

@@ -363,6 +363,11 @@ class GestureRecognizer:
         """Whether the episode's image changed as a second finger's landing or lifting does."""
         return self.landing_change > 0.0 and ep.change >= self.landing_change
 
+    def _two_from_change(self, ep: _Episode, fs: list[_Finger], ts: float) -> dict[str, Any]:
+        """A two-finger tap of one track, its confidence from how far the change passed."""
+        conf = min(0.9, 0.5 * ep.change / self.landing_change)
+        return self._event("two_finger_tap", fs, ts, confidence=conf)
+
     def _uncertain(self, ep: _Episode) -> bool:
         """Whether the image changed more than the skin's single fingers (but not enough)."""
         return self.landing_hold > 0.0 and ep.change >= self.landing_hold
@@ -403,8 +408,7 @@ class GestureRecognizer:
                 # does: a two-finger tap whose fingers the tracker did not separate (never a
                 # tap); the confidence says how far past the skin's threshold
                 out += self._resolve_pending(ts)
-                conf = min(0.9, 0.5 * ep.change / self.landing_change)
-                out.append(self._event("two_finger_tap", fs, ts, confidence=conf))
+                out.append(self._two_from_change(ep, fs, ts))
                 return out
             if len(fs) == 1 and self._is_tap(f):
                 f.uncertain = self._uncertain(ep)

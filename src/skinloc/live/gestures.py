@@ -5,7 +5,7 @@ per track, ``start``/``move``/``end``) and returns gesture events, JSON-ready di
 
     {"event": "gesture", "skin": "arm", "kind": "swipe", "direction": "up",
      "start_s": 12.31, "end_s": 12.62, "timestamp_s": 12.62, "track_ids": [7],
-     "path_m": [[x, y, z], ...], "speed_m_s": 0.21}
+     "confidence": 1.0, "path_m": [[x, y, z], ...], "speed_m_s": 0.21}
 
 It works on *episodes*: from the first finger down to the last finger up. An episode of one
 finger is a tap (short, still), a long press (still for ``long_press_s``: reported then, while
@@ -15,6 +15,12 @@ land together and both tap is a two-finger tap. Two taps close in time and place
 double tap, so a tap is reported only when the double-tap window after it has closed (or the
 next touch shows it is no second tap); a double tap is never also two taps, a long press or a
 swipe never also a tap. Every event is reported on the first frame at which it is certain.
+
+A tap of one track is not always one finger: two fingers too close for the contact search
+land as one track. The touch's image change as it landed and lifted (``live.landing``, against
+the skin's calibrated ``landing_change`` and ``landing_hold``) makes such a tap a two-finger
+tap (``confidence`` below 1) or, when it is uncertain, holds it back: no tap is reported of a
+touch that may have been two fingers. ``confidence`` is 1.0 when every finger was tracked.
 
 Directions are in the skin's own frame, the one the simulator's gesture script uses too
 (``geometry.skin_frame``): ``up`` is a direction of the mesh frame (per skin; default: the mesh's

@@ -156,6 +156,10 @@ class Engine:
         self._w = noise_weights(spec.sensor_noise, self.n_features)
         self._rows = np.zeros((MAX_CONTACTS, N_COLS))
 
+    def noise_weights(self) -> np.ndarray:
+        """``(n_features,)`` float32: 1 / each sensor's noise (counts to noise levels)."""
+        return self._w
+
     @property
     def n_members(self) -> int:
         """Networks in the ensemble (1 for a response map)."""

@@ -2,6 +2,7 @@
 import { Viewer, COVERAGE_STOPS } from "/static/viewer.js";
 import { LivePage } from "/static/live.js";
 import { drawHeat } from "/static/heatmap.js";
+import { ExportPage } from "/static/export.js";
 
 const $ = (sel, root = document) => root.querySelector(sel);
 const $$ = (sel, root = document) => [...root.querySelectorAll(sel)];
@@ -263,6 +264,7 @@ function showPage(page) {
   }
   if (page === "sessions") loadSessions();
   if (page === "connect") loadPorts();
+  if (page === "export") app.exporter.refresh();
   // What the message line said belongs to the page it was said on, not the next one.
   app.dismissed = app.state?.message ?? "";
   showMessage("");
@@ -804,6 +806,8 @@ function renderState(prev) {
   if (app.page === "calibrate") renderGuided("calibrate");
   if (app.page === "validate") renderGuided("validate");
   if (app.page === "train") renderTraining(st.training);
+  const exportKey = (x) => `${x?.session?.id}:${x?.session?.has_model}:${x?.session?.validation?.n_attempts}:${x?.mode}`;
+  if (app.page === "export" && exportKey(st) !== exportKey(prev)) app.exporter.refresh();
   const g = st.guided;
   const wanted = g?.target ?? null;
   const key = wanted ? wanted.join(",") : "";
@@ -881,6 +885,7 @@ function renderFrame(msg) {
 // ------------------------------------------------------------------ start
 app.viewer = new Viewer($("#viewer"));
 app.live = new LivePage(app.viewer, { $, esc, mm, later, mode: () => app.state?.mode });
+app.exporter = new ExportPage($("#export-card"), { viewer: app.viewer, esc, sessionId: () => app.state?.session?.id });
 app.viewer.onTouch = (p) => api("/api/sim/touch", { point: p }).catch(() => {});
 $("#mouse-touch").addEventListener("change", (ev) => {
   app.viewer.touchMode = ev.target.checked;

@@ -23,6 +23,7 @@ from skinloc.app.device import DeviceLink
 from skinloc.app.hub import Hub
 from skinloc.app.live_io import TabSink
 from skinloc.app.store import SessionStore
+from skinloc.app.workspace.export import ExportFiles
 from skinloc.app.workspace.finger import FingerActions
 from skinloc.app.workspace.guided import GuidedCapture
 from skinloc.app.workspace.link import LinkActions
@@ -45,6 +46,7 @@ class Workspace(
     ValidationActions,
     TrainingJobs,
     LiveView,
+    ExportFiles,
 ):
     """Everything one app process knows and does.
 

@@ -1,0 +1,111 @@
+"""Issue 22, section 4 in a real browser: export, record, train-page evidence, traces, settings.
+
+Reuses the fixtures of ``test_app_browser`` (the app on a free port, Debian's Chromium); the
+session is prepared through the workspace, and the page does what a researcher would.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed")
+pytest.importorskip("uvicorn")
+
+from skinloc.data.recording import read_recording  # noqa: E402
+from skinloc.models.localizer import ContactLocalizer  # noqa: E402
+from skinloc.sources.base import SourceOptions  # noqa: E402
+from tests.app import test_app_browser as base  # noqa: E402
+from tests.app.test_app_browser import CHROMIUM_ARGS, _calibrate, _wait, watch  # noqa: E402
+
+# The fixtures of the whole-session test: the app on a free port, the Chromium binary.
+server = base.server
+chromium = base.chromium
+
+
+def _prepared(app, n_points: int = 6, n_validation: int = 3):
+    """Connect the simulated skin; calibrate, train and validate a session; return the workspace."""
+    ws = app.state.workspace
+    ws.connect(SourceOptions(source="sim", rate_hz=400.0, seed=3))
+    ws.create_session("extra", n_points=n_points, samples=10, baseline_frames=20)
+    _calibrate(ws)
+    ws.train()
+    _wait(lambda: ws.training and not ws.training.get("running"), "training", 300)
+    assert ws.active.model is not None, ws.training
+    if n_validation:
+        ws.start_validation(n_validation)
+        _wait(lambda: ws.active.info.get("validation") is not None, "validation")
+        ws.stop()
+    ws.set_finger(False)
+    return ws
+
+
+def _download(page, click, folder: Path) -> Path:
+    """Click, wait for the download, save it under its suggested name; its path."""
+    with page.expect_download() as info:
+        click()
+    d = info.value
+    path = folder / d.suggested_filename
+    d.save_as(path)
+    return path
+
+
+def test_export_downloads_every_file_and_view(chromium, server, tmp_path):
+    url, app = server
+    sync_api.expect.set_options(timeout=60_000)
+    expect = sync_api.expect
+    ws = _prepared(app)
+    sid = ws.active.folder.id
+    errors: list[str] = []
+    got = tmp_path / "downloads"
+    got.mkdir()
+    with sync_api.sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
+        page = browser.new_page(viewport={"width": 1440, "height": 900}, accept_downloads=True)
+        watch(page, errors)
+        page.goto(url)
+        # The 3D view of the validation, saved from the view itself.
+        page.click("#nav button[data-page=validate]")
+        page.wait_for_function(
+            "() => window.skinloc.session && window.skinloc.session.validation.done.length === 3"
+        )
+        svg = _download(page, lambda: page.click(".viewer-export [data-fmt=svg]"), got)
+        text = svg.read_text()
+        assert svg.name == f"{sid}-3d-view.svg"
+        assert text.startswith("<svg") and text.rstrip().endswith("</svg>")
+        assert text.count("<path") > 100  # the skin's triangles
+        assert text.count("<circle") >= 3  # the validation targets at least
+        png = _download(page, lambda: page.click(".viewer-export [data-fmt=png]"), got)
+        assert png.read_bytes().startswith(b"\x89PNG\r\n\x1a\n") and png.stat().st_size > 5000
+
+        page.click("#nav button[data-page=export]")
+        card = page.locator("#export-card")
+        expect(card.locator(".export-files tbody")).to_contain_text("model.h5")
+        names = card.locator(".export-files tbody a").all_inner_texts()
+        assert {"calibration.h5", "validation.h5", "model.h5"} <= set(names)
+        files = {}
+        for name in names:
+            link = card.locator(".export-files tbody a", has_text=name)
+            files[name] = _download(page, link.click, got)
+            assert files[name].name == f"{sid}-{name}"
+        cal = read_recording(files["calibration.h5"])
+        assert cal.n_point_logs == 6
+        assert read_recording(files["validation.h5"]).n_point_logs == 3
+        model = ContactLocalizer.load(files["model.h5"])
+        assert np.all(np.isfinite(model.predict(cal.touch_means)))
+
+        csv = _download(page, card.get_by_text("Errors (CSV)").click, got)
+        lines = csv.read_text().splitlines()
+        assert lines[0].startswith("touch,status,target_x_mm") and len(lines) == 4
+        for fmt, magic in (("PNG", b"\x89PNG"), ("SVG", b"<?xml")):
+            f = _download(page, card.get_by_text(f"Error view ({fmt})").click, got)
+            assert f.read_bytes().startswith(magic), f
+        base.ARTIFACTS.mkdir(parents=True, exist_ok=True)
+        page.screenshot(path=str(base.ARTIFACTS / "09-export.png"))
+        page.set_viewport_size({"width": 800, "height": 900})
+        assert page.evaluate("document.documentElement.scrollWidth") <= 800
+        page.screenshot(path=str(base.ARTIFACTS / "narrow-export.png"))
+        browser.close()
+    assert not errors, f"the page logged errors: {errors}"

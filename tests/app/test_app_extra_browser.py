@@ -109,3 +109,67 @@ def test_export_downloads_every_file_and_view(chromium, server, tmp_path):
         page.screenshot(path=str(base.ARTIFACTS / "narrow-export.png"))
         browser.close()
     assert not errors, f"the page logged errors: {errors}"
+
+
+def test_record_the_live_stream_from_the_page(chromium, server, tmp_path):
+    """Record HDF5 while the live view runs and a finger presses, see it grow, stop, download;
+    then MCAP, ended by disconnecting the skin: both files are whole."""
+    from skinloc.app.workspace.record import read_live_events
+    from skinloc.sources.replay import read_stream
+
+    url, app = server
+    sync_api.expect.set_options(timeout=60_000)
+    expect = sync_api.expect
+    ws = _prepared(app, n_validation=0)
+    folder = ws.active.folder.path
+    errors: list[str] = []
+    with sync_api.sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
+        page = browser.new_page(viewport={"width": 1440, "height": 900}, accept_downloads=True)
+        watch(page, errors)
+        page.goto(url)
+        page.click("#nav button[data-page=live]")
+        page.click("#live-start")
+        page.wait_for_function("() => window.skinloc.state && window.skinloc.state.mode === 'live'")
+        panel = page.locator("#record-panel")
+        expect(panel.locator(".rec-state")).to_have_text("Not recording.")
+        panel.locator(".rec-format").select_option("h5")
+        panel.locator(".rec-start").click()
+        expect(panel.locator(".rec-stop")).to_be_enabled()
+        expect(panel.locator(".rec-start")).to_be_disabled()
+        _wait(lambda: ws.recorder is not None and ws.recorder.n_frames > 300, "untouched frames")
+        ws.sim_touch(ws.active.targets[0].tolist())
+        _wait(lambda: ws.recorder.n_contacts > 20, "contacts recorded")
+        ws.sim_touch(None)
+        # The line shows the duration and size as they grow.
+        page.wait_for_function(
+            "() => { const t = document.querySelector('#record-panel .rec-state').textContent;"
+            " return /^([2-9]|[1-9][0-9]+)\\.[0-9] s, [0-9.]+ (kB|MB): /.test(t); }"
+        )
+        text = panel.locator(".rec-state").inner_text()
+        assert "contacts" in text and "frames" in text
+        base.ARTIFACTS.mkdir(parents=True, exist_ok=True)
+        page.screenshot(path=str(base.ARTIFACTS / "10-live-recording.png"))
+        panel.locator(".rec-stop").click()
+        expect(panel.locator(".rec-state a")).to_contain_text(".h5")
+        got = _download(page, panel.locator(".rec-state a").click, tmp_path)
+        frames, _, _ = read_stream(got)
+        events = read_live_events(got)
+        assert len(frames) > 300 and len(events["contacts"]) > 20
+        assert read_recording(got).n_tx == 8
+
+        # MCAP, ended by disconnecting: the file is finished all the same.
+        panel.locator(".rec-format").select_option("mcap")
+        panel.locator(".rec-start").click()
+        _wait(lambda: ws.recorder is not None and ws.recorder.n_frames > 100, "mcap frames")
+        name = ws.recorder.path.name
+        page.click("#nav button[data-page=connect]")
+        page.click("#disconnect-btn")
+        page.click("#nav button[data-page=live]")
+        expect(panel.locator(".rec-state a")).to_contain_text(name)
+        expect(panel.locator(".rec-start")).to_be_enabled()
+        browser.close()
+    from tests.app.test_app_record import mcap_counts
+
+    assert mcap_counts(folder / name)["/skinloc/skin/frames"] > 100
+    assert not errors, f"the page logged errors: {errors}"

@@ -3,6 +3,7 @@ import { Viewer, COVERAGE_STOPS } from "/static/viewer.js";
 import { LivePage } from "/static/live.js";
 import { drawHeat } from "/static/heatmap.js";
 import { ExportPage } from "/static/export.js";
+import { RecordPanel } from "/static/record.js";
 
 const $ = (sel, root = document) => root.querySelector(sel);
 const $$ = (sel, root = document) => [...root.querySelectorAll(sel)];
@@ -808,6 +809,8 @@ function renderState(prev) {
   if (app.page === "train") renderTraining(st.training);
   const exportKey = (x) => `${x?.session?.id}:${x?.session?.has_model}:${x?.session?.validation?.n_attempts}:${x?.mode}`;
   if (app.page === "export" && exportKey(st) !== exportKey(prev)) app.exporter.refresh();
+  // A recording started or ended (here, in another tab, or by a disconnect): its state.
+  if (!!st.recording !== !!prev?.recording) app.record.poll();
   const g = st.guided;
   const wanted = g?.target ?? null;
   const key = wanted ? wanted.join(",") : "";
@@ -886,6 +889,7 @@ function renderFrame(msg) {
 app.viewer = new Viewer($("#viewer"));
 app.live = new LivePage(app.viewer, { $, esc, mm, later, mode: () => app.state?.mode });
 app.exporter = new ExportPage($("#export-card"), { viewer: app.viewer, esc, sessionId: () => app.state?.session?.id });
+app.record = new RecordPanel($("#record-panel"), { act, esc });
 app.viewer.onTouch = (p) => api("/api/sim/touch", { point: p }).catch(() => {});
 $("#mouse-touch").addEventListener("change", (ev) => {
   app.viewer.touchMode = ev.target.checked;

@@ -28,6 +28,7 @@ from skinloc.app.workspace.finger import FingerActions
 from skinloc.app.workspace.guided import GuidedCapture
 from skinloc.app.workspace.link import LinkActions
 from skinloc.app.workspace.live import LiveView
+from skinloc.app.workspace.record import LiveRecording, RecordTee
 from skinloc.app.workspace.sessions import SessionActions
 from skinloc.app.workspace.state import ActiveSession, AppConfig, BusyError, Mode
 from skinloc.app.workspace.training import TrainingJobs
@@ -47,6 +48,7 @@ class Workspace(
     TrainingJobs,
     LiveView,
     ExportFiles,
+    LiveRecording,
 ):
     """Everything one app process knows and does.
 
@@ -81,6 +83,7 @@ class Workspace(
         self.training: dict[str, Any] | None = None
         self.message = ""
         self.live_sink = TabSink(hub)
+        self.record_tee = RecordTee()
 
     def require(self, client: str | None) -> None:
         """Give ``client`` control if nobody has it; raise ``BusyError`` if another tab has."""
@@ -156,6 +159,7 @@ class Workspace(
                     "mesh": a.info.get("mesh"),
                 },
                 "guided": guided,
+                "recording": None if self.recorder is None else self.recorder.status(),
                 "training": self._session_training(),
                 "data_dir": str(self.store.root),
                 "default_mesh": self.config.mesh_name,

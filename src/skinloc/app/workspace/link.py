@@ -52,6 +52,7 @@ class LinkActions:
         """Forget the device (its reader keeps running until ``_stop_device``)."""
         device, self.device = self.device, None
         if device is not None:
+            self._stop_recording()  # the file ends here, with every frame so far
             self._stop_using_frames()
             self.mode = Mode.IDLE
             device.detached = True
@@ -117,6 +118,7 @@ class LinkActions:
                 event = self._guided_frame(frame, now)
             elif mode is Mode.LIVE:
                 self._live_frame(frame)
+            self.record_frame(frame)
             if now - self._last_push >= 1.0 / self.config.frame_push_hz or event:
                 self._last_push = now
                 self._push_frame(frame)

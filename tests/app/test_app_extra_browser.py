@@ -173,3 +173,51 @@ def test_record_the_live_stream_from_the_page(chromium, server, tmp_path):
 
     assert mcap_counts(folder / name)["/skinloc/skin/frames"] > 100
     assert not errors, f"the page logged errors: {errors}"
+
+
+def test_train_page_shows_each_touch_error_on_the_skin_and_as_a_histogram(chromium, server):
+    url, app = server
+    sync_api.expect.set_options(timeout=60_000)
+    expect = sync_api.expect
+    ws = _prepared(app, n_points=8, n_validation=0)
+    te = ws.active.info["holdout"]["touch_errors"]
+    assert len(te["index"]) == 8
+    errors: list[str] = []
+    with sync_api.sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
+        page = browser.new_page(viewport={"width": 1440, "height": 900})
+        watch(page, errors)
+        page.goto(url)
+        page.click("#nav button[data-page=train]")
+        result = page.locator("#train-result")
+        expect(result.locator(".evidence h3")).to_contain_text("Error of each touch")
+        expect(result.locator(".evidence")).to_contain_text("cross-validation, 8 touches")
+        counts = [
+            int(c)
+            for c in result.locator("svg.hist rect.bin").evaluate_all(
+                "els => els.map(e => e.dataset.count)"
+            )
+        ]
+        assert sum(counts) == 8
+        assert result.locator("svg.hist .mark-mean").count() == 1
+        worst = int(np.argmax(te["error_mm"]))
+        expect(result.locator(".evidence .hint")).to_contain_text(f"#{te['index'][worst] + 1} (")
+        # One dot per touch on the 3D skin, at its target, shown on the Train page only.
+        dots = page.evaluate(
+            "() => { const g = window.skinloc.evidence.group;"
+            " return { visible: g.visible, n: g.children.length,"
+            " errors: g.children.map(m => m.userData.error_mm) }; }"
+        )
+        assert dots["visible"] and dots["n"] == 8
+        np.testing.assert_allclose(sorted(dots["errors"]), sorted(te["error_mm"]))
+        assert page.locator("#viewer").is_visible()
+        page.wait_for_timeout(500)  # the view draws the dots (for the picture only)
+        base.ARTIFACTS.mkdir(parents=True, exist_ok=True)
+        page.screenshot(path=str(base.ARTIFACTS / "04c-train-evidence.png"))
+        page.set_viewport_size({"width": 800, "height": 900})
+        assert page.evaluate("document.documentElement.scrollWidth") <= 800
+        page.screenshot(path=str(base.ARTIFACTS / "narrow-train-evidence.png"))
+        page.click("#nav button[data-page=calibrate]")
+        assert not page.evaluate("window.skinloc.evidence.group.visible")
+        browser.close()
+    assert not errors, f"the page logged errors: {errors}"

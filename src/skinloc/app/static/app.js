@@ -4,6 +4,7 @@ import { LivePage } from "/static/live.js";
 import { drawHeat } from "/static/heatmap.js";
 import { ExportPage } from "/static/export.js";
 import { RecordPanel } from "/static/record.js";
+import { TrainEvidence } from "/static/evidence.js";
 
 const $ = (sel, root = document) => root.querySelector(sel);
 const $$ = (sel, root = document) => [...root.querySelectorAll(sel)];
@@ -266,6 +267,7 @@ function showPage(page) {
   if (page === "sessions") loadSessions();
   if (page === "connect") loadPorts();
   if (page === "export") app.exporter.refresh();
+  app.evidence.setVisible(page === "train");
   // What the message line said belongs to the page it was said on, not the next one.
   app.dismissed = app.state?.message ?? "";
   showMessage("");
@@ -701,6 +703,8 @@ $("#train-btn").addEventListener("click", () => act("/api/train", { exclude: lef
 function renderTraining(t) {
   t = t || app.state?.training;
   const bar = $("#train-bar");
+  // Each touch's error on the skin: the session's result, none while training runs.
+  app.evidence.update(t?.running ? null : app.state?.session?.holdout, app.session?.calibration?.done);
   renderGate();
   if (t && t.session && t.session !== app.state?.session?.id) t = null; // another session's
   if (!t) {
@@ -736,7 +740,7 @@ function resultHtml(h) {
   return `<div class="result">${fmtErr(h)}</div>
     <div class="hint">error on ${h.n_test} held-out touches (median ${h.median_mm.toFixed(1)} mm, p95 ${h.p95_mm.toFixed(1)} mm);
     the final model learnt from all ${h.n_point_logs} touches it was given${h.train_s != null ? ` in ${h.train_s} s` : ""}.</div>
-    <p class="train-inputs">${inputs}${kept}</p>${influenceHtml(h)}
+    <p class="train-inputs">${inputs}${kept}</p>${influenceHtml(h)}${app.evidence.html(h)}
     <p class="hint next-hint">Next: <b>Validate</b> on fresh touches, or try it on <b>Live</b>.</p>`;
 }
 // Which touch hurts the held-out error most (skinloc.evaluation.influence): the fall of the
@@ -844,6 +848,8 @@ function renderSession() {
     v.show(["errors", "planned", "target", ...(app.coverageOn ? ["coverage"] : [])]);
   } else if (page === "live") {
     v.show(["live"]);
+  } else if (page === "train") {
+    v.show([]); // the touches' errors only (evidence.js)
   } else if (s.calibration.error) {
     showMessage(s.calibration.error, true);
   } else {
@@ -889,6 +895,7 @@ function renderFrame(msg) {
 app.viewer = new Viewer($("#viewer"));
 app.live = new LivePage(app.viewer, { $, esc, mm, later, mode: () => app.state?.mode });
 app.exporter = new ExportPage($("#export-card"), { viewer: app.viewer, esc, sessionId: () => app.state?.session?.id });
+app.evidence = new TrainEvidence(app.viewer);
 app.record = new RecordPanel($("#record-panel"), { act, esc });
 app.viewer.onTouch = (p) => api("/api/sim/touch", { point: p }).catch(() => {});
 $("#mouse-touch").addEventListener("change", (ev) => {

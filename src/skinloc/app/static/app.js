@@ -5,6 +5,7 @@ import { drawHeat } from "/static/heatmap.js";
 import { ExportPage } from "/static/export.js";
 import { RecordPanel } from "/static/record.js";
 import { TrainEvidence } from "/static/evidence.js";
+import { LivePlot, SensorTrace, TouchView } from "/static/traces.js";
 
 const $ = (sel, root = document) => root.querySelector(sel);
 const $$ = (sel, root = document) => [...root.querySelectorAll(sel)];
@@ -136,7 +137,7 @@ const handlers = {
     renderTraining(msg);
     if (app.coverageOn && msg && !msg.running && msg.result) toggleCoverage(true); // a new model
   },
-  live(msg) { app.live.contacts(msg); },
+  live(msg) { app.live.contacts(msg); app.plot.add(msg); },
   gesture(msg) { app.live.gesture(msg); },
 };
 
@@ -764,6 +765,7 @@ function influenceHtml(h) {
 // ------------------------------------------------------------------ live page
 $("#live-start").addEventListener("click", () => {
   app.live.clear(true);
+  app.plot.clear();
   act("/api/live/start");
 });
 $("#live-stop").addEventListener("click", () => act("/api/capture/stop"));
@@ -896,6 +898,9 @@ app.viewer = new Viewer($("#viewer"));
 app.live = new LivePage(app.viewer, { $, esc, mm, later, mode: () => app.state?.mode });
 app.exporter = new ExportPage($("#export-card"), { viewer: app.viewer, esc, sessionId: () => app.state?.session?.id });
 app.evidence = new TrainEvidence(app.viewer);
+app.sensorTrace = new SensorTrace();
+app.plot = new LivePlot($("#live-tracks"));
+app.touchView = new TouchView({ esc });
 app.record = new RecordPanel($("#record-panel"), { act, esc });
 app.viewer.onTouch = (p) => api("/api/sim/touch", { point: p }).catch(() => {});
 $("#mouse-touch").addEventListener("change", (ev) => {

@@ -31,6 +31,7 @@ from skinloc.app.workspace.live import LiveView
 from skinloc.app.workspace.record import LiveRecording, RecordTee
 from skinloc.app.workspace.sessions import SessionActions
 from skinloc.app.workspace.state import ActiveSession, AppConfig, BusyError, Mode
+from skinloc.app.workspace.traces import TraceViews
 from skinloc.app.workspace.training import TrainingJobs
 from skinloc.app.workspace.validation import ValidationActions
 from skinloc.calibration.session import TouchDetector
@@ -49,6 +50,7 @@ class Workspace(
     LiveView,
     ExportFiles,
     LiveRecording,
+    TraceViews,
 ):
     """Everything one app process knows and does.
 

@@ -221,3 +221,65 @@ def test_train_page_shows_each_touch_error_on_the_skin_and_as_a_histogram(chromi
         assert not page.evaluate("window.skinloc.evidence.group.visible")
         browser.close()
     assert not errors, f"the page logged errors: {errors}"
+
+
+def test_traces_of_a_sensor_a_live_track_and_a_touch(chromium, server):
+    url, app = server
+    sync_api.expect.set_options(timeout=60_000)
+    expect = sync_api.expect
+    ws = _prepared(app, n_validation=0)
+    errors: list[str] = []
+    with sync_api.sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
+        page = browser.new_page(viewport={"width": 1440, "height": 900})
+        watch(page, errors)
+        page.goto(url)
+
+        # A sensor of the Connect page's heat map: its trace, baseline and band.
+        page.click("#nav button[data-page=connect]")
+        page.wait_for_function("() => document.querySelector('#heat-connect')._heat")
+        base.hover_cell(page, "#heat-connect", 3, 4)
+        page.mouse.down()
+        page.mouse.up()
+        pop = page.locator('.trace-pop[data-kind="sensor"]')
+        expect(pop.locator(".trace-title")).to_have_text("Sensor TX 3, RX 4: last 10 s")
+        page.wait_for_function(
+            "() => Number(document.querySelector('.trace-pop[data-kind=sensor]')"
+            ".dataset.points) > 100"
+        )
+        expect(pop.locator(".trace-note")).to_contain_text("baseline")
+        expect(pop.locator(".trace-note")).to_contain_text("± 3 σ")
+        base.ARTIFACTS.mkdir(parents=True, exist_ok=True)
+        page.screenshot(path=str(base.ARTIFACTS / "02b-connect-sensor-trace.png"))
+        pop.locator(".trace-close").click()
+        expect(pop).to_be_hidden()
+
+        # A touch of the calibration: its mean image and its frames, one by one.
+        page.click("#nav button[data-page=calibrate]")
+        row = page.locator('.guided[data-kind="calibrate"] .touches tbody tr').last
+        expect(row).to_contain_text("1")
+        row.locator("td").first.click()
+        touch = page.locator('.trace-pop[data-kind="touch"]')
+        expect(touch.locator(".trace-title")).to_have_text("Calibration touch 1")
+        assert touch.get_attribute("data-frames") == "10"
+        touch.locator(".frame-slider").fill("7")
+        expect(touch.locator(".frame-no")).to_have_text("7")
+        page.screenshot(path=str(base.ARTIFACTS / "03c-calibrate-touch-frames.png"))
+        touch.locator(".trace-close").click()
+
+        # Live: a held finger draws its strength and position over time.
+        page.click("#nav button[data-page=live]")
+        page.click("#live-start")
+        page.wait_for_function("() => window.skinloc.state && window.skinloc.state.mode === 'live'")
+        ws.sim_touch(ws.active.targets[1].tolist())
+        page.wait_for_function(
+            "() => { const p = document.querySelector('.live-plot');"
+            " return p && Number(p.dataset.points) > 20 && p.dataset.tracks === '1'; }"
+        )
+        page.screenshot(path=str(base.ARTIFACTS / "06c-live-plot.png"))
+        ws.sim_touch(None)
+        page.set_viewport_size({"width": 800, "height": 900})
+        assert page.evaluate("document.documentElement.scrollWidth") <= 800
+        page.screenshot(path=str(base.ARTIFACTS / "narrow-live-plot.png"))
+        browser.close()
+    assert not errors, f"the page logged errors: {errors}"

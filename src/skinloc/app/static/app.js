@@ -899,7 +899,7 @@ app.live = new LivePage(app.viewer, { $, esc, mm, later, mode: () => app.state?.
 app.exporter = new ExportPage($("#export-card"), { viewer: app.viewer, esc, sessionId: () => app.state?.session?.id });
 app.evidence = new TrainEvidence(app.viewer);
 app.sensorTrace = new SensorTrace();
-app.plot = new LivePlot($("#live-tracks"));
+app.plot = new LivePlot($("#heat-live"));
 app.touchView = new TouchView({ esc });
 app.record = new RecordPanel($("#record-panel"), { act, esc });
 app.viewer.onTouch = (p) => api("/api/sim/touch", { point: p }).catch(() => {});

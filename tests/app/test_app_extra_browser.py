@@ -283,3 +283,57 @@ def test_traces_of_a_sensor_a_live_track_and_a_touch(chromium, server):
         page.screenshot(path=str(base.ARTIFACTS / "narrow-live-plot.png"))
         browser.close()
     assert not errors, f"the page logged errors: {errors}"
+
+
+def test_live_settings_are_saved_to_the_skins_file_and_latency_is_shown(chromium, server):
+    from skinloc.live.skins_file import load_skins
+
+    url, app = server
+    sync_api.expect.set_options(timeout=60_000)
+    expect = sync_api.expect
+    ws = _prepared(app, n_validation=0)
+    errors: list[str] = []
+    with sync_api.sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
+        page = browser.new_page(viewport={"width": 1440, "height": 900})
+        watch(page, errors)
+        page.goto(url)
+        page.click("#nav button[data-page=live]")
+        page.click("#live-start")
+        page.wait_for_function("() => window.skinloc.state && window.skinloc.state.mode === 'live'")
+        panel = page.locator(".live-settings")
+        panel.locator("summary").click()
+        expect(panel.locator(".settings-where")).to_contain_text("the defaults", ignore_case=True)
+        expect(panel.locator("#set-touch_on_z")).to_have_value("8")
+        panel.locator("#set-touch_on_z").fill("9.5")
+        panel.locator("#set-filter").select_option("none")
+        panel.locator("#set-gestures").uncheck()
+        old = ws._live_pipeline
+        panel.locator(".settings-save").click()
+        expect(panel.locator(".settings-where")).to_contain_text("skinloc run --config")
+        expect(panel).to_contain_text("(default 8)")
+        skins, _ = load_skins(ws.active.folder.path / "skins.toml")
+        cfg = skins[0].config
+        assert (cfg.touch_on_z, cfg.filter, cfg.gestures) == (9.5, "none", False)
+        _wait(lambda: ws._live_pipeline is not None and ws._live_pipeline is not old, "live again")
+        page.wait_for_function("() => window.skinloc.state.mode === 'live'")
+        # A touch: the latency of its contacts is shown.
+        ws.sim_touch(ws.active.targets[0].tolist())
+        page.wait_for_function(
+            "() => Number(document.querySelector('#live-latency').dataset.n) > 10"
+        )
+        assert page.locator("#live-latency").inner_text().endswith("ms)")
+        ws.sim_touch(None)
+        base.ARTIFACTS.mkdir(parents=True, exist_ok=True)
+        side = page.locator("#page-live .card.side")
+        side.screenshot(path=str(base.ARTIFACTS / "06d-live-settings.png"))
+        page.set_viewport_size({"width": 800, "height": 900})
+        assert page.evaluate("document.documentElement.scrollWidth") <= 800
+        page.screenshot(path=str(base.ARTIFACTS / "narrow-live-settings.png"), full_page=True)
+        # Back to the defaults.
+        page.set_viewport_size({"width": 1440, "height": 900})
+        panel.locator(".settings-defaults").click()
+        expect(panel.locator("#set-touch_on_z")).to_have_value("8")
+        assert load_skins(ws.active.folder.path / "skins.toml")[0][0].config.filter == "one-euro"
+        browser.close()
+    assert not errors, f"the page logged errors: {errors}"

@@ -229,3 +229,24 @@ def test_every_way_out_finishes_the_file(tmp_path, how, fmt):
         assert len(frames) > 50
     else:
         assert mcap_counts(path)["/skinloc/skin/frames"] > 50
+
+
+def test_the_file_being_written_is_not_offered_but_an_unfinished_one_is(tmp_path):
+    import shutil
+
+    with _client(tmp_path) as client:
+        sid = client.post("/api/sessions", json={"n_points": 3}).json()["id"]
+        _quiet(client)
+        name = client.post("/api/record/start", json={"format": "h5"}).json()["name"]
+        _wait(lambda: client.get("/api/record").json()["frames"] > 50, "frames recorded")
+        listed = {f["name"] for f in client.get("/api/export").json()["files"]}
+        assert not any(n.startswith("live-") for n in listed), listed
+        client.post("/api/record/stop")
+        # What a crash leaves: the side file of an HDF5 recording, frames flushed so far.
+        left = tmp_path / sid / "live-20260101-000000.partial.h5"
+        shutil.copy(tmp_path / sid / name, left)
+        files = {f["name"]: f["kind"] for f in client.get("/api/export").json()["files"]}
+        assert files[name] == "live recording" and "unfinished" in files[left.name]
+        r = client.get(f"/api/export/files/{left.name}")
+        assert r.status_code == 200 and r.content == left.read_bytes()
+        assert len(read_stream(left)[0]) > 50

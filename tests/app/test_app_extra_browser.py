@@ -17,12 +17,17 @@ pytest.importorskip("uvicorn")
 from skinloc.data.recording import read_recording  # noqa: E402
 from skinloc.models.localizer import ContactLocalizer  # noqa: E402
 from skinloc.sources.base import SourceOptions  # noqa: E402
+from tests._helpers import wait_until  # noqa: E402
 from tests.app import test_app_browser as base  # noqa: E402
-from tests.app.test_app_browser import CHROMIUM_ARGS, _calibrate, _wait, watch  # noqa: E402
+from tests.app.test_app_browser import CHROMIUM_ARGS, watch  # noqa: E402
 
 # The fixtures of the whole-session test: the app on a free port, the Chromium binary.
 server = base.server
 chromium = base.chromium
+
+
+def _wait(check, what: str, timeout_s: float = 180.0) -> None:
+    wait_until(check, what, timeout_s, interval_s=0.05)
 
 
 def _prepared(app, n_points: int = 6, n_validation: int = 3):
@@ -30,7 +35,9 @@ def _prepared(app, n_points: int = 6, n_validation: int = 3):
     ws = app.state.workspace
     ws.connect(SourceOptions(source="sim", rate_hz=400.0, seed=3))
     ws.create_session("extra", n_points=n_points, samples=10, baseline_frames=20)
-    _calibrate(ws)
+    ws.set_finger(True)
+    ws.start_calibration()
+    _wait(lambda: ws.message == "calibration complete", "calibration")
     ws.train()
     _wait(lambda: ws.training and not ws.training.get("running"), "training", 300)
     assert ws.active.model is not None, ws.training

@@ -87,11 +87,26 @@ def test_export_downloads_every_file_and_view(chromium, server, tmp_path):
         png = _download(page, lambda: page.click(".viewer-export [data-fmt=png]"), got)
         assert png.read_bytes().startswith(b"\x89PNG\r\n\x1a\n") and png.stat().st_size > 5000
 
+        # Record 10 s of the live stream, a touch in it, from the Live page.
+        page.click("#nav button[data-page=live]")
+        page.click("#live-start")
+        page.wait_for_function("() => window.skinloc.state && window.skinloc.state.mode === 'live'")
+        page.locator("#record-panel .rec-start").click()
+        _wait(lambda: ws.recorder is not None and ws.recorder.t_last > 2, "2 s recorded")
+        ws.sim_touch(ws.active.targets[0].tolist())
+        _wait(lambda: ws.recorder.n_contacts > 20, "contacts recorded")
+        ws.sim_touch(None)
+        _wait(lambda: ws.recorder.t_last >= 10, "10 s recorded")
+        page.locator("#record-panel .rec-stop").click()
+        expect(page.locator("#record-panel .rec-state a")).to_contain_text("live-")
+
         page.click("#nav button[data-page=export]")
         card = page.locator("#export-card")
-        expect(card.locator(".export-files tbody")).to_contain_text("model.h5")
+        expect(card.locator(".export-files tbody")).to_contain_text("live-")
         names = card.locator(".export-files tbody a").all_inner_texts()
         assert {"calibration.h5", "validation.h5", "model.h5"} <= set(names)
+        live = [n for n in names if n.startswith("live-")]
+        assert len(live) == 1 and live[0].endswith(".h5")
         files = {}
         for name in names:
             link = card.locator(".export-files tbody a", has_text=name)
@@ -100,6 +115,13 @@ def test_export_downloads_every_file_and_view(chromium, server, tmp_path):
         cal = read_recording(files["calibration.h5"])
         assert cal.n_point_logs == 6
         assert read_recording(files["validation.h5"]).n_point_logs == 3
+        from skinloc.app.workspace.record import read_live_events
+        from skinloc.sources.replay import stream_summary
+
+        stream = stream_summary(files[live[0]])
+        assert stream["stream_seconds"] >= 9.9, stream
+        assert stream["stream_frames"] == ws.last_recording["frames"]  # every frame received
+        assert len(read_live_events(files[live[0]])["contacts"]) > 20
         model = ContactLocalizer.load(files["model.h5"])
         assert np.all(np.isfinite(model.predict(cal.touch_means)))
 

@@ -250,3 +250,30 @@ def test_the_file_being_written_is_not_offered_but_an_unfinished_one_is(tmp_path
         r = client.get(f"/api/export/files/{left.name}")
         assert r.status_code == 200 and r.content == left.read_bytes()
         assert len(read_stream(left)[0]) > 50
+
+
+def test_a_full_disk_ends_the_recording_with_what_it_holds(tmp_path, monkeypatch):
+    import errno
+
+    from skinloc.data.appender import StreamAppender
+
+    real_append = StreamAppender.append
+    calls = {"n": 0}
+
+    def append(self, *args, **kw):
+        calls["n"] += 1
+        if calls["n"] > 2:  # the third flush meets a full disk
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real_append(self, *args, **kw)
+
+    monkeypatch.setattr(StreamAppender, "append", append)
+    with _client(tmp_path) as client:
+        sid = client.post("/api/sessions", json={"n_points": 3}).json()["id"]
+        _quiet(client)
+        name = client.post("/api/record/start", json={"format": "h5"}).json()["name"]
+        _wait(lambda: not client.get("/api/record").json()["running"], "the recording to stop")
+        state = client.get("/api/state").json()
+        assert state["recording"] is None
+        assert state["message"].startswith("recording stopped:") and "space" in state["message"]
+        frames, _, _ = read_stream(tmp_path / sid / name)
+        assert len(frames) > 0  # the two flushes before the disk filled

@@ -63,7 +63,7 @@ export class ViewControls {
       tip.quaternion.setFromUnitVectors(new THREE.Vector3(0, 1, 0), end);
       this.insetScene.add(line, tip);
     });
-    this.insetCamera = new THREE.OrthographicCamera(-1.45, 1.45, 1.45, -1.45, 0.1, 10);
+    this.insetCamera = new THREE.OrthographicCamera(-1.6, 1.6, 1.6, -1.6, 0.1, 10);
   }
 
   render() {
@@ -90,10 +90,11 @@ export class ViewControls {
     r.setViewport(0, 0, v.el.clientWidth, v.el.clientHeight);
     r.setClearColor(clear);
     ["x", "y", "z"].forEach((name, k) => {
-      const p = new THREE.Vector3().setComponent(k, 1.3).project(cam);
+      const p = new THREE.Vector3().setComponent(k, 1.28).project(cam);
       const span = this.inset.querySelector(`.ax.${name}`);
-      span.style.left = `${((p.x + 1) / 2) * size - 4}px`;
-      span.style.top = `${((1 - p.y) / 2) * size - 8}px`;
+      const clamp = (q, hi) => Math.max(1, Math.min(hi, q));
+      span.style.left = `${clamp(((p.x + 1) / 2) * size - 4, size - 10)}px`;
+      span.style.top = `${clamp(((1 - p.y) / 2) * size - 8, size - 17)}px`;
     });
     // Millimetres per pixel at the orbit centre (the skin's middle): a round length ~60 px.
     const dist = v.camera.position.distanceTo(v.controls.target);

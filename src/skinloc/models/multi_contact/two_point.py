@@ -108,8 +108,8 @@ def describe(tp: dict[str, Any] | None) -> str:
     """The threshold in words, as a person reads a two-point threshold."""
     if tp is None:
         return (
-            "two-point threshold: unknown (not measured: a model saved before it, or too few "
-            "calibration touches)"
+            "two-point threshold: unknown (not measured: a network model, a model saved before "
+            "it, or too few calibration touches)"
         )
     count, both = tp.get("counted_two_mm"), tp.get("threshold_mm")
     if count is None:
@@ -117,14 +117,16 @@ def describe(tp: dict[str, Any] | None) -> str:
             "two-point threshold: none: two touches are not counted two 90 % of the time at "
             "any separation"
         )
-    where = f"{both:.0f} mm" if both is not None else "no separation"
-    head = (
-        f"two-point threshold: {both:.0f} mm"
-        if both is not None
-        else "two-point threshold: none (two fingers are counted but not placed within "
-        f"{WITHIN_MM:.0f} mm at any separation)"
+    read = (
+        f"two touches closer than {count:.0f} mm are read as one (counted two >= 90 % from "
+        f"{count:.0f} mm)"
     )
+    if both is None:
+        return (
+            f"two-point threshold: none (two fingers are counted but not both placed within "
+            f"{WITHIN_MM:.0f} mm at any separation); {read}"
+        )
     return (
-        f"{head}; two touches closer than {count:.0f} mm are read as one (counted two >= 90 % "
-        f"from {count:.0f} mm; both placed within {WITHIN_MM:.0f} mm >= 90 % from {where})"
+        f"two-point threshold: {both:.0f} mm (from there two touches are counted two and each "
+        f"placed within {WITHIN_MM:.0f} mm >= 90 % of the time); {read}"
     )

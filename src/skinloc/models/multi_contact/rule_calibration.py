@@ -11,6 +11,8 @@ quantile of the relative residual reduction a second contact brings to the singl
 (measured against the two-contact residual plus ``misfit`` times the image's energy),
 ``tau3`` the same for a third contact on the pairs: at most ``false_rate`` of the held-out
 touches are counted one too many. Nothing of the recordings a model is tested on is used.
+The same folds measure the skin's two-point threshold (``two_point``): pairs of held-out touch
+means at every separation, counted by the calibrated rule and placed by the search.
 """
 
 from __future__ import annotations

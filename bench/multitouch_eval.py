@@ -32,6 +32,11 @@ from scipy.optimize import linear_sum_assignment
 
 from skinloc.data.recording import read_recording
 from skinloc.evaluation.scoring import train_localizer
+from skinloc.models.multi_contact.two_point import (
+    describe,
+    threshold_from_pairs,
+    two_point_of,
+)
 
 SEP_BINS = ((0.0, 30.0, "<30"), (30.0, 60.0, "30-60"), (60.0, np.inf, ">60"))
 RATIO_BINS = ((0.0, 0.33, "<0.33"), (0.33, 0.66, "0.33-0.66"), (0.66, 1.01, ">0.66"))
@@ -132,44 +137,20 @@ def summarise(rows, meta, sel) -> dict:
     }
 
 
-#: Separations (mm) of the two-point threshold's bins: 10 mm wide from 10 mm, the last open.
-TWO_POINT_EDGES = (10.0, 20.0, 30.0, 40.0, 50.0, 60.0, 70.0, 80.0, 90.0, 100.0, np.inf)
-
-
-def two_point(rows, meta, share: float = 0.9, min_ratio: float = 0.5) -> dict:
+def two_point(rows, meta, min_ratio: float = 0.5) -> dict:
     """The skin's two-point threshold on pairs of similar strength (ratio > ``min_ratio``).
 
-    Per 10 mm bin of separation: the share counted two and the share with every finger placed
-    within 15 mm. The threshold is the lower edge of the first bin from which every bin (with
-    pairs) reaches ``share`` on the criterion: ``counted_two_mm`` on the count alone,
-    ``threshold_mm`` on both (``None``: no separation reaches it).
+    ``skinloc.models.multi_contact.two_point.threshold_from_pairs`` (the one ``fit`` stores),
+    every bin with pairs deciding: per 10 mm bin the share counted two and the share with both
+    fingers placed within 15 mm.
     """
-    bins = {}
-    for lo, hi in zip(TWO_POINT_EDGES, TWO_POINT_EDGES[1:], strict=False):
-        sel = [lo <= m["sep_mm"] < hi and m["ratio"] > min_ratio for m in meta]
-        rs = [r for r, k in zip(rows, sel, strict=True) if k]
-        if rs:
-            bins[f"{lo:.0f}-{hi:.0f}"] = {
-                "lo_mm": lo,
-                "n": len(rs),
-                "counted_two": float(np.mean([r["count"] == 2 for r in rs])),
-                "all_within_15mm": float(np.mean([r["all_within"] for r in rs])),
-            }
-
-    def first(ok) -> float | None:
-        rows_ = list(bins.values())
-        for i, b in enumerate(rows_):
-            if all(ok(c) for c in rows_[i:]):
-                return b["lo_mm"]
-        return None
-
-    return {
-        "bins": bins,
-        "counted_two_mm": first(lambda c: c["counted_two"] >= share),
-        "threshold_mm": first(
-            lambda c: c["counted_two"] >= share and c["all_within_15mm"] >= share
-        ),
-    }
+    keep = [i for i, m in enumerate(meta) if m["ratio"] > min_ratio]
+    return threshold_from_pairs(
+        np.array([meta[i]["sep_mm"] for i in keep]),
+        np.array([rows[i]["count"] == 2 for i in keep], dtype=bool),
+        np.array([rows[i]["all_within"] for i in keep], dtype=bool),
+        min_pairs=1,
+    )
 
 
 class Tally:
@@ -346,7 +327,11 @@ def _mm(v) -> str:
 
 
 def print_markdown(res: dict) -> None:
-    print(f"count rule: {json.dumps(res['rule'])}\n")
+    rule = res["rule"]
+    print(f"count rule: {json.dumps(rule)}\n")
+    if isinstance(rule, dict):
+        own = two_point_of(rule)
+        print("the model's own, from its calibration: " + describe(own) + "\n")
     for kind, t in res["real"].items():
         tp = t["two_point"]
         print(f"### Two-point threshold, {kind} (ratio > 0.5)\n")

@@ -144,7 +144,35 @@ def sensors_result(
             "n_scored": int(alive.sum()),
             "note": "against the simulator's true crossings, sensors not flagged dead",
         }
+    result["two_point"] = two_point_result(obj if kind == "model" else None, obj)
     return result, smap, mesh, truth
+
+
+def two_point_result(model: Any, recordings: Any = None) -> dict:
+    """The skin's two-point threshold as JSON, with the sentence a person reads (``text``).
+
+    From ``model``'s contact rule; with no model, from the default model fitted on
+    ``recordings`` (unknown when none can be fitted).
+    """
+    from skinloc.models.multi_contact.two_point import SHARE, WITHIN_MM, describe, two_point_of
+
+    if model is None and recordings is not None:
+        from skinloc.evaluation.scoring import train_localizer
+
+        try:
+            model = train_localizer(recordings)
+        except ValueError:
+            model = None  # e.g. a recording without its skin's mesh: nothing to measure on
+    tp = two_point_of(getattr(model, "contact_rule_", None))
+    return {
+        "measured": tp is not None,
+        "counted_two_mm": None if tp is None else tp["counted_two_mm"],
+        "threshold_mm": None if tp is None else tp["threshold_mm"],
+        "within_mm": WITHIN_MM,
+        "share": SHARE,
+        "bins": None if tp is None else tp["bins"],
+        "text": describe(tp),
+    }
 
 
 #: Options both commands take.
@@ -246,6 +274,7 @@ def register(app: typer.Typer) -> None:
             f"blind (> {result['blind_threshold_mm']:.0f} mm): "
             f"{100 * result['blind_fraction']:.0f}% of the skin"
         )
+        console.print(result["two_point"]["text"])
 
 
 def coverage_result(kind: str, obj: Any, n_points: int) -> tuple[dict, Any, Any]:
@@ -278,7 +307,7 @@ def coverage_result(kind: str, obj: Any, n_points: int) -> tuple[dict, Any, Any]
     if getattr(model, "map_", None) is None:
         raise ValueError("coverage needs a response-map model (arch 'default'), or recordings")
     cov = coverage_map(model.map_, F, n_points=n_points, temperature=temperature)
-    return cov.as_dict(), cov, mesh
+    return {**cov.as_dict(), "two_point": two_point_result(model)}, cov, mesh
 
 
 def _print_summary(console: Any, result: dict) -> None:
@@ -319,3 +348,5 @@ def _print_summary(console: Any, result: dict) -> None:
         console.print(
             f"against the true crossings: median {t['median_mm']} mm, 90th pct {t['p90_mm']} mm"
         )
+    if "two_point" in result:
+        console.print(result["two_point"]["text"])

@@ -8,7 +8,9 @@ The modules, each public to the others (nothing private is imported across them)
 * ``refit``: a two-contact fit anchored at a known finger (the live pair prior's question);
 * ``rule_calibration``: the count rule calibrated on the training recording alone;
 * ``landing``: a second finger in time (the image's change of shape as fingers land and lift),
-  its threshold calibrated on the training touches too (``CountRule.landing_change``).
+  its threshold calibrated on the training touches too (``CountRule.landing_change``);
+* ``two_point``: the skin's two-point threshold (how far apart two fingers are read as two),
+  measured at calibration by ``rule_calibration`` and stored beside the rule.
 
 A touch of strength ``s`` counts at surface point ``p`` gives about ``s * unit(p)``, where
 ``unit`` is the amplitude map (``skinloc.models.response_map.AmplitudeMap``: the un-normalised

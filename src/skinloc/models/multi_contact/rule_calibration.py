@@ -11,6 +11,8 @@ quantile of the relative residual reduction a second contact brings to the singl
 (measured against the two-contact residual plus ``misfit`` times the image's energy),
 ``tau3`` the same for a third contact on the pairs: at most ``false_rate`` of the held-out
 touches are counted one too many. Nothing of the recordings a model is tested on is used.
+The same folds measure the skin's two-point threshold (``two_point``): pairs of held-out touch
+means at every separation, counted by the calibrated rule and placed by the search.
 """
 
 from __future__ import annotations
@@ -25,14 +27,17 @@ from skinloc._typing import Points
 from skinloc.models.multi_contact.contacts import N_COLS, CountRule, noise_weights
 from skinloc.models.multi_contact.landing import calibrate_landing
 from skinloc.models.multi_contact.search import SearchTables, search_into
+from skinloc.models.multi_contact.two_point import placed_both, threshold_from_pairs
 from skinloc.models.response_map import AmplitudeMap
 
 __all__ = [
     "calibrate_count_rule",
     "count_statistics",
+    "pair_statistics",
     "rule_statistics",
     "search_statistics",
     "sensor_noise_from_frames",
+    "two_point_threshold",
 ]
 
 #: Fewest point logs to calibrate on; fewer keep the default rule.
@@ -47,6 +52,10 @@ FALSE_RATE = 0.02
 #: cross-validation inside 80PL_1, bench/multitouch_diagnose.py: 1 counts 2-5 % more held-out
 #: pairs than 0 at the same false rate over three fold splits; 2 about the same as 1).
 Z_POWER = 1.0
+#: Most pairs per fold, at every separation, the two-point threshold is measured on.
+TWO_POINT_SETS = 120
+#: Least strength ratio (weaker / stronger) of its pairs: two fingers of similar strength.
+TWO_POINT_RATIO = 0.5
 #: Weakest-contact peak signals (noise levels) the calibration chooses among.
 Z_GRID = (8.0, 10.0, 12.0, 14.0, 16.0, 18.0, 20.0)
 
@@ -94,6 +103,26 @@ def search_statistics(
         res[i, :6] = st[:6]
         res[i, 6] = float(np.max(x * tables.w))
     return res
+
+
+def pair_statistics(tables: SearchTables, images: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``search_statistics`` of ``images (n, k)`` with two contacts at most, and their places.
+
+    Returns ``(raw (n, 7), positions (n, 2, 3) m)``; positions are nan where no pair was found.
+    """
+    out = np.zeros((3, N_COLS))
+    st, keep, fpos = tables.scratch[-1], tables.scratch[5], tables.arrays[7]
+    raw = np.zeros((len(images), 7))
+    pos = np.full((len(images), 2, 3), np.nan)
+    for i, x in enumerate(np.ascontiguousarray(images, dtype=np.float32)):
+        search_into(
+            x, 2, tables.arrays, tables.prm, tables.scratch, True, out, *tables.pair.kernel_args
+        )
+        raw[i, :6] = st[:6]
+        raw[i, 6] = float(np.max(x * tables.w))
+        if st[1] > 0:  # a pair was fitted (calibration mode keeps its rows whatever the rule)
+            pos[i] = fpos[keep[:2].astype(np.int64)]
+    return raw, pos
 
 
 def rule_statistics(raw: np.ndarray, misfit: float, z_power: float = 0.0) -> np.ndarray:
@@ -222,6 +251,10 @@ def calibrate_count_rule(
     folds = np.array_split(rng.permutation(n), min(n_folds, n // 2))
     min_m = 1e-3 * rule.min_separation_mm
     stats: dict[str, list[np.ndarray]] = {"mean": [], "frame": [], "pair": [], "triple": []}
+    # the two-point threshold's pairs: every separation, touch means summed (raw, places, truth)
+    tp_raw, tp_pos, tp_true = [], [], []
+    tp_rng = np.random.default_rng(random_state + 1)  # its own draws: the rule's stay the same
+    power = np.linalg.norm(np.maximum(X_means, 0.0), axis=1)
     for test in folds:
         train = np.setdiff1d(np.arange(n), test)
         amp = AmplitudeMap.fit(y[train], X_means[train], length_scale_mm, noise)
@@ -252,6 +285,19 @@ def calibrate_count_rule(
             idx = tuple(rng.choice(t, 3, replace=False))
             if _far_apart(y, idx, min_m) and len(sets["triple"]) < MAX_SETS // 4:
                 sets["triple"].append(X_means[list(idx)].sum(axis=0))
+        similar = [
+            p
+            for p in itertools.combinations(t, 2)
+            if min(power[list(p)]) > TWO_POINT_RATIO * max(power[list(p)])
+        ]
+        pick = [similar[i] for i in tp_rng.permutation(len(similar))[:TWO_POINT_SETS]]
+        if pick:
+            raw_p, pos_p = pair_statistics(
+                tables, np.stack([X_means[list(p)].sum(0) for p in pick])
+            )
+            tp_raw.append(raw_p)
+            tp_pos.append(pos_p)
+            tp_true.append(np.stack([y[list(p)] for p in pick]))
         for name, imgs in sets.items():
             if imgs:
                 k_max = 2 if name in ("mean", "frame") else 3  # singles need no third contact
@@ -278,6 +324,16 @@ def calibrate_count_rule(
         z3, tau3, det3, false3 = choose_thresholds(
             [pair[two][:, [1, 3]]], tri2[:, [1, 3]], rule.z_on, FALSE_RATE
         )
+    rule_new = replace(
+        rule,
+        tau2=tau2,
+        tau3=tau3,
+        z2_min=z2,
+        z3_min=z3,
+        misfit=misfit,
+        z_power=z_power,
+        calibrated=True,
+    )
     report = {
         "calibrated": True,
         "folds": len(folds),
@@ -290,19 +346,31 @@ def calibrate_count_rule(
         "pair_called_three": false3,
         "triple_counted_three_of_counted_two": det3,
     }
-    return (
-        replace(
-            rule,
-            tau2=tau2,
-            tau3=tau3,
-            z2_min=z2,
-            z3_min=z3,
-            misfit=misfit,
-            z_power=z_power,
-            calibrated=True,
-        ),
-        report,
+    if tp_raw:
+        report["two_point"] = two_point_threshold(
+            rule_new, np.concatenate(tp_raw), np.concatenate(tp_pos), np.concatenate(tp_true)
+        )
+    return rule_new, report
+
+
+def two_point_threshold(
+    rule: CountRule, raw: np.ndarray, positions: np.ndarray, truth: np.ndarray
+) -> dict[str, Any]:
+    """The two-point threshold (``two_point.threshold_from_pairs``) of held-out pairs.
+
+    ``raw (n, 7)`` and ``positions (n, 2, 3)`` m from ``pair_statistics``, ``truth (n, 2, 3)``
+    m the two touches' positions; counted two by ``rule``'s own thresholds.
+    """
+    S = rule_statistics(raw, rule.misfit, rule.z_power)
+    two = (S[:, 0] >= rule.tau2) & (S[:, 2] >= max(rule.z2_min, rule.z_on)) & (S[:, 4] >= rule.z_on)
+    placed = np.array(
+        [bool(c) and placed_both(p, t) for c, p, t in zip(two, positions, truth, strict=True)]
     )
+    sep = 1e3 * np.linalg.norm(truth[:, 0] - truth[:, 1], axis=1)
+    return {
+        **threshold_from_pairs(sep, two, placed),
+        "source": "held-out pairs of the calibration touches (touch means summed)",
+    }
 
 
 def fit_contact_model(
@@ -350,4 +418,6 @@ def fit_contact_model(
         )
         rule = replace(rule, landing_change=change, landing_hold=landing["hold"])
         report = {**report, "landing": landing}
-    return rmap, {**rule.as_dict(), "cv": report}
+    # the two-point threshold beside the rule (the rule's fields are the kernels' parameters)
+    two_point = report.pop("two_point", None)
+    return rmap, {**rule.as_dict(), "cv": report, "two_point": two_point}

@@ -777,6 +777,10 @@ function renderState(prev) {
   link.lost = linkLost();
   renderLink();
   markConnected();
+  if (d?.sim && !prev?.device?.sim && !$("#mouse-touch").checked) {
+    $("#mouse-touch").checked = true; // the simulated skin again: the mouse touches it
+    $("#mouse-touch").dispatchEvent(new Event("change"));
+  }
   if (!d?.sim && $("#mouse-touch").checked) {
     $("#mouse-touch").checked = false; // only the simulated skin can be touched with the mouse
     $("#mouse-touch").dispatchEvent(new Event("change"));
@@ -809,7 +813,7 @@ function renderState(prev) {
   const key = wanted ? wanted.join(",") : "";
   if (key !== app.targetKey) {
     app.targetKey = key;
-    app.viewer.setTarget(wanted, true);
+    app.viewer.setTarget(wanted, true, wanted ? g.index + 1 : null);
   }
   if (st.mode !== "live" && prev?.mode === "live") app.live.clear();
   $("#live-rate").textContent = d && !link.lost ? `${d.rate_hz.toFixed(1)} Hz` : "-";
@@ -882,10 +886,14 @@ function renderFrame(msg) {
 app.viewer = new Viewer($("#viewer"));
 app.live = new LivePage(app.viewer, { $, esc, mm, later, mode: () => app.state?.mode });
 app.viewer.onTouch = (p) => api("/api/sim/touch", { point: p }).catch(() => {});
-$("#mouse-touch").addEventListener("change", (ev) => {
-  app.viewer.touchMode = ev.target.checked;
-  $("#viewer-hint").textContent = ev.target.checked ? "press on the skin to touch it" : "drag to turn, scroll to zoom";
-});
+const touchByMouse = () => {
+  // The view's controls (view_controls.js): a drag on the skin moves the simulated finger.
+  app.viewer.touchMode = $("#mouse-touch").checked;
+  $("#viewer-hint").textContent = app.viewer.touchMode
+    ? "drag on the skin: the finger · off it or Alt+drag: turn · ? keys" : "drag to turn, scroll to zoom · ? keys";
+};
+$("#mouse-touch").addEventListener("change", touchByMouse);
+touchByMouse();
 for (const b of $$("#nav button")) b.addEventListener("click", () => showPage(b.dataset.page));
 $("#takeover").addEventListener("click", async () => {
   if (await act("/api/lease")) $("#busy").classList.add("hidden");

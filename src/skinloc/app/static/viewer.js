@@ -1,6 +1,8 @@
 // The skin in 3D: mesh, targets, touches, the live tracks and the validation error map.
 // Coordinates arrive in metres and are shown in millimetres.
 import * as THREE from "/static/vendor/three.bundle.min.js";
+import { LabelLayer } from "/static/view_labels.js";
+import { ViewControls } from "/static/view_controls.js";
 
 const MM = 1000;
 const v3 = (p) => new THREE.Vector3(p[0] * MM, p[1] * MM, p[2] * MM);
@@ -96,57 +98,6 @@ class TrackMark {
     this.line.geometry.setDrawRange(0, 0);
   }
 }
-const labelTextures = new Map();
-
-function labelTexture(text, colour) {
-  // A number drawn once on a small canvas, kept for every sprite that shows it.
-  const key = `${text}|${colour}`;
-  if (labelTextures.has(key)) return labelTextures.get(key);
-  const c = document.createElement("canvas");
-  c.width = 96;
-  c.height = 48;
-  const g = c.getContext("2d");
-  g.font = "bold 30px system-ui, sans-serif";
-  g.textAlign = "center";
-  g.textBaseline = "middle";
-  g.lineWidth = 6;
-  g.strokeStyle = "rgba(255,255,255,0.9)";
-  g.strokeText(text, 48, 25);
-  g.fillStyle = colour;
-  g.fillText(text, 48, 25);
-  const tex = new THREE.CanvasTexture(c);
-  tex.colorSpace = THREE.SRGBColorSpace;
-  labelTextures.set(key, tex);
-  return tex;
-}
-
-function wideTexture(text, colour) {
-  const key = `wide|${text}|${colour}`;
-  if (labelTextures.has(key)) return labelTextures.get(key);
-  const c = document.createElement("canvas");
-  c.width = 256;
-  c.height = 64;
-  const g = c.getContext("2d");
-  g.font = "bold 34px system-ui, sans-serif";
-  g.textAlign = "center";
-  g.textBaseline = "middle";
-  g.lineWidth = 6;
-  g.strokeStyle = "rgba(255,255,255,0.9)";
-  g.strokeText(text, 128, 33);
-  g.fillStyle = colour;
-  g.fillText(text, 128, 33);
-  const tex = new THREE.CanvasTexture(c);
-  tex.colorSpace = THREE.SRGBColorSpace;
-  labelTextures.set(key, tex);
-  return tex;
-}
-
-function niceLength(mm) {
-  // 1, 2 or 5 times a power of ten, not over mm.
-  const p = 10 ** Math.floor(Math.log10(mm));
-  return [5, 2, 1].map((k) => k * p).find((v) => v <= mm) || p;
-}
-
 export class Viewer {
   constructor(el) {
     this.el = el;
@@ -166,7 +117,7 @@ export class Viewer {
     sun.position.set(200, -300, 400);
     this.scene.add(sun);
     this.groups = {};
-    for (const name of ["skin", "axes", "planned", "done", "target", "live", "errors", "coverage"]) {
+    for (const name of ["skin", "planned", "done", "target", "live", "errors", "coverage"]) {
       this.groups[name] = new THREE.Group();
       this.scene.add(this.groups[name]);
     }
@@ -177,7 +128,11 @@ export class Viewer {
     this.onTouch = null;
     this.touchMode = false;
     this.raycaster = new THREE.Raycaster();
-    this._pointer();
+    this.labelsVersion = 0;
+    // Drawn over the view after each render: the numbers (placed on screen so that none
+    // overlaps another) and the corner inset with the axes and the scale.
+    this.labels = new LabelLayer(this);
+    this.controlsUi = new ViewControls(this);
     new ResizeObserver(() => this.resize()).observe(el);
     this.resize();
     const tick = (t) => {
@@ -213,6 +168,7 @@ export class Viewer {
 
   clear(name) {
     this.dirty = true;
+    this.labelsVersion += 1;
     const g = this.groups[name];
     while (g.children.length) {
       const c = g.children.pop();
@@ -248,43 +204,22 @@ export class Viewer {
     this.homeDir = this._outside();
     this.camera.position.copy(this.center).add(this.homeDir.clone().multiplyScalar(this.fitDistance()));
     this.controls.update();
-    this.setAxes(geo);
+    if (this.targetPoint) {
+      // A target set before its skin came: its normal now, and face it.
+      this.targetNormal = this.normalAt(this.targetPoint);
+      this.targetRing.lookAt(this.targetPoint.clone().add(this.targetNormal));
+      this.lookAt(this.targetPoint, this.targetNormal);
+    }
   }
 
-  setAxes(geo) {
-    // Axes at the skin's lowest corner, a round number of mm long, labelled: scale and frame.
-    this.clear("axes");
-    geo.computeBoundingBox();
-    const box = geo.boundingBox;
-    const size = box.getSize(new THREE.Vector3());
-    const len = niceLength(Math.max(size.x, size.y, size.z) * 0.4);
-    const origin = box.min.clone();
-    const axes = new THREE.AxesHelper(len);
-    axes.material.depthTest = false; // a scale is read, never hidden
-    axes.renderOrder = 10;
-    axes.position.copy(origin);
-    this.groups.axes.add(axes);
-    const names = [["x", "#d13b3b"], ["y", "#1e9e5a"], ["z", "#2f6fde"]];
-    names.forEach(([name, colour], k) => {
-      const end = origin.clone();
-      end.setComponent(k, end.getComponent(k) + len * 1.12);
-      this.groups.axes.add(this._label(k === 0 ? `${name}: ${len} mm` : name, colour, end, true));
-    });
-    this.axesLength = len;
-  }
-
-  _label(text, colour, at, onTop = false) {
-    // A label facing the camera, the same size on screen at any zoom (about 12 px tall);
-    // ``onTop`` ones are never hidden by the skin (the axes), the others are behind it.
-    const wide = text.length > 3;
-    const map = wide ? wideTexture(text, colour) : labelTexture(text, colour);
-    const sprite = new THREE.Sprite(new THREE.SpriteMaterial({ map, depthWrite: false, depthTest: !onTop, sizeAttenuation: false }));
-    if (onTop) sprite.renderOrder = 10;
-    const h = wide ? 0.034 : 0.026;
-    sprite.scale.set(h * (wide ? 4 : 2), h, 1);
-    if (wide) sprite.center.set(0.1, 0.5); // starts where it points (an axis end)
-    sprite.position.copy(at);
-    return sprite;
+  _label(text, at, radiusMm, priority = 1) {
+    // A number beside a dot: an empty object at the dot that the label layer (view_labels.js)
+    // projects and places on screen each frame, beside the dot and clear of the other labels.
+    const o = new THREE.Object3D();
+    o.position.copy(at);
+    o.userData.label = { text, radiusMm, priority };
+    this.labelsVersion += 1;
+    return o;
   }
 
   _dots(name, points, color, size, opacity = 1, first = null) {
@@ -298,10 +233,7 @@ export class Viewer {
       m.position.copy(p);
       m.userData.index = i;
       this.groups[name].add(m);
-      if (first != null) {
-        const out = p.clone().sub(this.center).normalize().multiplyScalar(size + 4);
-        this.groups[name].add(this._label(String(first + i), "#1d2330", p.clone().add(out)));
-      }
+      if (first != null) this.groups[name].add(this._label(String(first + i), p, size));
     }
   }
 
@@ -312,12 +244,15 @@ export class Viewer {
     this._dots("done", points, colors, 2.4, 1, 1);
   }
 
-  setTarget(point, turn = true) {
+  setTarget(point, turn = true, number = null) {
+    // The current target: a red dot and a pulsing ring, its number always shown (``number``,
+    // 1-based); ``turn`` flies the camera to face it.
     this.clear("target");
     if (!point) {
       // The last target is done: back to the whole skin.
       if (this.targetRing && turn) this.overview();
       this.targetRing = null;
+      this.targetPoint = this.targetNormal = null;
       return;
     }
     const p = v3(point);
@@ -330,7 +265,11 @@ export class Viewer {
     const n = this.normalAt(p);
     ring.lookAt(p.clone().add(n));
     this.groups.target.add(sphere, ring);
+    // Placed clear of the ring at its widest pulse (8.8 mm x 1.25).
+    if (number != null) this.groups.target.add(this._label(String(number), p, 11, 0));
     this.targetRing = ring;
+    this.targetPoint = p;
+    this.targetNormal = n;
     this.targetState = null;
     if (turn) this.lookAt(p, n);
   }
@@ -379,14 +318,35 @@ export class Viewer {
   }
 
   overview() {
-    const to = this.center.clone().add((this.homeDir || new THREE.Vector3(0, -1, 1).normalize()).clone().multiplyScalar(this.fitDistance()));
-    this.fly = { from: this.camera.position.clone(), to, t0: performance.now(), ms: 700 };
+    this.flyTo(this.homeDir || new THREE.Vector3(0, -1, 1).normalize());
   }
 
   lookAt(p, n) {
-    const dir = n.clone().multiplyScalar(1.0).add(p.clone().sub(this.center).normalize().multiplyScalar(0.6)).normalize();
-    const to = this.center.clone().add(dir.multiplyScalar(this.fitDistance()));
-    this.fly = { from: this.camera.position.clone(), to, t0: performance.now(), ms: 700 };
+    // Face-on: the camera looks along the surface normal at ``p`` (a target on the rim is seen
+    // flat, not edge-on), still at the whole skin, so it can be clicked and its neighbours seen.
+    this.flyTo(n);
+  }
+
+  flyTo(dir, ms = 700) {
+    // Turn smoothly to look at the skin's centre from ``dir``, at the distance that fits it:
+    // the direction turns on a great circle (never through the skin), the distance eases.
+    const from = this.camera.position.clone().sub(this.controls.target);
+    const to = dir.clone().normalize();
+    if (Math.abs(to.z) > 0.999) to.set(0, -0.02, Math.sign(to.z)).normalize(); // keep "up" defined
+    const toDist = this.fitDistance();
+    // No view yet (the camera at its centre, before the mesh came): start where it goes.
+    const fresh = from.length() < 1e-6;
+    this.fly = {
+      fromDir: fresh ? to.clone() : from.clone().normalize(), fromDist: fresh ? toDist : from.length(), toDir: to, toDist,
+      fromTarget: this.controls.target.clone(), t0: performance.now(), ms,
+    };
+    this.fly.turn = new THREE.Quaternion().setFromUnitVectors(this.fly.fromDir, to);
+    this.dirty = true;
+  }
+
+  viewDirection() {
+    // Unit vector from the orbit centre to the camera.
+    return this.camera.position.clone().sub(this.controls.target).normalize();
   }
 
   // Live tracks: each contact's track has a mark (dot, uncertainty halo, trail) in its own
@@ -465,8 +425,7 @@ export class Viewer {
       const m = new THREE.Mesh(geo, new THREE.MeshStandardMaterial({ color: errorColor(errors[i]) }));
       m.position.copy(v3(targets[i]));
       this.groups.errors.add(m);
-      const out = v3(targets[i]).sub(this.center).normalize().multiplyScalar(7);
-      this.groups.errors.add(this._label(String(i + 1), "#1d2330", v3(targets[i]).add(out)));
+      this.groups.errors.add(this._label(String(i + 1), v3(targets[i]), 2.6));
       pts.push(v3(targets[i]), v3(predicted[i]));
       const x = new THREE.Mesh(new THREE.SphereGeometry(1.3, 10, 8), new THREE.MeshBasicMaterial({ color: 0x333333 }));
       x.position.copy(v3(predicted[i]));
@@ -480,34 +439,16 @@ export class Viewer {
 
   show(names) {
     this.dirty = true;
-    for (const [k, g] of Object.entries(this.groups)) g.visible = k === "skin" || k === "axes" || names.includes(k);
+    for (const [k, g] of Object.entries(this.groups)) g.visible = k === "skin" || names.includes(k);
   }
 
-  _pointer() {
-    const el = this.renderer.domElement;
-    const hit = (ev) => {
-      const r = el.getBoundingClientRect();
-      const ndc = new THREE.Vector2(((ev.clientX - r.left) / r.width) * 2 - 1, -((ev.clientY - r.top) / r.height) * 2 + 1);
-      this.raycaster.setFromCamera(ndc, this.camera);
-      const hits = this.skin ? this.raycaster.intersectObject(this.skin) : [];
-      return hits.length ? hits[0].point : null;
-    };
-    el.addEventListener("pointerdown", (ev) => {
-      if (!this.touchMode || !this.onTouch || ev.button !== 0) return;
-      const p = hit(ev);
-      if (!p) return;
-      this.controls.enabled = false;
-      this.touching = true;
-      this.onTouch([p.x / MM, p.y / MM, p.z / MM]);
-    });
-    const up = () => {
-      if (!this.touching) return;
-      this.touching = false;
-      this.controls.enabled = true;
-      this.onTouch(null);
-    };
-    el.addEventListener("pointerup", up);
-    el.addEventListener("pointerleave", up);
+  hit(clientX, clientY) {
+    // The skin's point under a point of the page (mm, world), or null.
+    const r = this.renderer.domElement.getBoundingClientRect();
+    const ndc = new THREE.Vector2(((clientX - r.left) / r.width) * 2 - 1, -((clientY - r.top) / r.height) * 2 + 1);
+    this.raycaster.setFromCamera(ndc, this.camera);
+    const hits = this.skin ? this.raycaster.intersectObject(this.skin) : [];
+    return hits.length ? hits[0].point.clone() : null;
   }
 
   _animate(t) {
@@ -518,10 +459,13 @@ export class Viewer {
       this.dirty = true;
     }
     if (this.fly) {
-      const k = Math.min(1, (t - this.fly.t0) / this.fly.ms);
+      const f = this.fly;
+      const k = Math.min(1, (t - f.t0) / f.ms);
       const e = k * k * (3 - 2 * k);
-      this.camera.position.lerpVectors(this.fly.from, this.fly.to, e);
-      this.controls.target.copy(this.center);
+      const dir = f.fromDir.clone().applyQuaternion(new THREE.Quaternion().slerp(f.turn, e));
+      const target = f.fromTarget.clone().lerp(this.center, e);
+      this.controls.target.copy(target);
+      this.camera.position.copy(target).add(dir.multiplyScalar(f.fromDist + (f.toDist - f.fromDist) * e));
       this.dirty = true;
       if (k >= 1) this.fly = null;
     }
@@ -529,5 +473,7 @@ export class Viewer {
     if (!this.dirty) return;
     this.dirty = false;
     this.renderer.render(this.scene, this.camera);
+    this.controlsUi.render();
+    this.labels.render();
   }
 }

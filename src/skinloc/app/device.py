@@ -62,6 +62,12 @@ class SensorMonitor:
         self.session_noise: np.ndarray | None = None
         self.session_map_key: Any = None
 
+    def quiet_frames(self) -> np.ndarray:
+        """The last untouched frames ``(m, n_tx * n_rx)`` raw counts (m: up to ``window``)."""
+        if not self._frames:
+            return np.zeros((0, self.n_tx * self.n_rx))
+        return np.stack(list(self._frames))
+
     def rezero(self) -> None:
         """Measure the zero level again from the next 30 frames."""
         self.zero, self._zero_frames = None, []

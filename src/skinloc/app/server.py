@@ -29,7 +29,17 @@ from starlette.types import Scope
 
 from skinloc.app.guard import RequestGuard, own_origins
 from skinloc.app.hub import Hub
-from skinloc.app.routes import capture, device, meshes, pages, sessions, stream
+from skinloc.app.routes import (
+    capture,
+    device,
+    export,
+    meshes,
+    pages,
+    record,
+    sessions,
+    stream,
+    traces,
+)
 from skinloc.app.store import SessionBusyError
 from skinloc.app.workspace import AppConfig, BusyError, Workspace
 from skinloc.errors import SkinlocError
@@ -127,6 +137,9 @@ def create_app(
     sessions.add_routes(app, workspace)
     meshes.add_routes(app, workspace)
     capture.add_routes(app, workspace)
+    export.add_routes(app, workspace)
+    record.add_routes(app, workspace)
+    traces.add_routes(app, workspace)
     stream.add_routes(app, workspace, hub, token, accepted_origins)
     return app
 

@@ -66,3 +66,9 @@ class TrainBody(BaseModel):
     """``POST /api/train``: touches (0-based) left out of the model."""
 
     exclude: list[Annotated[int, Field(ge=0)]] = Field(default_factory=list, max_length=10_000)
+
+
+class RecordBody(BaseModel):
+    """``POST /api/record/start``: the file's format."""
+
+    format: Literal["h5", "mcap"] = "h5"

@@ -2,6 +2,10 @@
 import { Viewer, COVERAGE_STOPS } from "/static/viewer.js";
 import { LivePage } from "/static/live.js";
 import { drawHeat } from "/static/heatmap.js";
+import { ExportPage } from "/static/export.js";
+import { RecordPanel } from "/static/record.js";
+import { TrainEvidence } from "/static/evidence.js";
+import { LivePlot, SensorTrace, TouchView } from "/static/traces.js";
 
 const $ = (sel, root = document) => root.querySelector(sel);
 const $$ = (sel, root = document) => [...root.querySelectorAll(sel)];
@@ -133,7 +137,7 @@ const handlers = {
     renderTraining(msg);
     if (app.coverageOn && msg && !msg.running && msg.result) toggleCoverage(true); // a new model
   },
-  live(msg) { app.live.contacts(msg); },
+  live(msg) { app.live.contacts(msg); app.plot.add(msg); },
   gesture(msg) { app.live.gesture(msg); },
 };
 
@@ -263,6 +267,8 @@ function showPage(page) {
   }
   if (page === "sessions") loadSessions();
   if (page === "connect") loadPorts();
+  if (page === "export") app.exporter.refresh();
+  app.evidence.setVisible(page === "train");
   // What the message line said belongs to the page it was said on, not the next one.
   app.dismissed = app.state?.message ?? "";
   showMessage("");
@@ -698,6 +704,8 @@ $("#train-btn").addEventListener("click", () => act("/api/train", { exclude: lef
 function renderTraining(t) {
   t = t || app.state?.training;
   const bar = $("#train-bar");
+  // Each touch's error on the skin: the session's result, none while training runs.
+  app.evidence.update(t?.running ? null : app.state?.session?.holdout, app.session?.calibration?.done);
   renderGate();
   if (t && t.session && t.session !== app.state?.session?.id) t = null; // another session's
   if (!t) {
@@ -733,7 +741,7 @@ function resultHtml(h) {
   return `<div class="result">${fmtErr(h)}</div>
     <div class="hint">error on ${h.n_test} held-out touches (median ${h.median_mm.toFixed(1)} mm, p95 ${h.p95_mm.toFixed(1)} mm);
     the final model learnt from all ${h.n_point_logs} touches it was given${h.train_s != null ? ` in ${h.train_s} s` : ""}.</div>
-    <p class="train-inputs">${inputs}${kept}</p>${influenceHtml(h)}
+    <p class="train-inputs">${inputs}${kept}</p>${influenceHtml(h)}${app.evidence.html(h)}
     <p class="hint next-hint">Next: <b>Validate</b> on fresh touches, or try it on <b>Live</b>.</p>`;
 }
 // Which touch hurts the held-out error most (skinloc.evaluation.influence): the fall of the
@@ -757,6 +765,7 @@ function influenceHtml(h) {
 // ------------------------------------------------------------------ live page
 $("#live-start").addEventListener("click", () => {
   app.live.clear(true);
+  app.plot.clear();
   act("/api/live/start");
 });
 $("#live-stop").addEventListener("click", () => act("/api/capture/stop"));
@@ -808,6 +817,10 @@ function renderState(prev) {
   if (app.page === "calibrate") renderGuided("calibrate");
   if (app.page === "validate") renderGuided("validate");
   if (app.page === "train") renderTraining(st.training);
+  const exportKey = (x) => `${x?.session?.id}:${x?.session?.has_model}:${x?.session?.validation?.n_attempts}:${x?.mode}`;
+  if (app.page === "export" && exportKey(st) !== exportKey(prev)) app.exporter.refresh();
+  // A recording started or ended (here, in another tab, or by a disconnect): its state.
+  if (!!st.recording !== !!prev?.recording) app.record.poll();
   const g = st.guided;
   const wanted = g?.target ?? null;
   const key = wanted ? wanted.join(",") : "";
@@ -841,6 +854,8 @@ function renderSession() {
     v.show(["errors", "planned", "target", ...(app.coverageOn ? ["coverage"] : [])]);
   } else if (page === "live") {
     v.show(["live"]);
+  } else if (page === "train") {
+    v.show([]); // the touches' errors only (evidence.js)
   } else if (s.calibration.error) {
     showMessage(s.calibration.error, true);
   } else {
@@ -885,6 +900,12 @@ function renderFrame(msg) {
 // ------------------------------------------------------------------ start
 app.viewer = new Viewer($("#viewer"));
 app.live = new LivePage(app.viewer, { $, esc, mm, later, mode: () => app.state?.mode });
+app.exporter = new ExportPage($("#export-card"), { viewer: app.viewer, esc, sessionId: () => app.state?.session?.id });
+app.evidence = new TrainEvidence(app.viewer);
+app.sensorTrace = new SensorTrace();
+app.plot = new LivePlot($("#heat-live"));
+app.touchView = new TouchView({ esc });
+app.record = new RecordPanel($("#record-panel"), { act, esc });
 app.viewer.onTouch = (p) => api("/api/sim/touch", { point: p }).catch(() => {});
 const touchByMouse = () => {
   // The view's controls (view_controls.js): a drag on the skin moves the simulated finger.

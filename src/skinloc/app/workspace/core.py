@@ -23,12 +23,15 @@ from skinloc.app.device import DeviceLink
 from skinloc.app.hub import Hub
 from skinloc.app.live_io import TabSink
 from skinloc.app.store import SessionStore
+from skinloc.app.workspace.export import ExportFiles
 from skinloc.app.workspace.finger import FingerActions
 from skinloc.app.workspace.guided import GuidedCapture
 from skinloc.app.workspace.link import LinkActions
 from skinloc.app.workspace.live import LiveView
+from skinloc.app.workspace.record import LiveRecording, RecordTee
 from skinloc.app.workspace.sessions import SessionActions
 from skinloc.app.workspace.state import ActiveSession, AppConfig, BusyError, Mode
+from skinloc.app.workspace.traces import TraceViews
 from skinloc.app.workspace.training import TrainingJobs
 from skinloc.app.workspace.validation import ValidationActions
 from skinloc.calibration.session import TouchDetector
@@ -45,6 +48,9 @@ class Workspace(
     ValidationActions,
     TrainingJobs,
     LiveView,
+    ExportFiles,
+    LiveRecording,
+    TraceViews,
 ):
     """Everything one app process knows and does.
 
@@ -79,6 +85,7 @@ class Workspace(
         self.training: dict[str, Any] | None = None
         self.message = ""
         self.live_sink = TabSink(hub)
+        self.record_tee = RecordTee()
 
     def require(self, client: str | None) -> None:
         """Give ``client`` control if nobody has it; raise ``BusyError`` if another tab has."""
@@ -154,6 +161,7 @@ class Workspace(
                     "mesh": a.info.get("mesh"),
                 },
                 "guided": guided,
+                "recording": None if self.recorder is None else self.recorder.status(),
                 "training": self._session_training(),
                 "data_dir": str(self.store.root),
                 "default_mesh": self.config.mesh_name,

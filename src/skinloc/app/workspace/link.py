@@ -52,6 +52,7 @@ class LinkActions:
         """Forget the device (its reader keeps running until ``_stop_device``)."""
         device, self.device = self.device, None
         if device is not None:
+            self._stop_recording()  # the file ends here, with every frame so far
             self._stop_using_frames()
             self.mode = Mode.IDLE
             device.detached = True
@@ -117,6 +118,8 @@ class LinkActions:
                 event = self._guided_frame(frame, now)
             elif mode is Mode.LIVE:
                 self._live_frame(frame)
+            self.record_frame(frame)
+            self.keep_recent(frame)
             if now - self._last_push >= 1.0 / self.config.frame_push_hz or event:
                 self._last_push = now
                 self._push_frame(frame)
@@ -158,16 +161,23 @@ class LinkActions:
             "frame_age_s": round(device.frame_age_s, 2),
         }
 
+    def _reference(self) -> np.ndarray | None:
+        """The no-touch level the heat maps show counts above, ``(n_sensors,)`` counts.
+
+        The live view's baseline while it runs, the guided capture's during one, else the
+        monitor's zero level; None before one is known.
+        """
+        if self.mode is Mode.LIVE and self._live_base is not None:
+            return self._live_base
+        if self.detector is not None and self.mode in (Mode.CALIBRATE, Mode.VALIDATE):
+            return self.detector.baseline
+        return None if self.device is None else self.device.monitor.zero
+
     def _push_frame(self, frame: Frame) -> None:
         device = self.device
         if device is None:
             return
-        if self.mode is Mode.LIVE and self._live_base is not None:
-            ref = self._live_base
-        elif self.detector is not None and self.mode in (Mode.CALIBRATE, Mode.VALIDATE):
-            ref = self.detector.baseline
-        else:
-            ref = device.monitor.zero
+        ref = self._reference()
         delta = None if ref is None else np.round(frame.values - ref, 1)
         msg: dict[str, Any] = {
             "type": "frame",

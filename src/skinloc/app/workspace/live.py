@@ -79,7 +79,12 @@ class LiveView:
         if cached is None or cached[0] is not model:
             cached = self._live_engine = (model, load_engine(model))
         return Pipeline(
-            cached[1], queue, sinks=[self.live_sink], name="skin", n_tx=queue.n_tx, n_rx=queue.n_rx
+            cached[1],
+            queue,
+            sinks=[self.live_sink, self.record_tee],
+            name="skin",
+            n_tx=queue.n_tx,
+            n_rx=queue.n_rx,
         )
 
     def _live_frame(self, frame: Frame) -> None:

@@ -171,6 +171,7 @@ class SessionActions:
             self._publish_state()
 
     def _close_session(self) -> None:
+        self._stop_recording()  # it is written into the session's folder
         self._stop_using_frames()
         self.mode = Mode.IDLE
         # The scripted finger is switched on for one session: the next one must not start

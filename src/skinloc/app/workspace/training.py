@@ -154,6 +154,15 @@ class TrainingJobs:
                 for s in influence["suspects"]:  # the session's numbering, not the subset's
                     s["index"] = int(kept[s["index"]])
             holdout["influence"] = influence
+            # Each touch's error predicted by a model that did not see it, for the Train page's
+            # map and histogram: all of them when the cross-validation ran, else the held-out.
+            if influence is not None:
+                how = f"{influence['n_folds']}-fold cross-validation"
+                touched, errs = kept.tolist(), influence["cv_errors_mm"]
+            else:
+                how = "held out"
+                touched, errs = kept[test].tolist(), np.round(ev.errors_mm, 2).tolist()
+            holdout["touch_errors"] = {"how": how, "index": touched, "error_mm": errs}
             holdout["train_s"] = round(time.perf_counter() - t0, 2)
             model.save(a.folder.model, extra_meta={"holdout": holdout, "session": session})
         except Exception as exc:  # reported to the tabs; the session itself is untouched

@@ -121,6 +121,13 @@ class Ros2BagSink(Ros2Topics):
             sequence=sequence,
         )
 
+    @property
+    def n_bytes(self) -> int:
+        """Bytes written so far (the file's size once closed; 0 before ``open``)."""
+        if self._fh is not None:
+            return self._fh.tell()
+        return self.path.stat().st_size if self.path.is_file() else 0
+
     def close(self) -> None:
         """Finish the file and give it its name."""
         if self._writer is None:

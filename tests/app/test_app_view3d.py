@@ -189,6 +189,12 @@ def test_the_3d_view_is_readable_at_1440_and_800(chromium, server):  # noqa: F81
         page.wait_for_function(SETTLED)
         page.keyboard.press("t")
         boxes = _assert_readable(page, "800 x 900")
+        # The whole skin in the narrower view: the camera at the distance that fits it.
+        fit = page.evaluate(
+            "() => { const v = window.skinloc.viewer;"
+            " return v.camera.position.distanceTo(v.controls.target) / v.fitDistance(); }"
+        )
+        assert fit == pytest.approx(1.0, abs=0.02), fit
         t = next(b for b in boxes if b["target"])
         assert 0 <= t["x"] and t["x"] + t["w"] <= 800 and 0 <= t["y"] and t["y"] + t["h"] <= 900
         panel = '.guided[data-kind="calibrate"]'

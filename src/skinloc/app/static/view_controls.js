@@ -170,6 +170,8 @@ export class ViewControls {
 
   toggleHelp(on = this.help.classList.contains("hidden")) {
     this.help.classList.toggle("hidden", !on);
+    // The keys drive the view and the capture, not a toolbar button left with the focus.
+    if (this.toolbar.contains(document.activeElement)) document.activeElement.blur();
   }
 
   _key(ev) {

@@ -337,7 +337,7 @@ export class Viewer {
     // No view yet (the camera at its centre, before the mesh came): start where it goes.
     const fresh = from.length() < 1e-6;
     this.fly = {
-      fromDir: fresh ? to.clone() : from.clone().normalize(), fromDist: fresh ? toDist : from.length(), toDir: to, toDist,
+      fromDir: fresh ? to.clone() : from.clone().normalize(), fromDist: fresh ? toDist : from.length(), toDir: to,
       fromTarget: this.controls.target.clone(), t0: performance.now(), ms,
     };
     this.fly.turn = new THREE.Quaternion().setFromUnitVectors(this.fly.fromDir, to);
@@ -465,7 +465,9 @@ export class Viewer {
       const dir = f.fromDir.clone().applyQuaternion(new THREE.Quaternion().slerp(f.turn, e));
       const target = f.fromTarget.clone().lerp(this.center, e);
       this.controls.target.copy(target);
-      this.camera.position.copy(target).add(dir.multiplyScalar(f.fromDist + (f.toDist - f.fromDist) * e));
+      // The distance that fits now: the view may be resized during the flight.
+      const toDist = this.fitDistance();
+      this.camera.position.copy(target).add(dir.multiplyScalar(f.fromDist + (toDist - f.fromDist) * e));
       this.dirty = true;
       if (k >= 1) this.fly = null;
     }

@@ -17,12 +17,17 @@ pytest.importorskip("uvicorn")
 from skinloc.data.recording import read_recording  # noqa: E402
 from skinloc.models.localizer import ContactLocalizer  # noqa: E402
 from skinloc.sources.base import SourceOptions  # noqa: E402
+from tests._helpers import wait_until  # noqa: E402
 from tests.app import test_app_browser as base  # noqa: E402
-from tests.app.test_app_browser import CHROMIUM_ARGS, _calibrate, _wait, watch  # noqa: E402
+from tests.app.test_app_browser import CHROMIUM_ARGS, watch  # noqa: E402
 
 # The fixtures of the whole-session test: the app on a free port, the Chromium binary.
 server = base.server
 chromium = base.chromium
+
+
+def _wait(check, what: str, timeout_s: float = 180.0) -> None:
+    wait_until(check, what, timeout_s, interval_s=0.05)
 
 
 def _prepared(app, n_points: int = 6, n_validation: int = 3):
@@ -30,7 +35,9 @@ def _prepared(app, n_points: int = 6, n_validation: int = 3):
     ws = app.state.workspace
     ws.connect(SourceOptions(source="sim", rate_hz=400.0, seed=3))
     ws.create_session("extra", n_points=n_points, samples=10, baseline_frames=20)
-    _calibrate(ws)
+    ws.set_finger(True)
+    ws.start_calibration()
+    _wait(lambda: ws.message == "calibration complete", "calibration")
     ws.train()
     _wait(lambda: ws.training and not ws.training.get("running"), "training", 300)
     assert ws.active.model is not None, ws.training
@@ -80,11 +87,26 @@ def test_export_downloads_every_file_and_view(chromium, server, tmp_path):
         png = _download(page, lambda: page.click(".viewer-export [data-fmt=png]"), got)
         assert png.read_bytes().startswith(b"\x89PNG\r\n\x1a\n") and png.stat().st_size > 5000
 
+        # Record 10 s of the live stream, a touch in it, from the Live page.
+        page.click("#nav button[data-page=live]")
+        page.click("#live-start")
+        page.wait_for_function("() => window.skinloc.state && window.skinloc.state.mode === 'live'")
+        page.locator("#record-panel .rec-start").click()
+        _wait(lambda: ws.recorder is not None and ws.recorder.t_last > 2, "2 s recorded")
+        ws.sim_touch(ws.active.targets[0].tolist())
+        _wait(lambda: ws.recorder.n_contacts > 20, "contacts recorded")
+        ws.sim_touch(None)
+        _wait(lambda: ws.recorder.t_last >= 10, "10 s recorded")
+        page.locator("#record-panel .rec-stop").click()
+        expect(page.locator("#record-panel .rec-state a")).to_contain_text("live-")
+
         page.click("#nav button[data-page=export]")
         card = page.locator("#export-card")
-        expect(card.locator(".export-files tbody")).to_contain_text("model.h5")
+        expect(card.locator(".export-files tbody")).to_contain_text("live-")
         names = card.locator(".export-files tbody a").all_inner_texts()
         assert {"calibration.h5", "validation.h5", "model.h5"} <= set(names)
+        live = [n for n in names if n.startswith("live-")]
+        assert len(live) == 1 and live[0].endswith(".h5")
         files = {}
         for name in names:
             link = card.locator(".export-files tbody a", has_text=name)
@@ -93,6 +115,13 @@ def test_export_downloads_every_file_and_view(chromium, server, tmp_path):
         cal = read_recording(files["calibration.h5"])
         assert cal.n_point_logs == 6
         assert read_recording(files["validation.h5"]).n_point_logs == 3
+        from skinloc.app.workspace.record import read_live_events
+        from skinloc.sources.replay import stream_summary
+
+        stream = stream_summary(files[live[0]])
+        assert stream["stream_seconds"] >= 9.9, stream
+        assert stream["stream_frames"] == ws.last_recording["frames"]  # every frame received
+        assert len(read_live_events(files[live[0]])["contacts"]) > 20
         model = ContactLocalizer.load(files["model.h5"])
         assert np.all(np.isfinite(model.predict(cal.touch_means)))
 
@@ -281,5 +310,60 @@ def test_traces_of_a_sensor_a_live_track_and_a_touch(chromium, server):
         page.set_viewport_size({"width": 800, "height": 900})
         assert page.evaluate("document.documentElement.scrollWidth") <= 800
         page.screenshot(path=str(base.ARTIFACTS / "narrow-live-plot.png"))
+        browser.close()
+    assert not errors, f"the page logged errors: {errors}"
+
+
+def test_live_settings_are_saved_to_the_skins_file_and_latency_is_shown(chromium, server):
+    from skinloc.live.skins_file import load_skins
+
+    url, app = server
+    sync_api.expect.set_options(timeout=60_000)
+    expect = sync_api.expect
+    ws = _prepared(app, n_validation=0)
+    errors: list[str] = []
+    with sync_api.sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
+        page = browser.new_page(viewport={"width": 1440, "height": 900})
+        watch(page, errors)
+        page.goto(url)
+        page.click("#nav button[data-page=live]")
+        page.click("#live-start")
+        page.wait_for_function("() => window.skinloc.state && window.skinloc.state.mode === 'live'")
+        panel = page.locator(".live-settings")
+        panel.locator("summary").click()
+        expect(panel.locator(".settings-where")).to_contain_text("the defaults", ignore_case=True)
+        expect(panel.locator("#set-touch_on_z")).to_have_value("8")
+        panel.locator("#set-touch_on_z").fill("9.5")
+        panel.locator("#set-filter").select_option("none")
+        panel.locator("#set-gestures").uncheck()
+        old = ws._live_pipeline
+        panel.locator(".settings-save").click()
+        expect(panel.locator(".settings-where")).to_contain_text("skinloc run --config")
+        expect(panel).to_contain_text("(default 8)")
+        skins, _ = load_skins(ws.active.folder.path / "skins.toml")
+        cfg = skins[0].config
+        assert (cfg.touch_on_z, cfg.filter, cfg.gestures) == (9.5, "none", False)
+        _wait(lambda: ws._live_pipeline is not None and ws._live_pipeline is not old, "live again")
+        page.wait_for_function("() => window.skinloc.state.mode === 'live'")
+        # A touch: the latency of its contacts is shown.
+        ws.sim_touch(ws.active.targets[0].tolist())
+        page.wait_for_function(
+            "() => Number(document.querySelector('#live-latency').dataset.n) > 10"
+        )
+        assert page.locator("#live-latency").inner_text().endswith("ms)")
+        ws.sim_touch(None)
+        base.ARTIFACTS.mkdir(parents=True, exist_ok=True)
+        side = page.locator("#page-live .card.side")
+        side.screenshot(path=str(base.ARTIFACTS / "06d-live-settings.png"))
+        page.set_viewport_size({"width": 800, "height": 900})
+        assert page.evaluate("document.documentElement.scrollWidth") <= 800
+        panel.locator("summary").scroll_into_view_if_needed()
+        page.screenshot(path=str(base.ARTIFACTS / "narrow-live-settings.png"))
+        # Back to the defaults.
+        page.set_viewport_size({"width": 1440, "height": 900})
+        panel.locator(".settings-defaults").click()
+        expect(panel.locator("#set-touch_on_z")).to_have_value("8")
+        assert load_skins(ws.active.folder.path / "skins.toml")[0][0].config.filter == "one-euro"
         browser.close()
     assert not errors, f"the page logged errors: {errors}"

@@ -229,3 +229,51 @@ def test_every_way_out_finishes_the_file(tmp_path, how, fmt):
         assert len(frames) > 50
     else:
         assert mcap_counts(path)["/skinloc/skin/frames"] > 50
+
+
+def test_the_file_being_written_is_not_offered_but_an_unfinished_one_is(tmp_path):
+    import shutil
+
+    with _client(tmp_path) as client:
+        sid = client.post("/api/sessions", json={"n_points": 3}).json()["id"]
+        _quiet(client)
+        name = client.post("/api/record/start", json={"format": "h5"}).json()["name"]
+        _wait(lambda: client.get("/api/record").json()["frames"] > 50, "frames recorded")
+        listed = {f["name"] for f in client.get("/api/export").json()["files"]}
+        assert not any(n.startswith("live-") for n in listed), listed
+        client.post("/api/record/stop")
+        # What a crash leaves: the side file of an HDF5 recording, frames flushed so far.
+        left = tmp_path / sid / "live-20260101-000000.partial.h5"
+        shutil.copy(tmp_path / sid / name, left)
+        files = {f["name"]: f["kind"] for f in client.get("/api/export").json()["files"]}
+        assert files[name] == "live recording" and "unfinished" in files[left.name]
+        r = client.get(f"/api/export/files/{left.name}")
+        assert r.status_code == 200 and r.content == left.read_bytes()
+        assert len(read_stream(left)[0]) > 50
+
+
+def test_a_full_disk_ends_the_recording_with_what_it_holds(tmp_path, monkeypatch):
+    import errno
+
+    from skinloc.data.appender import StreamAppender
+
+    real_append = StreamAppender.append
+    calls = {"n": 0}
+
+    def append(self, *args, **kw):
+        calls["n"] += 1
+        if calls["n"] > 2:  # the third flush meets a full disk
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real_append(self, *args, **kw)
+
+    monkeypatch.setattr(StreamAppender, "append", append)
+    with _client(tmp_path) as client:
+        sid = client.post("/api/sessions", json={"n_points": 3}).json()["id"]
+        _quiet(client)
+        name = client.post("/api/record/start", json={"format": "h5"}).json()["name"]
+        _wait(lambda: not client.get("/api/record").json()["running"], "the recording to stop")
+        state = client.get("/api/state").json()
+        assert state["recording"] is None
+        assert state["message"].startswith("recording stopped:") and "space" in state["message"]
+        frames, _, _ = read_stream(tmp_path / sid / name)
+        assert len(frames) > 0  # the two flushes before the disk filled

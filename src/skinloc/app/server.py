@@ -37,6 +37,7 @@ from skinloc.app.routes import (
     pages,
     record,
     sessions,
+    settings,
     stream,
     traces,
 )
@@ -140,6 +141,7 @@ def create_app(
     export.add_routes(app, workspace)
     record.add_routes(app, workspace)
     traces.add_routes(app, workspace)
+    settings.add_routes(app, workspace)
     stream.add_routes(app, workspace, hub, token, accepted_origins)
     return app
 

@@ -72,3 +72,9 @@ class RecordBody(BaseModel):
     """``POST /api/record/start``: the file's format."""
 
     format: Literal["h5", "mcap"] = "h5"
+
+
+class SettingsBody(BaseModel):
+    """``POST /api/live/settings``: the live pipeline's settings to change, by name."""
+
+    values: dict[str, bool | int | float | str] = Field(max_length=50)

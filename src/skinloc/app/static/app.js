@@ -6,6 +6,7 @@ import { ExportPage } from "/static/export.js";
 import { RecordPanel } from "/static/record.js";
 import { TrainEvidence } from "/static/evidence.js";
 import { LivePlot, SensorTrace, TouchView } from "/static/traces.js";
+import { LiveSettings } from "/static/settings.js";
 
 const $ = (sel, root = document) => root.querySelector(sel);
 const $$ = (sel, root = document) => [...root.querySelectorAll(sel)];
@@ -137,7 +138,7 @@ const handlers = {
     renderTraining(msg);
     if (app.coverageOn && msg && !msg.running && msg.result) toggleCoverage(true); // a new model
   },
-  live(msg) { app.live.contacts(msg); app.plot.add(msg); },
+  live(msg) { app.live.contacts(msg); app.plot.add(msg); app.settings.add(msg); },
   gesture(msg) { app.live.gesture(msg); },
 };
 
@@ -809,6 +810,7 @@ function renderState(prev) {
       app.viewer.clear("coverage");
     }
     app.live.clear(true);
+    if (app.settings.el.open) app.settings.load();
   }
   if (st.session?.id !== prev?.session?.id || st.mode !== prev?.mode || st.guided?.index !== prev?.guided?.index) {
     refreshSession();
@@ -905,6 +907,7 @@ app.evidence = new TrainEvidence(app.viewer);
 app.sensorTrace = new SensorTrace();
 app.plot = new LivePlot($("#heat-live"));
 app.touchView = new TouchView({ esc });
+app.settings = new LiveSettings($("#record-panel"), $("#live-rate").closest("table"), { act, esc });
 app.record = new RecordPanel($("#record-panel"), { act, esc });
 app.viewer.onTouch = (p) => api("/api/sim/touch", { point: p }).catch(() => {});
 const touchByMouse = () => {

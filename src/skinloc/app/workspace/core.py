@@ -30,6 +30,7 @@ from skinloc.app.workspace.link import LinkActions
 from skinloc.app.workspace.live import LiveView
 from skinloc.app.workspace.record import LiveRecording, RecordTee
 from skinloc.app.workspace.sessions import SessionActions
+from skinloc.app.workspace.settings import LiveSettings
 from skinloc.app.workspace.state import ActiveSession, AppConfig, BusyError, Mode
 from skinloc.app.workspace.traces import TraceViews
 from skinloc.app.workspace.training import TrainingJobs
@@ -51,6 +52,7 @@ class Workspace(
     ExportFiles,
     LiveRecording,
     TraceViews,
+    LiveSettings,
 ):
     """Everything one app process knows and does.
 

@@ -32,6 +32,11 @@ EXPORTABLE: tuple[tuple[re.Pattern[str], str], ...] = (
     (re.compile(r"history\.h5"), "touches taken back and replaced baselines"),
     (re.compile(r"model\.h5"), "trained model"),
     (re.compile(r"live-[0-9]{8}-[0-9]{6}(-[0-9]+)?\.(h5|mcap)"), "live recording"),
+    # what an HDF5 live recording holds when the app stopped without finishing it (a crash)
+    (
+        re.compile(r"live-[0-9]{8}-[0-9]{6}(-[0-9]+)?\.partial(-[0-9]+)?\.h5"),
+        "live recording, unfinished (the app stopped during it)",
+    ),
 )
 
 #: Column names of ``validation_csv`` (positions and errors in mm).
@@ -114,9 +119,11 @@ class ExportFiles:
         with self._lock:
             a = self._need_session()
             files = []
+            recorder = getattr(self, "recorder", None)
+            writing = None if recorder is None else recorder.side  # not until it is finished
             for p in sorted(a.folder.path.iterdir()):
                 kind = _kind(p.name)
-                if kind is None or p.is_symlink() or not p.is_file():
+                if kind is None or p.is_symlink() or not p.is_file() or p == writing:
                     continue
                 files.append({"name": p.name, "kind": kind, "bytes": p.stat().st_size})
             rec = self._validation_recording(a)

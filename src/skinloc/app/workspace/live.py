@@ -82,6 +82,7 @@ class LiveView:
             cached[1],
             queue,
             sinks=[self.live_sink, self.record_tee],
+            config=self._live_config(),  # the session's skins file (workspace.settings)
             name="skin",
             n_tx=queue.n_tx,
             n_rx=queue.n_rx,

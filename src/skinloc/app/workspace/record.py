@@ -320,6 +320,7 @@ class LiveRecording:
         except OSError as exc:  # a full disk: end the file with what it holds
             log.warning("recording stopped: %s", exc)
             self._stop_recording(f"recording stopped: {exc}")
+            self._publish_state()
 
     def recording_status(self) -> dict[str, Any]:
         """The recording running (size, duration, counts), or the last one made."""

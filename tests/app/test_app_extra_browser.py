@@ -83,7 +83,7 @@ def test_export_downloads_every_file_and_view(chromium, server, tmp_path):
         assert svg.name == f"{sid}-3d-view.svg"
         assert text.startswith("<svg") and text.rstrip().endswith("</svg>")
         assert text.count("<path") > 100  # the skin's triangles
-        assert text.count("<circle") >= 3  # the validation targets at least
+        assert text.count("<circle") >= 1  # the dots in sight (the skin hides the rest)
         png = _download(page, lambda: page.click(".viewer-export [data-fmt=png]"), got)
         assert png.read_bytes().startswith(b"\x89PNG\r\n\x1a\n") and png.stat().st_size > 5000
 

@@ -291,3 +291,65 @@ def test_dragging_on_the_skin_moves_the_simulated_finger(chromium, server):  # n
         assert np.allclose(pressed[n], at[2:], atol=1e-5), (pressed[n], at[2:])
         browser.close()
     assert not errors, f"the page logged errors: {errors}"
+
+
+def test_a_mouse_drag_on_the_live_page_is_tracked(chromium, server):  # noqa: F811
+    """Trails and tracking without hardware: a mouse drag across the simulated skin on the Live
+    page is followed by the live pipeline, its track's trail running along the drag. (Whether a
+    stroke is also a swipe depends on its speed, which a loaded machine does not keep.)"""
+    url, app = server
+    ws = app.state.workspace
+    from skinloc.sources.base import SourceOptions
+    from tests.app.test_app_browser import _calibrate
+
+    ws.connect(SourceOptions(source="sim", seed=0))
+    # Enough targets for a model whose points follow the finger steadily (~10 mm).
+    ws.create_session("drag", n_points=24, samples=10, baseline_frames=20)
+    _calibrate(ws)
+    ws.set_finger(False)
+    ws.train()
+    _wait(lambda: ws.training and not ws.training.get("running"), "training", 300)
+    assert ws.active.model is not None
+    errors: list[str] = []
+    with sync_api.sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
+        page = browser.new_page(viewport={"width": 1440, "height": 900})
+        watch(page, errors)
+        page.goto(url)
+        page.click("#nav button[data-page=live]")
+        page.click("#live-start")
+        page.wait_for_function(
+            "() => document.querySelector('#live-state').textContent === 'not touched'"
+        )
+        page.wait_for_function("() => window.skinloc.viewer.skin && !window.skinloc.viewer.fly")
+        box = page.locator("#viewer canvas").bounding_box()
+        cx, cy = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+        start, end = (cx - 150, cy), (cx + 150, cy)
+        a, b = np.array(on_skin(page, box, *start)), np.array(on_skin(page, box, *end))
+        # The live finger's dot, as a fraction of the way from the drag's start to its end.
+        dots = (
+            "() => window.skinloc.viewer.marks.filter((m) => m.live && m.dot.visible)"
+            ".map((m) => m.dot.position.toArray())"
+        )
+
+        def along() -> list[float]:
+            ab = b - a
+            return [
+                float(np.dot(np.array(p) / 1000 - a, ab) / np.dot(ab, ab))
+                for p in page.evaluate(dots)
+            ]
+
+        page.mouse.move(*start)
+        page.mouse.down()
+        _wait(lambda: any(f < 0.35 for f in along()), "the finger at the drag's start", 120)
+        page.mouse.move(*end, steps=25)
+        # The finger rests at the end of the drag: its track follows it there.
+        _wait(lambda: any(f > 0.65 for f in along()), "the finger at the drag's end", 120)
+        page.wait_for_function("() => window.skinloc.viewer.marks.some((m) => m.live && m.n > 5)")
+        page.mouse.up()
+        page.wait_for_function(
+            "() => document.querySelector('#live-state').textContent === 'not touched'"
+        )
+        page.click("#live-stop")
+        browser.close()
+    assert not errors, f"the page logged errors: {errors}"

@@ -30,11 +30,14 @@ export function viewSvg(viewer) {
   const cam = viewer.camera;
   cam.updateMatrixWorld();
   viewer.scene.updateMatrixWorld();
+  // [x, y] px, the distance in front of the camera (mm: what the painter's order sorts on)
+  // and whether the point is between the near and far planes.
   const toScreen = (v) => {
     const p = v.clone().project(cam);
-    return [((p.x + 1) / 2) * W, ((1 - p.y) / 2) * H, p.z];
+    const depth = -v.clone().applyMatrix4(cam.matrixWorldInverse).z;
+    return [((p.x + 1) / 2) * W, ((1 - p.y) / 2) * H, depth, p.z > -1 && p.z < 1];
   };
-  const inView = (s) => s[2] > -1 && s[2] < 1;
+  const inView = (s) => s[3];
   const hex = (c) => `#${c.getHexString()}`;
   const tris = [], dots = [], lines = [];
   const a = new THREE.Vector3(), b = new THREE.Vector3(), c = new THREE.Vector3();
@@ -49,7 +52,7 @@ export function viewSvg(viewer) {
       // The radius on screen: the projected distance to a point one radius aside.
       const r = geo.parameters.radius * obj.scale.x;
       const edge = toScreen(obj.getWorldPosition(b).add(new THREE.Vector3().setFromMatrixColumn(cam.matrixWorld, 0).multiplyScalar(r)));
-      if (inView(s)) dots.push([s, Math.max(1, Math.hypot(edge[0] - s[0], edge[1] - s[1])), hex(colour), obj.material.opacity ?? 1]);
+      if (inView(s)) dots.push([s, Math.max(1, Math.hypot(edge[0] - s[0], edge[1] - s[1])), hex(colour), obj.material.opacity ?? 1, obj.getWorldPosition(new THREE.Vector3())]);
       return;
     }
     if (obj.isMesh) {
@@ -76,13 +79,29 @@ export function viewSvg(viewer) {
       const n = obj.isLine && !obj.isLineSegments ? Math.min(pos.count, geo.drawRange.count) : pos.count;
       if (obj.parent === viewer.groups.skin) return; // the mesh's edges: the triangles show it
       for (let k = 0; k + 1 < n; k += step) {
-        const s0 = toScreen(a.fromBufferAttribute(pos, k).applyMatrix4(obj.matrixWorld));
-        const s1 = toScreen(b.fromBufferAttribute(pos, k + 1).applyMatrix4(obj.matrixWorld));
-        if (inView(s0) && inView(s1)) lines.push([s0, s1, hex(colour)]);
+        a.fromBufferAttribute(pos, k).applyMatrix4(obj.matrixWorld);
+        b.fromBufferAttribute(pos, k + 1).applyMatrix4(obj.matrixWorld);
+        const s0 = toScreen(a), s1 = toScreen(b);
+        const mid = a.clone().add(b).multiplyScalar(0.5);
+        const vc = geo.attributes.color; // an axis drawn in its vertices' colours
+        const col = vc && obj.material.vertexColors ? new THREE.Color().fromBufferAttribute(vc, k) : colour;
+        if (inView(s0) && inView(s1)) lines.push([s0, s1, hex(col), mid]);
       }
     }
   });
-  tris.sort((p, q) => q[0] - p[0]); // far first
+  // The skin's triangles in painter's order (far first); then the lines and dots the skin does
+  // not hide: a ray from the camera to them meets no skin before them (3 mm of slack, as dots
+  // sit on the surface). Per-triangle order alone fails for the long triangles of a cone.
+  tris.sort((p, q) => q[0] - p[0]);
+  const ray = new THREE.Raycaster();
+  const seen = (v) => {
+    if (!viewer.skin) return true;
+    const dir = v.clone().sub(cam.position);
+    const dist = dir.length();
+    ray.set(cam.position, dir.normalize());
+    const hit = ray.intersectObject(viewer.skin)[0];
+    return !hit || hit.distance > dist - 3;
+  };
   const f = (x) => x.toFixed(1);
   const out = [
     `<svg xmlns="http://www.w3.org/2000/svg" width="${W}" height="${H}" viewBox="0 0 ${W} ${H}">`,
@@ -92,10 +111,10 @@ export function viewSvg(viewer) {
   ];
   for (const [, [p, q, r], col] of tris) out.push(`<path d="M${f(p[0])} ${f(p[1])}L${f(q[0])} ${f(q[1])}L${f(r[0])} ${f(r[1])}Z" fill="${col}" stroke="${col}"/>`);
   out.push(`</g><g stroke-width="1.2">`);
-  for (const [p, q, col] of lines) out.push(`<line x1="${f(p[0])}" y1="${f(p[1])}" x2="${f(q[0])}" y2="${f(q[1])}" stroke="${col}"/>`);
+  for (const [p, q, col, mid] of lines) if (seen(mid)) out.push(`<line x1="${f(p[0])}" y1="${f(p[1])}" x2="${f(q[0])}" y2="${f(q[1])}" stroke="${col}"/>`);
   out.push(`</g><g stroke="#1d2330" stroke-width="0.5">`);
   dots.sort((p, q) => q[0][2] - p[0][2]);
-  for (const [p, r, col, op] of dots) out.push(`<circle cx="${f(p[0])}" cy="${f(p[1])}" r="${f(r)}" fill="${col}"${op < 1 ? ` fill-opacity="${op}"` : ""}/>`);
+  for (const [p, r, col, op, at] of dots) if (seen(at)) out.push(`<circle cx="${f(p[0])}" cy="${f(p[1])}" r="${f(r)}" fill="${col}"${op < 1 ? ` fill-opacity="${op}"` : ""}/>`);
   out.push(`</g></svg>`);
   return out.join("\n");
 }

@@ -74,7 +74,7 @@ def main() -> None:
     ot = old.SearchTables(unit, s.surface_points, s.coarse, s.cells, s.sensor_noise, eng.rule)
 
     class OldEngine(type(eng)):  # MapEngine.contacts_into with the older search
-        def contacts_into(self, x, max_contacts, out):
+        def contacts_into(self, x, max_contacts, out, memory=None):
             if max_contacts > 1:
                 n = old.search_into(x, max_contacts, ot.arrays, ot.prm, ot.scratch, False, out)
                 if n > 1:

@@ -219,16 +219,9 @@ def _even_subset(targets: np.ndarray, n: int) -> np.ndarray:
 
 def real_model_errors(archs: tuple[str, ...] = ("default",)) -> dict[str, dict[int, float]]:
     """Mean error, mm, of models trained on even subsets of 80 PL, tested on 50 PL + 30 PL."""
-    train = read_recording(DATA / TRAIN_REAL)
-    tests = [read_recording(DATA / n) for n in TEST_REAL]
-    out: dict[str, dict[int, float]] = {}
-    for arch in archs:
-        out[arch] = {}
-        for n in MODEL_SIZES:
-            sub = train.subset(_even_subset(train.targets, n))
-            model = train_localizer([sub], arch=arch, random_state=0)
-            out[arch][n] = evaluate(model, tests).stats.mean_mm
-    return out
+    from skinloc.experiments.demo import real_skin_errors
+
+    return {arch: real_skin_errors(DATA, arch, tuple(MODEL_SIZES)) for arch in archs}
 
 
 def sim_model_errors(

@@ -47,19 +47,32 @@ def skinloc(*args: object) -> None:
 
 
 def one_skin(skin_seed: int, seed: int, n: int, slack_s: float, tmp: Path) -> dict:
+    """Simulate, train and replay one skin; a step whose output is in ``tmp`` already is kept
+    (``--keep DIR`` run again: the replay alone is redone after ``out.jsonl`` is deleted)."""
     d = tmp / f"skin{skin_seed}"
-    d.mkdir()
-    skinloc("simulate", "--points", 80, "--skin-seed", skin_seed, "--seed", seed + 1000,
-            "--out", d / "cal.h5")  # fmt: skip
-    skinloc("train", d / "cal.h5", "--out", d / "model.h5")
-    skinloc("simulate", "--gestures", n, "--skin-seed", skin_seed, "--seed", seed,
-            "--out", d / "g.h5")  # fmt: skip
-    skinloc("run", "--model", d / "model.h5", "--source", d / "g.h5", "--fast",
-            "--sink", f"jsonl:{d / 'out.jsonl'}")  # fmt: skip
+    d.mkdir(exist_ok=True)
+    if not (d / "cal.h5").exists():
+        skinloc("simulate", "--points", 80, "--skin-seed", skin_seed, "--seed", seed + 1000,
+                "--out", d / "cal.h5")  # fmt: skip
+    if not (d / "model.h5").exists():
+        skinloc("train", d / "cal.h5", "--out", d / "model.h5")
+    if not (d / "g.h5").exists():
+        skinloc("simulate", "--gestures", n, "--skin-seed", skin_seed, "--seed", seed,
+                "--out", d / "g.h5")  # fmt: skip
+    if not (d / "out.jsonl").exists():
+        skinloc("run", "--model", d / "model.h5", "--source", d / "g.h5", "--fast",
+                "--sink", f"jsonl:{d / 'out.jsonl'}")  # fmt: skip
     truth = read_gesture_truth(d / "g.h5")
     lines = (d / "out.jsonl").read_text().splitlines()
     events = [e for e in map(json.loads, lines) if e.get("event") == "gesture"]
     return {"skin_seed": skin_seed, "seed": seed, "events": events, **truth}
+
+
+def _sep_bin(sep_m: float) -> str:
+    """The 10 mm bin of a separation, e.g. ``"30-40"``."""
+    # the script keeps a drawn separation within 1 mm: 19.6 mm is of the 20-30 mm bin
+    lo = int(min(max(round(sep_m * 1e3) // 10, 2), 5)) * 10
+    return f"{lo:02d}-{lo + 10}"
 
 
 def score(runs: list[dict], slack_s: float, cfg: GestureConfig) -> dict:
@@ -67,12 +80,19 @@ def score(runs: list[dict], slack_s: float, cfg: GestureConfig) -> dict:
     delays: dict[str, list[float]] = defaultdict(list)
     dir_ok = dir_n = 0
     confusions: Counter = Counter()
+    sep_n, sep_ok = Counter(), Counter()  # two-finger taps by separation bin
     for run in runs:
         truths, events = run["truth_gestures"], run["events"]
         pairs = match(events, truths, slack_s)
         n_ev.update(e["kind"] for e in events)
         n_tr.update(t["kind"] for t in truths)
         n_ok.update(t["kind"] for _, t in pairs)
+        found = {id(t) for _, t in pairs}
+        for t in truths:
+            if t["kind"] == "two_finger_tap" and "separation_m" in t:
+                b = _sep_bin(t["separation_m"])
+                sep_n[b] += 1
+                sep_ok[b] += id(t) in found
         for ev, t in pairs:
             delays[t["kind"]].append(
                 ev["timestamp_s"] - unambiguous_s(t, cfg.double_tap_gap_s, cfg.long_press_s)
@@ -105,6 +125,9 @@ def score(runs: list[dict], slack_s: float, cfg: GestureConfig) -> dict:
     return {
         "per_kind": rows,
         "swipe_direction_accuracy": dir_ok / dir_n if dir_n else float("nan"),
+        "two_finger_recall_by_separation_mm": {
+            b: {"n": sep_n[b], "recall": sep_ok[b] / sep_n[b]} for b in sorted(sep_n)
+        },
         "false_events": {f"{a} during {b}": c for (a, b), c in confusions.most_common()},
     }
 
@@ -116,12 +139,19 @@ def main() -> None:
     ap.add_argument("--gestures", type=int, default=60, help="Gestures per stream.")
     ap.add_argument("--slack-s", type=float, default=0.1)
     ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument(
+        "--keep",
+        type=Path,
+        default=None,
+        help="Keep each skin's model, stream and events in this directory (and reuse them).",
+    )
     args = ap.parse_args()
     cfg = GestureConfig()
     with tempfile.TemporaryDirectory() as tmp:
+        where = Path(tmp) if args.keep is None else args.keep
+        where.mkdir(parents=True, exist_ok=True)
         runs = [
-            one_skin(k, args.seed + k, args.gestures, args.slack_s, Path(tmp))
-            for k in args.skin_seeds
+            one_skin(k, args.seed + k, args.gestures, args.slack_s, where) for k in args.skin_seeds
         ]
     res = {"args": {k: str(v) for k, v in vars(args).items()}, **score(runs, args.slack_s, cfg)}
     print(f"{'kind':16s} {'true':>5s} {'rep':>5s} {'prec':>6s} {'recall':>6s} "
@@ -131,6 +161,8 @@ def main() -> None:
               f"{r['recall']:6.3f} {r['delay_median_ms']:9.0f} {r['delay_p95_ms']:6.0f} "
               f"{r['delay_max_ms']:6.0f}")  # fmt: skip
     print(f"swipe direction right: {res['swipe_direction_accuracy']:.3f}")
+    for b, r in res["two_finger_recall_by_separation_mm"].items():
+        print(f"two-finger taps {b} mm apart: {r['n']:3d}, recall {r['recall']:.3f}")
     for k, c in res["false_events"].items():
         print(f"  false: {k}: {c}")
     if args.out:

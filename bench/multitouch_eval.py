@@ -132,6 +132,46 @@ def summarise(rows, meta, sel) -> dict:
     }
 
 
+#: Separations (mm) of the two-point threshold's bins: 10 mm wide from 10 mm, the last open.
+TWO_POINT_EDGES = (10.0, 20.0, 30.0, 40.0, 50.0, 60.0, 70.0, 80.0, 90.0, 100.0, np.inf)
+
+
+def two_point(rows, meta, share: float = 0.9, min_ratio: float = 0.5) -> dict:
+    """The skin's two-point threshold on pairs of similar strength (ratio > ``min_ratio``).
+
+    Per 10 mm bin of separation: the share counted two and the share with every finger placed
+    within 15 mm. The threshold is the lower edge of the first bin from which every bin (with
+    pairs) reaches ``share`` on the criterion: ``counted_two_mm`` on the count alone,
+    ``threshold_mm`` on both (``None``: no separation reaches it).
+    """
+    bins = {}
+    for lo, hi in zip(TWO_POINT_EDGES, TWO_POINT_EDGES[1:], strict=False):
+        sel = [lo <= m["sep_mm"] < hi and m["ratio"] > min_ratio for m in meta]
+        rs = [r for r, k in zip(rows, sel, strict=True) if k]
+        if rs:
+            bins[f"{lo:.0f}-{hi:.0f}"] = {
+                "lo_mm": lo,
+                "n": len(rs),
+                "counted_two": float(np.mean([r["count"] == 2 for r in rs])),
+                "all_within_15mm": float(np.mean([r["all_within"] for r in rs])),
+            }
+
+    def first(ok) -> float | None:
+        rows_ = list(bins.values())
+        for i, b in enumerate(rows_):
+            if all(ok(c) for c in rows_[i:]):
+                return b["lo_mm"]
+        return None
+
+    return {
+        "bins": bins,
+        "counted_two_mm": first(lambda c: c["counted_two"] >= share),
+        "threshold_mm": first(
+            lambda c: c["counted_two"] >= share and c["all_within_15mm"] >= share
+        ),
+    }
+
+
 class Tally:
     """What the evaluation of one or more test recordings accumulates."""
 
@@ -189,6 +229,7 @@ class Tally:
             s = np.asarray(self.singles[kind])
             tr = self.triple_rows[kind]
             table[kind] = {
+                "two_point": two_point(rows, meta),
                 "pairs": cells,
                 "singles": {
                     "n": len(s),
@@ -307,6 +348,13 @@ def _mm(v) -> str:
 def print_markdown(res: dict) -> None:
     print(f"count rule: {json.dumps(res['rule'])}\n")
     for kind, t in res["real"].items():
+        tp = t["two_point"]
+        print(f"### Two-point threshold, {kind} (ratio > 0.5)\n")
+        print("| separation (mm) | n | counted two | all within 15 mm |\n|---|---|---|---|")
+        for key, c in tp["bins"].items():
+            print(f"| {key} | {c['n']} | {c['counted_two']:.0%} | {c['all_within_15mm']:.0%} |")
+        print(f"\ncounted two >= 90 % from: {tp['counted_two_mm']} mm; and placed within 15 mm: "
+              f"{tp['threshold_mm']} mm\n")  # fmt: skip
         print(f"### Pairs, {kind}\n")
         print(
             "| separation (mm) | strength ratio | n | counted two | counted one | all within "

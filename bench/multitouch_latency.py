@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 import platform
 import time
 from pathlib import Path
@@ -49,6 +50,7 @@ def main() -> None:
             "K=1, no gestures": {"max_contacts": 1, "gestures": False},
             "K=1": {"max_contacts": 1},
             "K=3": {"max_contacts": 3},
+            "K=3, full search every frame": {"max_contacts": 3, "search_memory": False},
         }
         if has_k
         else {"today": {}}
@@ -58,7 +60,11 @@ def main() -> None:
     pc = time.perf_counter
     for _ in range(args.rounds):
         for label, cfg in settings.items():
+            cfg = dict(cfg)
+            memory = cfg.pop("search_memory", True)
             core = SkinCore(fast, PipelineConfig(**cfg), wire_format="binary")
+            if not memory:  # the live loop before the search memory
+                core.search_memory = None
             for b in wire[:100]:
                 core.feed(b)
             n = 0
@@ -72,6 +78,7 @@ def main() -> None:
             n_out[label] = n
     res = {
         "machine": f"{platform.machine()}, {platform.python_version()}",
+        "load_average": os.getloadavg(),
         "model": str(model),
         "frames": len(wire) - 100,
         "rounds": args.rounds,

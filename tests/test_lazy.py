@@ -33,7 +33,7 @@ def test_the_table_of_extras_is_pyprojects():
         for dist in owners.get(module, []):
             table.add((dist.lower().replace("_", "-"), extra))
     assert wanted <= table, wanted - table
-    assert {e for e, _ in EXTRAS.values()} == {"nets", "export", "live"}
+    assert {e for e, _ in EXTRAS.values()} == {"nets", "export", "live", "cluster"}
 
 
 def test_a_missing_extra_is_one_line_naming_it(monkeypatch):

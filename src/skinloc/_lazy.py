@@ -29,6 +29,7 @@ EXTRAS: dict[str, tuple[str, str]] = {
     "pylsl": ("live", "pylsl"),
     "cyclonedds": ("live", "cyclonedds"),
     "mcap": ("live", "mcap"),
+    "distributed": ("cluster", "dask.distributed"),
 }
 
 

@@ -40,6 +40,7 @@ def test_a_training_result_stays_with_its_session(tmp_path):
         assert client.post(f"/api/sessions/{first}/open", headers=A).status_code == 200
         state = client.get("/api/state").json()
         assert state["session"]["has_model"] and state["session"]["holdout"]["n_point_logs"] == 8
+        assert state["session"]["holdout"]["map_prior"]  # 8 touches: the map prior's range
 
 
 def test_the_scripted_finger_is_off_in_a_new_session(tmp_path):

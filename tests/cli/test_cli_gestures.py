@@ -43,6 +43,13 @@ def test_info_json_prints_the_truth(gestures: Path) -> None:
         assert {"kind", "direction", "start_s", "end_s"} <= set(g)
         assert 0 <= g["start_s"] < g["end_s"] <= info["stream_seconds"]
         assert (g["direction"] is None) == (g["kind"] != "swipe")
+        # every finger's landing point: two for a two-finger tap (and a double tap's two taps)
+        two = g["kind"] in ("two_finger_tap", "double_tap")
+        assert np.shape(g["fingers_m"]) == ((2, 3) if two else (1, 3))
+        assert g["fingers_m"][0] == g["position_m"]
+        if g["kind"] == "two_finger_tap":
+            sep = np.linalg.norm(np.subtract(*g["fingers_m"]))
+            assert sep == pytest.approx(g["separation_m"]) and 0.019 <= sep <= 0.061
     assert {g["kind"] for g in info["truth_touches"]} == {"rest", "drag"}
     assert info["stream_frames"] > 0 and info["n_baseline_frames"] == 50
     assert info["meta"]["gesture_script"]["skin_seed"] == 4

@@ -232,6 +232,15 @@ def test_a_swipe_is_one_finger():
     assert run(two) == []
 
 
+def test_a_piece_of_a_swiping_finger_split_off_for_a_few_frames_leaves_the_swipe():
+    # a track of 4 frames (40 ms) within the swipe: no finger touches that briefly
+    ghost = stream(
+        [(1, 0, 100, 120, line(P, (0.0, 0.04, 0.0), 100, 120)), (2, 1, 108, 111, still(FAR))],
+        200,
+    )
+    assert [e["kind"] for e in run(ghost)] == ["swipe"]
+
+
 def test_new_thresholds_are_checked():
     with pytest.raises(ValueError, match="swipe_max_jump_frac"):
         GestureConfig(swipe_max_jump_frac=1.5)
@@ -247,3 +256,61 @@ def test_a_finger_drifting_until_the_second_is_found_is_still_in_a_two_finger_ta
     assert [e["kind"] for e in ev] == ["two_finger_tap"]
     # the same drift with no second finger is the finger moving: a swipe, not a tap
     assert [e["kind"] for e in run(stream([(1, 0, 100, 115, drift)], 300))] == ["swipe"]
+
+
+def _run_with_change(frames, change, thr=2.5, hold=2.0):
+    """``run`` with the touch's image change (``LandingWatch.most``) fed every frame."""
+    rec = GestureRecognizer(
+        "s", SkinFrame(None, None, up=(0.0, 1.0, 0.0)), CFG, landing_change=thr, landing_hold=hold
+    )
+    events = []
+    for t, cs in frames:
+        events += rec.update(t, cs, change=change) if cs else rec.tick(t)
+    events += rec.flush(frames[-1][0])
+    return events, rec
+
+
+def test_a_tap_whose_image_changed_as_two_fingers_is_a_two_finger_tap_never_a_tap():
+    ev, _ = _run_with_change(stream([(1, 0, 100, 110, still(P))], 200), change=4.0)
+    assert [e["kind"] for e in ev] == ["two_finger_tap"]
+    assert ev[0]["track_ids"] == [1]
+    # reported when the finger lifts (certain then), with a confidence below a tracked pair's
+    assert ev[0]["timestamp_s"] == pytest.approx(1.10)
+    assert 0.5 <= ev[0]["confidence"] < 1.0
+
+
+def test_a_tap_of_uncertain_count_is_held_back_and_a_plain_one_reported():
+    ev, rec = _run_with_change(stream([(1, 0, 100, 110, still(P))], 200), change=2.2)
+    assert ev == [] and rec.n_held == 1  # one finger or two: neither is said
+    ev, rec = _run_with_change(stream([(1, 0, 100, 110, still(P))], 200), change=1.4)
+    assert [e["kind"] for e in ev] == ["tap"] and ev[0]["confidence"] == 1.0
+    assert rec.n_held == 0
+
+
+def test_the_change_leaves_double_taps_long_presses_and_swipes_alone():
+    double = stream([(1, 0, 100, 110, still(P)), (2, 0, 125, 135, still((0.005, 0, 0)))], 300)
+    ev, _ = _run_with_change(double, change=2.2)  # uncertain: still a double tap
+    assert [e["kind"] for e in ev] == ["double_tap"]
+    ev, _ = _run_with_change(stream([(1, 0, 100, 200, still(P))], 260), change=9.0)
+    assert [e["kind"] for e in ev] == ["long_press"]
+    swipe = stream([(1, 0, 100, 125, line(P, (0.0, 0.05, 0.0), 100, 125))], 200)
+    ev, _ = _run_with_change(swipe, change=9.0)  # a moving finger's image changes too
+    assert [e["kind"] for e in ev] == ["swipe"]
+
+
+def test_every_event_carries_its_confidence():
+    frames = stream(
+        [(1, 0, 100, 110, still(P)), (2, 1, 101, 111, still(FAR)), (3, 0, 200, 300, still(P))],
+        400,
+    )
+    ev = run(frames)
+    assert [e["kind"] for e in ev] == ["two_finger_tap", "long_press"]
+    assert all(e["confidence"] == 1.0 for e in ev)  # every finger tracked: a certain count
+
+
+@pytest.mark.parametrize("bad", [-1.0, math.nan, math.inf])
+def test_landing_thresholds_are_checked(bad):
+    with pytest.raises(ValueError, match="landing_change"):
+        GestureRecognizer("s", SkinFrame(None, None, up=(0.0, 1.0, 0.0)), landing_change=bad)
+    with pytest.raises(ValueError, match="landing_hold"):
+        GestureRecognizer("s", SkinFrame(None, None, up=(0.0, 1.0, 0.0)), landing_hold=bad)

@@ -139,7 +139,7 @@ class _Scripted:
         self.script = list(script)
         self.calls = 0
 
-    def __call__(self, x, max_contacts=3):
+    def __call__(self, x, max_contacts=3, memory=None):
         pts = self.script[min(self.calls, len(self.script) - 1)][:max_contacts]
         self.calls += 1
         n = len(pts)
@@ -456,3 +456,42 @@ def test_no_kernel_compiles_on_a_touch_the_core_warms_them_all_up():
     got = json.loads(res.stdout.strip().splitlines()[-1])
     assert got["slots"] == [0, 1]  # the two-finger tap was seen as two fingers
     assert got["late"] == [], "compiled on a touch, not with the core"
+
+
+def _landing_frames(img_a, img_b, lag, sigma, rng):
+    """Raw frames (noise ``sigma (64,)`` counts): finger A ramping up, B ``lag`` frames later."""
+    ramp = np.r_[0.25, 0.5, 0.75, np.ones(8), 0.75, 0.5, 0.25]
+    frames = 1000.0 + sigma * rng.standard_normal((60 + len(ramp) + lag + 40, 64))
+    frames[60 : 60 + len(ramp)] += ramp[:, None] * img_a
+    if img_b is not None:
+        frames[60 + lag : 60 + lag + len(ramp)] += ramp[:, None] * img_b
+    return frames
+
+
+@pytest.mark.parametrize(("second", "kind"), [(False, "tap"), (True, "two_finger_tap")])
+def test_a_second_finger_landing_later_makes_the_tap_two_finger_whatever_the_search(second, kind):
+    # the scripted search sees one contact, the tracker one track (the fingers 25 mm apart):
+    # the image's change as the second finger lands is what tells a two-finger tap
+    engine = load_engine(model_path("map"))
+    rule = engine.rule
+    assert rule.landing_change > rule.landing_hold > 1.0  # calibrated in fit
+    t = engine.search_tables()
+    Fpos, Ft, w = t.arrays[7], t.arrays[6], t.arrays[0]
+    i = int(np.argmax(Fpos[:, 2]))
+    j = int(np.argmin(np.abs(np.linalg.norm(Fpos - Fpos[i], axis=1) - 0.025)))
+    unit = 1.0 / w.astype(float)  # the model's noise per sensor, counts
+    img_a = 40.0 * unit * Ft[i] / Ft[i].max()  # 40 noise levels at its peak
+    img_b = 40.0 * unit * Ft[j] / Ft[j].max() if second else None
+    frames = _landing_frames(img_a, img_b, 3, unit, np.random.default_rng(4))
+    engine.contacts = _Scripted([[Fpos[i]]])
+    try:
+        core = SkinCore(engine, PipelineConfig(baseline_frames=50), name="s")
+        core._tracker.pair = None  # nor the anchored fit: one track whatever the image
+        for k, f in enumerate(frames):
+            core.process_frame(f, k * 0.01, k)
+        core.flush_gestures()
+        events = core.take_gestures()
+        assert [g["kind"] for g in events] == [kind]
+        assert (events[0]["confidence"] < 1.0) == second  # a count from the change: less sure
+    finally:
+        del engine.contacts

@@ -73,10 +73,13 @@ def test_timings_within_the_documented_ranges(items: list) -> None:
         elif it.kind == "two_finger_tap":
             assert {x.slot for x in s} == {0, 1} and it.truth["n_fingers"] == 2
             sep = np.linalg.norm(s[1].path_m[0] - s[0].path_m[0])
-            assert 0.8 * T.two_finger_separation_m[0] <= sep <= T.two_finger_separation_m[1]
+            lo, hi = T.two_finger_separation_m
+            assert lo - 0.001 <= sep <= hi + 0.001 and np.isclose(sep, it.truth["separation_m"])
             assert abs(s[1].t0_s - s[0].t0_s) <= T.two_finger_skew_s[1] + EPS
             assert all(d <= T.two_finger_press_s[1] + T.two_finger_skew_s[1] + EPS for d in dur)
         assert it.truth["start_s"] == it.start_s and it.truth["end_s"] == it.end_s
+        landings = sorted(s, key=lambda x: x.t0_s)
+        assert np.allclose(it.truth["fingers_m"], [x.path_m[0] for x in landings])
     # items never overlap, and the idle time between them is longer than a double-tap window
     for a, b in zip(items, items[1:], strict=False):
         assert b.start_s - a.end_s >= T.idle_s[0] - EPS
@@ -96,6 +99,19 @@ def test_swipes_go_their_way_in_the_skin_frame(cone: trimesh.Trimesh, items: lis
         # and the path lies on the skin
         d = trimesh.proximity.closest_point(cone, it.strokes[0].path_m)[1]
         assert d.max() < 1e-6
+
+
+def test_two_finger_separations_spread_over_the_whole_range(cone: trimesh.Trimesh) -> None:
+    script = GestureScript(cone, 1, random_state=SEED)
+    seps = np.array(
+        [np.linalg.norm(np.subtract(*[x.path_m[0] for x in script._two_fingers(0.0)]))
+         for _ in range(200)]
+    )  # fmt: skip
+    lo, hi = T.two_finger_separation_m
+    assert lo - 0.001 <= seps.min() and seps.max() <= hi + 0.001
+    # evenly spread: each quarter of the range holds about a quarter of the taps (50 +- 25)
+    counts = np.histogram(seps, bins=4, range=(lo - 0.001, hi + 0.001))[0]
+    assert counts.min() >= 25, counts
 
 
 def test_script_is_deterministic_and_checks_its_input(cone: trimesh.Trimesh) -> None:

@@ -27,11 +27,18 @@ STRATEGIES = ("active", "random", "even")
 N_START = 4
 
 
-def _fit_map(targets: Points, images: np.ndarray, candidates: Points) -> tuple[Any, np.ndarray]:
+def _fit_map(
+    targets: Points, images: np.ndarray, candidates: Points, prior: str = "package"
+) -> tuple[Any, np.ndarray]:
+    """The map of the touches so far, with the map prior where the default model uses it."""
+    from skinloc.models.map_prior import load_prior
     from skinloc.models.response_map import ResponseMap, shape_features
 
     F = shape_features(images)
-    return ResponseMap.fit(targets, F, candidates), F
+    p = None if prior == "none" else load_prior(None if prior == "package" else prior)
+    if p is not None and not p.applies(len(F)):
+        p = None
+    return ResponseMap.fit(targets, F, candidates, prior=p), F
 
 
 def active_scores(
@@ -40,6 +47,7 @@ def active_scores(
     pool: Points,
     eval_points: Points,
     candidates: Points,
+    prior: str = "package",
 ) -> np.ndarray:
     """Mean expected error over ``eval_points`` (mm) after touching each pool target.
 
@@ -55,13 +63,15 @@ def active_scores(
         Where the expected error is averaged, m.
     candidates : (P, 3) float
         The map's surface points, m.
+    prior : str
+        The map prior, as ``ContactLocalizer``'s ``prior`` (``"package"``, ``"none"``, a path).
 
     Returns
     -------
     (c,) float
         Mean expected error after each candidate touch, mm (lower is better).
     """
-    rmap, F = _fit_map(targets, images, candidates)
+    rmap, F = _fit_map(targets, images, candidates, prior)
     gp = gp_state(rmap, F)
     E_mm, C_mm = 1e3 * np.asarray(eval_points), 1e3 * np.asarray(pool)
     mu = rmap.evaluate_mm(E_mm)
@@ -111,6 +121,7 @@ def select_point_logs(
     n_eval: int = 200,
     progress: Any = None,
     eval_at: str = "surface",
+    prior: str = "package",
 ) -> list[tuple[int, int]]:
     """Choose ``n`` point logs from recordings in the order a strategy asks for them.
 
@@ -122,7 +133,9 @@ def select_point_logs(
     expected error over ``n_eval`` evenly spread surface points; ``"pool"`` over the pool's
     distinct targets (where touches are asked: denser towards the cone's narrow top). The
     pool variant won on a development split and lost on the reported one
-    (docs/accuracy.md), so it is not the default.
+    (docs/accuracy.md), so it is not the default. ``prior`` is the map prior the active
+    strategy's maps are fitted with, as ``ContactLocalizer``'s (applied up to its
+    ``max_touches``).
 
     Returns
     -------
@@ -169,7 +182,7 @@ def select_point_logs(
         )
         while len(chosen) < n:
             left = np.setdiff1d(first, chosen)
-            scores = active_scores(targets[chosen], images[chosen], targets[left], ev, cands)
+            scores = active_scores(targets[chosen], images[chosen], targets[left], ev, cands, prior)
             chosen.append(int(left[np.argmin(scores)]))
             if progress is not None:
                 progress(len(chosen), n)

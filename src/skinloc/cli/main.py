@@ -19,6 +19,7 @@ from skinloc.cli import collect as cli_collect
 from skinloc.cli import hardware as cli_hardware
 from skinloc.cli import live as cli_live
 from skinloc.cli import predict as cli_predict
+from skinloc.cli import prior as cli_prior
 from skinloc.cli import recordings as cli_recordings
 from skinloc.cli import skin as cli_skin
 from skinloc.cli import webapp as app_cli
@@ -255,6 +256,18 @@ def train(
     strategy: Annotated[
         str, typer.Option(help="How --select chooses: active, random or even (seeded by --seed).")
     ] = "active",
+    no_prior: Annotated[
+        bool,
+        typer.Option(
+            "--no-prior",
+            help="Fit the response map without the prior learned from simulated skins "
+            "(by default it is used for the few-touch calibrations where it helps).",
+        ),
+    ] = False,
+    prior: Annotated[
+        Path | None,
+        typer.Option(help="A prior file of `skinloc prior build` instead of the package's."),
+    ] = None,
 ) -> None:
     """Train a localiser on one or more calibration recordings, or recalibrate one.
 
@@ -266,10 +279,22 @@ def train(
     from skinloc.geometry.mesh import load_mesh
     from skinloc.models.localizer import ContactLocalizer
 
-    check_output(out, option="--out", inputs=[*data, init, mesh], force=force)
+    check_output(out, option="--out", inputs=[*data, init, mesh, prior], force=force)
+    if (no_prior or prior is not None) and (arch is not Arch.default or init is not None):
+        raise ValueError(
+            "--no-prior and --prior apply to training the default model (a response map) "
+            "from scratch"
+        )
+    if no_prior and prior is not None:
+        raise ValueError("give --no-prior or --prior, not both")
+    if prior is not None:
+        from skinloc.models.map_prior import load_prior
+
+        load_prior(prior)  # a bad file fails here, in one line, before anything else
     recs = read_recordings(data, calibration=True)
     if select is not None:
-        recs = _select_point_logs(recs, select, strategy, seed)
+        choose_with = "none" if no_prior else ("package" if prior is None else str(prior))
+        recs = _select_point_logs(recs, select, strategy, seed, choose_with)
     n_logs = sum(r.n_point_logs for r in recs)
     if n_logs == 0:
         raise ValueError("the recordings hold no point logs: record a calibration session first")
@@ -293,7 +318,11 @@ def train(
         )
         return
     surface = load_mesh(mesh, units.value) if mesh is not None else None
-    overrides = {"epochs": epochs} if epochs is not None else {}
+    overrides: dict = {"epochs": epochs} if epochs is not None else {}
+    if no_prior:
+        overrides["prior"] = "none"
+    elif prior is not None:
+        overrides["prior"] = str(prior)
     with progress_steps() as step:
         model = train_localizer(
             recs,
@@ -310,15 +339,41 @@ def train(
         f"Trained '{arch.value}' on {n} point logs from {len(recs)} recording(s) "
         f"in {model.fit_time_s_:.1f} s; wrote {out}"
     )
+    if arch is Arch.default:
+        console.print(_prior_note(model, no_prior), highlight=False)
 
 
-def _select_point_logs(recs: list, n: int, strategy: str, seed: int) -> list:
-    """``train --select``: the point logs a strategy asks for (skinloc.calibration.active)."""
+def _prior_note(model, no_prior: bool) -> str:
+    """What ``train`` says about the map prior it used or not."""
+    if no_prior:
+        return "Without the map prior (--no-prior)."
+    p = model.map_prior()
+    if getattr(model, "prior_used_", False):
+        return (
+            f"Used the map prior learned from {p.provenance.get('skins', '?')} simulated skins "
+            f"(it helps up to {p.max_touches} touches; --no-prior to fit without it)."
+        )
+    return (
+        f"The map prior was not needed: it helps up to {p.max_touches} touches and "
+        "this calibration has more."
+    )
+
+
+def _select_point_logs(recs: list, n: int, strategy: str, seed: int, prior: str) -> list:
+    """``train --select``: the point logs a strategy asks for (skinloc.calibration.active).
+
+    ``prior`` is the map prior the active strategy fits its maps with (as the model's).
+    """
     from skinloc.calibration.active import select_point_logs, subset_recordings
 
     with progress_steps() as step:
         picks = select_point_logs(
-            recs, n, strategy, seed, progress=lambda d, t: step(f"choosing ({strategy})", d, t)
+            recs,
+            n,
+            strategy,
+            seed,
+            progress=lambda d, t: step(f"choosing ({strategy})", d, t),
+            prior=prior,
         )
     console.print(f"Chose {len(picks)} point logs ({strategy}, seed {seed})")
     return subset_recordings(recs, picks)
@@ -377,6 +432,7 @@ def _register_groups() -> None:
     cli_live.register(app)  # skinloc run, export
     cli_skin.register(app)  # skinloc sensors, coverage
     cli_predict.register(app)  # skinloc predict
+    cli_prior.register(app)  # skinloc prior build, show
 
 
 _register_groups()

@@ -34,10 +34,12 @@ from skinloc.live.baseline import subtract_baseline as _prep
 from skinloc.live.config import PipelineConfig, TouchState
 from skinloc.live.contact import Contact
 from skinloc.live.gestures import GestureConfig, GestureRecognizer, SkinFrame
+from skinloc.live.landing import LandingWatch
 from skinloc.live.one_euro import one_euro as _one_euro
 from skinloc.live.pair_prior import pair_prior
 from skinloc.live.tracking import Track, Tracker, frame_contacts
 from skinloc.models.engine import Engine, load_engine
+from skinloc.models.multi_contact.search import SearchMemory
 
 log = logging.getLogger(__name__)
 
@@ -145,6 +147,9 @@ class SkinCore:
         cfg = self.config
         self.max_contacts = cfg.max_contacts
         self._tracker: Tracker | None = None
+        #: this stream's memory of its last full multi-contact search (None: every frame
+        #: searched in full, the answers' reference)
+        self.search_memory: SearchMemory | None = SearchMemory()
         if cfg.max_contacts > 1:
             self._tracker = Tracker(
                 cfg.max_contacts,
@@ -157,12 +162,23 @@ class SkinCore:
             )
         self.gestures: list[dict[str, Any]] = []  # events due, collected by ``take_gestures``
         self._recognizer: GestureRecognizer | None = None
+        self._landing: LandingWatch | None = None  # a second finger in time, for gestures
         if cfg.gestures:
             spec = self.engine.spec
             vertices = getattr(spec, "vertices", None)
             if vertices is not None or up is not None:
                 frame = SkinFrame(vertices, getattr(spec, "faces", None), up)
-                self._recognizer = GestureRecognizer(name, frame, gesture_config)
+                rule = getattr(self.engine, "rule", None)
+                change = float(getattr(rule, "landing_change", 0.0))
+                self._recognizer = GestureRecognizer(
+                    name,
+                    frame,
+                    gesture_config,
+                    landing_change=change,
+                    landing_hold=float(getattr(rule, "landing_hold", 0.0)),
+                )
+                if change > 0:
+                    self._landing = LandingWatch(self.engine.noise_weights())
         self._warm_up()
 
     def _warm_up(self) -> None:
@@ -177,6 +193,8 @@ class SkinCore:
             # the pair prior fits in a touch's first frames: compiled there, it stalled the
             # loop, and the frames read after the stall arrived at once, stamped late
             self._tracker.pair.refit.warm_up()
+        if self._landing is not None:
+            self._landing.warm_up()
 
     # ------------------------------------------------------------------ baseline
     def set_baseline(self, frames: np.ndarray) -> None:
@@ -257,7 +275,8 @@ class SkinCore:
             # releasing (signal below the release threshold, or the touch just ended): the
             # fading image's positions are not the finger's
             releasing = self._below > 0 or not self._touching
-            g = rec.update(timestamp_s, out, releasing) if out else rec.tick(timestamp_s)
+            change = self._landing.most if self._landing is not None else 0.0
+            g = rec.update(timestamp_s, out, releasing, change) if out else rec.tick(timestamp_s)
             if g:
                 self.gestures += g
         return out
@@ -388,6 +407,10 @@ class SkinCore:
             if cfg.emit_idle:
                 return [self._idle(timestamp_s, index, z, t_in)]
             return ()
+        if self._landing is not None:
+            if state is TouchState.START:
+                self._landing.start()
+            self._landing.step(self._delta)
         if self._tracker is not None:
             return self._localise_tracks(state, timestamp_s, index, z, t_in)
         return [self._localise(state, timestamp_s, index, z, t_in)]
@@ -432,8 +455,11 @@ class SkinCore:
         self, state: TouchState, ts: float, index: int, z: float, t_in: float
     ) -> list[Contact]:
         """K > 1: the frame's contacts, matched to tracks; one ``Contact`` per track."""
+        mem = self.search_memory
+        if mem is not None and state is TouchState.START:
+            mem.reset()
         pos, raw, strength, unc = frame_contacts(
-            self.engine, self._delta, self.max_contacts, self._out
+            self.engine, self._delta, self.max_contacts, self._out, mem
         )
         events = self._tracker.update(
             ts, pos, raw, strength, unc, state is TouchState.START, self._below == 0

@@ -5,7 +5,7 @@ per track, ``start``/``move``/``end``) and returns gesture events, JSON-ready di
 
     {"event": "gesture", "skin": "arm", "kind": "swipe", "direction": "up",
      "start_s": 12.31, "end_s": 12.62, "timestamp_s": 12.62, "track_ids": [7],
-     "path_m": [[x, y, z], ...], "speed_m_s": 0.21}
+     "confidence": 1.0, "path_m": [[x, y, z], ...], "speed_m_s": 0.21}
 
 It works on *episodes*: from the first finger down to the last finger up. An episode of one
 finger is a tap (short, still), a long press (still for ``long_press_s``: reported then, while
@@ -15,6 +15,12 @@ land together and both tap is a two-finger tap. Two taps close in time and place
 double tap, so a tap is reported only when the double-tap window after it has closed (or the
 next touch shows it is no second tap); a double tap is never also two taps, a long press or a
 swipe never also a tap. Every event is reported on the first frame at which it is certain.
+
+A tap of one track is not always one finger: two fingers too close for the contact search
+land as one track. The touch's image change as it landed and lifted (``live.landing``, against
+the skin's calibrated ``landing_change`` and ``landing_hold``) makes such a tap a two-finger
+tap (``confidence`` below 1) or, when it is uncertain, holds it back: no tap is reported of a
+touch that may have been two fingers. ``confidence`` is 1.0 when every finger was tracked.
 
 Directions are in the skin's own frame, the one the simulator's gesture script uses too
 (``geometry.skin_frame``): ``up`` is a direction of the mesh frame (per skin; default: the mesh's
@@ -44,6 +50,9 @@ MAX_PATH_POINTS = 64
 #: How long after the first finger a brief touch within it may lift and still be a piece of
 #: its image (``GestureRecognizer._main``), s.
 BRIEF_SLACK_S = 0.05
+#: Longest track, s, that is a piece of a moving finger's image (the search splitting it for
+#: a few frames) rather than a second finger: a second finger touches for 60 ms or more.
+GHOST_S = 0.045
 
 
 @dataclass
@@ -161,6 +170,7 @@ class _Finger:
     end_s: float = math.nan
     last_s: float = math.nan
     max_from_first: float = 0.0  # m
+    uncertain: bool = False  # a tap whose image changed too much to be sure it was one finger
 
     @property
     def ended(self) -> bool:
@@ -173,6 +183,7 @@ class _Episode:
     fingers: list[_Finger] = field(default_factory=list)
     active: int = 0
     done: bool = False  # reported (a long press) or ruled out: nothing more from it
+    change: float = 0.0  # the touch's image change as fingers landed and lifted (noise levels)
 
 
 class GestureRecognizer:
@@ -186,9 +197,30 @@ class GestureRecognizer:
         Up / right on the surface.
     config : GestureConfig, optional
         Thresholds.
+    landing_change : float
+        The skin's threshold of a touch's image change as it lands and lifts, noise levels
+        (``CountRule.landing_change``, calibrated on the skin's own touches), above which a
+        tap of one track is two fingers the tracker did not separate; 0: off.
+    landing_hold : float
+        The change above which a tap of one track is no longer surely one finger
+        (``CountRule.landing_hold``): such a tap is not reported (``n_held`` counts them),
+        unless it is one of a double tap; 0: off.
     """
 
-    def __init__(self, skin: str, frame: SkinFrame, config: GestureConfig | None = None) -> None:
+    def __init__(
+        self,
+        skin: str,
+        frame: SkinFrame,
+        config: GestureConfig | None = None,
+        landing_change: float = 0.0,
+        landing_hold: float = 0.0,
+    ) -> None:
+        for name, v in (("landing_change", landing_change), ("landing_hold", landing_hold)):
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"{name} must be a number >= 0, got {v!r}")
+        self.landing_change = float(landing_change)
+        self.landing_hold = float(landing_hold)
+        self.n_held = 0  # taps not reported: the count was uncertain
         self.skin = skin
         self.frame = frame
         self.cfg = GestureConfig() if config is None else config
@@ -204,13 +236,18 @@ class GestureRecognizer:
 
     # ------------------------------------------------------------------ input
     def update(
-        self, ts: float, contacts: Sequence[Contact], releasing: bool = False
+        self,
+        ts: float,
+        contacts: Sequence[Contact],
+        releasing: bool = False,
+        change: float = 0.0,
     ) -> list[dict[str, Any]]:
         """One frame's contacts (one per track) at stream time ``ts``; returns due events.
 
         ``releasing``: the touch detector is ending the touch (the signal is below its release
         threshold): the positions of such a fading image are not the finger's and are left
-        out of the paths (the states still count).
+        out of the paths (the states still count). ``change``: the touch's largest image change
+        so far (``live.landing.LandingWatch``), noise levels.
         """
         for c in contacts:
             tid = c.track_id
@@ -247,6 +284,8 @@ class GestureRecognizer:
                 del self._fingers[tid]
                 if self._episode is not None:
                     self._episode.active -= 1
+        if self._episode is not None and change > self._episode.change:
+            self._episode.change = change
         return self.tick(ts)
 
     def tick(self, ts: float) -> list[dict[str, Any]]:
@@ -257,8 +296,8 @@ class GestureRecognizer:
         pend = self._pending
         if pend is not None and ts >= pend.end_s + cfg.double_tap_gap_s:
             if ep is None or ep.start_s > pend.end_s + cfg.double_tap_gap_s:
-                out.append(self._event("tap", [pend], ts))  # the window closed: a single tap
-                self._pending = pend = None
+                out += self._resolve_pending(ts)  # the window closed: a single tap
+                pend = None
         if ep is None:
             return out
         f = self._main(ep) if not ep.done else None
@@ -326,10 +365,25 @@ class GestureRecognizer:
                 return None
         return f
 
+    def _two_in_time(self, ep: _Episode) -> bool:
+        """Whether the episode's image changed as a second finger's landing or lifting does."""
+        return self.landing_change > 0.0 and ep.change >= self.landing_change
+
+    def _two_from_change(self, ep: _Episode, fs: list[_Finger], ts: float) -> dict[str, Any]:
+        """A two-finger tap of one track, its confidence from how far the change passed."""
+        conf = min(0.9, 0.5 * ep.change / self.landing_change)
+        return self._event("two_finger_tap", fs, ts, confidence=conf)
+
+    def _uncertain(self, ep: _Episode) -> bool:
+        """Whether the image changed more than the skin's single fingers (but not enough)."""
+        return self.landing_hold > 0.0 and ep.change >= self.landing_hold
+
     def _could_pair(self, ep: _Episode, pend: _Finger) -> bool:
         """Whether episode ``ep`` may still be the second tap of the pending tap."""
         cfg = self.cfg
         if ep.done or len(ep.fingers) != 1 or ep.start_s > pend.end_s + cfg.double_tap_gap_s:
+            return False
+        if self._two_in_time(ep):
             return False
         f = ep.fingers[0]
         if math.dist(f.path[0], pend.path[-1]) > cfg.double_tap_mm * 1e-3:
@@ -340,7 +394,12 @@ class GestureRecognizer:
 
     def _resolve_pending(self, ts: float) -> list[dict[str, Any]]:
         pend, self._pending = self._pending, None
-        return [] if pend is None else [self._event("tap", [pend], ts)]
+        if pend is None:
+            return []
+        if pend.uncertain:  # one finger or two: neither is reported
+            self.n_held += 1
+            return []
+        return [self._event("tap", [pend], ts)]
 
     def _classify(self, ep: _Episode, ts: float) -> list[dict[str, Any]]:
         """An episode that just ended (every finger up), not yet reported."""
@@ -350,7 +409,15 @@ class GestureRecognizer:
         main = self._main(ep)
         if main is not None and (len(fs) == 1 or not all(self._is_tap(g) for g in fs)):
             f = main
+            if len(fs) == 1 and self._is_tap(f) and self._two_in_time(ep):
+                # one track, but the image changed as a second finger's landing or lifting
+                # does: a two-finger tap whose fingers the tracker did not separate (never a
+                # tap); the confidence says how far past the skin's threshold
+                out += self._resolve_pending(ts)
+                out.append(self._two_from_change(ep, fs, ts))
+                return out
             if len(fs) == 1 and self._is_tap(f):
+                f.uncertain = self._uncertain(ep)
                 pend = self._pending
                 if pend is not None and self._could_pair(ep, pend):
                     self._pending = None
@@ -360,9 +427,10 @@ class GestureRecognizer:
                     self._pending = f
                 return out
             out += self._resolve_pending(ts)
-            if len(fs) > 1:
+            if len(fs) > 1 and any(g.end_s - g.start_s > GHOST_S for g in fs[1:]):
                 # a swipe is one finger: a brief second touch within a moving one is as likely
-                # the other finger of a two-finger tap the first track drifted towards
+                # the other finger of a two-finger tap the first track drifted towards (but a
+                # track of a few frames is a piece of the moving finger's image split off)
                 return out
             dist = math.dist(f.path[0], f.path[-1])
             dur = max(f.end_s - f.start_s, 1e-6)
@@ -384,7 +452,12 @@ class GestureRecognizer:
         return out
 
     def _event(
-        self, kind: str, fs: list[_Finger], ts: float, end_s: float | None = None
+        self,
+        kind: str,
+        fs: list[_Finger],
+        ts: float,
+        end_s: float | None = None,
+        confidence: float = 1.0,
     ) -> dict[str, Any]:
         start = min(f.start_s for f in fs)
         end = max(f.end_s for f in fs) if end_s is None else end_s
@@ -397,6 +470,7 @@ class GestureRecognizer:
             "end_s": end,
             "timestamp_s": ts,
             "track_ids": [f.track_id for f in fs],
+            "confidence": confidence,
         }
         if kind == "swipe":
             f = fs[0]

@@ -45,6 +45,7 @@ from skinloc.live.one_euro import one_euro
 
 if TYPE_CHECKING:
     from skinloc.live.pair_prior import PairPrior
+    from skinloc.models.multi_contact.search import SearchMemory
 
 __all__ = ["Track", "Tracker", "assign", "frame_contacts"]
 
@@ -53,7 +54,11 @@ FrameContacts = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 
 def frame_contacts(
-    engine: object, delta: np.ndarray, max_contacts: int, out: np.ndarray
+    engine: object,
+    delta: np.ndarray,
+    max_contacts: int,
+    out: np.ndarray,
+    memory: SearchMemory | None = None,
 ) -> FrameContacts:
     """The contacts of one baseline-subtracted frame, strongest first (0..``max_contacts``).
 
@@ -74,9 +79,15 @@ def frame_contacts(
         K.
     out : (7,) float64
         Scratch for ``localise_into``.
+    memory : SearchMemory, optional
+        The stream's memory of its last full multi-contact search (``Engine.contacts``): a
+        held touch's frames skip the search while nothing suggests a second finger.
     """
     if max_contacts > 1:
-        cs = engine.contacts(delta, max_contacts=max_contacts)
+        if memory is None:
+            cs = engine.contacts(delta, max_contacts=max_contacts)
+        else:
+            cs = engine.contacts(delta, max_contacts=max_contacts, memory=memory)
         pos = np.asarray(cs.positions_m, dtype=np.float64).reshape(-1, 3)
         if len(pos):
             return pos, pos, np.asarray(cs.strength, float), np.asarray(cs.uncertainty_mm, float)

@@ -29,7 +29,7 @@ from skinloc._lazy import resolve
 from skinloc._typing import Frames, Points
 from skinloc.geometry.snap import CONSTRAINTS, Surface
 from skinloc.models.multi_contact.contacts import N_COLS, ContactSet, CountRule, noise_weights
-from skinloc.models.multi_contact.search import single_into
+from skinloc.models.multi_contact.search import SearchMemory, single_into
 
 __all__ = ["ContactSet", "Engine", "ModelSpec", "Prediction", "load_engine"]
 
@@ -156,6 +156,10 @@ class Engine:
         self._w = noise_weights(spec.sensor_noise, self.n_features)
         self._rows = np.zeros((MAX_CONTACTS, N_COLS))
 
+    def noise_weights(self) -> np.ndarray:
+        """``(n_features,)`` float32: 1 / each sensor's noise (counts to noise levels)."""
+        return self._w
+
     @property
     def n_members(self) -> int:
         """Networks in the ensemble (1 for a response map)."""
@@ -185,18 +189,30 @@ class Engine:
         """``predict_batch`` on checked, contiguous float32 rows."""
         raise NotImplementedError
 
-    def contacts_into(self, x: np.ndarray, max_contacts: int, out: np.ndarray) -> int:
+    def contacts_into(
+        self,
+        x: np.ndarray,
+        max_contacts: int,
+        out: np.ndarray,
+        memory: SearchMemory | None = None,
+    ) -> int:
         """The contacts of ``x (n_features,)`` float32 counts into ``out (>= k, 5)``; returns k.
 
         Rows: x, y, z (m), strength (counts), uncertainty (mm), strongest first. The
         allocation-free call behind ``contacts``. This kind: at most one contact, its own
-        single-contact answer when a sensor reaches the rule's ``z_on`` noise levels.
+        single-contact answer when a sensor reaches the rule's ``z_on`` noise levels
+        (``memory``, a stream's ``SearchMemory`` for the multi-contact search, is unused).
         """
         self.localise_into(x, self._out)
         return single_into(x, self._w, self.rule.z_on, self._out, out)
 
     # ------------------------------------------------------------------ every kind
-    def contacts(self, x: np.ndarray, max_contacts: int = MAX_CONTACTS) -> ContactSet:
+    def contacts(
+        self,
+        x: np.ndarray,
+        max_contacts: int = MAX_CONTACTS,
+        memory: SearchMemory | None = None,
+    ) -> ContactSet:
         """How many contacts one image holds and where: a ``ContactSet``, strongest first.
 
         Parameters
@@ -206,6 +222,10 @@ class Engine:
         max_contacts : int, default 3
             Most contacts to report, 1..3; 1 is the single-contact answer (``predict_one``)
             with a detection rule. A network model reports at most one.
+        memory : SearchMemory, optional
+            One stream's memory of its last full search: consecutive frames of a held touch
+            then skip the search while nothing suggests a second finger (the stream's frames
+            in order, ``reset`` at each touch's start). None: every frame searched in full.
         """
         if not (type(x) is np.ndarray and x.dtype == np.float32 and x.shape == self._x.shape):
             x = np.ascontiguousarray(x, dtype=np.float32)
@@ -215,7 +235,7 @@ class Engine:
                 )
         if not 1 <= max_contacts <= MAX_CONTACTS:
             raise ValueError(f"max_contacts must be 1..{MAX_CONTACTS}, got {max_contacts}")
-        k = self.contacts_into(x, max_contacts, self._rows)
+        k = self.contacts_into(x, max_contacts, self._rows, memory)
         return ContactSet(self._rows[:k].copy())
 
     def predict_batch(self, X: Frames) -> tuple[Points, Points, np.ndarray]:

@@ -51,6 +51,9 @@ ARCHITECTURES: dict[str, dict[str, Any]] = {
         clip_negative=True,
         train_on="means",
         length_scale_mm=20.0,
+        # the response map's prior learned from simulated skins (models.map_prior):
+        # "package" (the one shipped), "none", or a prior file's path
+        prior="package",
     ),
     "paper": dict(
         kind="network",
@@ -84,6 +87,7 @@ _ACTIVATIONS = ("relu", "tanh", "gelu")
 #: Hyperparameters a user may override (each an ``__init__`` argument).
 _TUNABLE = (
     "length_scale_mm",
+    "prior",
     "hidden",
     "activation",
     "n_members",
@@ -121,6 +125,10 @@ class ContactLocalizer:
         must be ones that configuration has.
     length_scale_mm : float, optional
         Starting length scale of the response map's GP, mm (fitted by marginal likelihood).
+    prior : str, optional
+        The response map's prior, learned from simulated skins (``skinloc.models.map_prior``):
+        ``"package"`` (the one shipped, the default), ``"none"`` (maximum likelihood, no
+        prior) or the path of a prior file (``skinloc prior build --out``).
     hidden : tuple of int, optional
         Hidden layer widths.
     activation : {"relu", "tanh", "gelu"}, optional
@@ -148,6 +156,7 @@ class ContactLocalizer:
         *,
         arch: str = "default",
         length_scale_mm: float | None = None,
+        prior: str | None = None,
         hidden: tuple[int, ...] | None = None,
         activation: str | None = None,
         n_members: int | None = None,
@@ -163,6 +172,7 @@ class ContactLocalizer:
     ) -> None:
         self.arch = arch
         self.length_scale_mm = length_scale_mm
+        self.prior = prior
         self.hidden = hidden
         self.activation = activation
         self.n_members = n_members
@@ -217,6 +227,8 @@ class ContactLocalizer:
         if cfg["kind"] == "map":
             if not cfg["length_scale_mm"] > 0:
                 raise bad("length_scale_mm", "a float > 0")
+            if not isinstance(cfg.get("prior", "none"), str):
+                raise bad("prior", "'package', 'none' or a prior file's path")
             if cfg["normalise"] != "l2" or cfg["train_on"] != "means":
                 raise ValueError("a response map matches L2-normalised touch means")
             return
@@ -333,8 +345,14 @@ class ContactLocalizer:
                 "surface_points to fit()"
             )
         F = shape_features(X, self.config_["clip_negative"])
+        prior = self.map_prior()
+        if prior is not None and not prior.applies(len(F)):
+            prior = None
+        self.prior_used_ = prior is not None
         self.map_, self.contact_rule_ = fit_contact_model(
-            ResponseMap.fit(y, F, self.surface_points_, self.config_["length_scale_mm"]),
+            ResponseMap.fit(
+                y, F, self.surface_points_, self.config_["length_scale_mm"], prior=prior
+            ),
             X,
             y,
             frames if groups is not None else None,
@@ -342,6 +360,20 @@ class ContactLocalizer:
             self.sensor_noise_,
             self.random_state,
         )
+
+    def map_prior(self):  # -> MapPrior | None
+        """The response map's prior this configuration names (``None``: no prior).
+
+        ``fit`` applies it to a calibration of at most ``max_touches`` touches (the prior's
+        own measure of where it helps) and sets ``prior_used_`` to say whether it did.
+        """
+        from skinloc.models.map_prior import load_prior
+
+        cfg = getattr(self, "config_", None) or self.get_config()
+        name = cfg.get("prior", "none")  # models saved before the prior have none
+        if name == "none":
+            return None
+        return load_prior(None if name == "package" else name)
 
     def recalibrate(
         self,

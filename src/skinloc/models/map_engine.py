@@ -25,7 +25,14 @@ from skinloc.models.map_match import (
     _match_rows,
     _new_scratch,
 )
-from skinloc.models.multi_contact.search import SearchTables, search_into, single_into
+from skinloc.models.multi_contact.search import (
+    SearchMemory,
+    SearchTables,
+    recall_into,
+    remember,
+    search_into,
+    single_into,
+)
 
 __all__ = ["MapEngine", "MapSpec"]
 
@@ -194,7 +201,7 @@ class MapEngine(Engine):
         _match_one(x, self._clip, self._groups, self._fine, self._scratch, out)
 
     def warm_up(self) -> MapEngine:
-        """As ``Engine.warm_up``, and the search's stage for several contacts (``_peel``).
+        """As ``Engine.warm_up``, with the multi-contact stage (``_peel``) and its memory.
 
         One point's touch never reaches it: two fingers far apart, each a candidate's image,
         do. Compiled on a live skin's first two-finger touch instead, it held up the loop for
@@ -204,20 +211,37 @@ class MapEngine(Engine):
         t = self.search_tables()
         w, Ft, Fpos = t.arrays[0], t.arrays[6], t.arrays[7]
         far = int(np.argmax(np.linalg.norm(Fpos - Fpos[0], axis=1)))
-        self.contacts((1e3 * (Ft[0] + Ft[far]) / w).astype(np.float32), 3)
+        x = (1e3 * (Ft[0] + Ft[far]) / w).astype(np.float32)
+        self.contacts(x, 3)
+        # and a stream's memory (``SearchMemory``): the live loop passes one on every frame
+        self.contacts(x, 3, SearchMemory())
         return self
 
-    def contacts_into(self, x: np.ndarray, max_contacts: int, out: np.ndarray) -> int:
+    def contacts_into(
+        self,
+        x: np.ndarray,
+        max_contacts: int,
+        out: np.ndarray,
+        memory: SearchMemory | None = None,
+    ) -> int:
         """Up to ``max_contacts`` contacts of ``x`` into ``out`` (see ``Engine.contacts_into``).
 
         The multi-contact search (``skinloc.models.multi_contact``) on the amplitude map; one
-        contact is this map's own single-contact answer.
+        contact is this map's own single-contact answer. With a stream's ``memory`` a held
+        touch skips the full search while nothing suggests a second finger
+        (``SearchMemory``).
         """
         if max_contacts > 1:
             t = self._tables if self._tables is not None else self.search_tables()
-            n = search_into(
-                x, max_contacts, t.arrays, t.prm, t.scratch, False, out, *t.pair.kernel_args
-            )
+            n = -1
+            if memory is not None:
+                n = recall_into(x, t.arrays, t.prm, t.scratch, memory.state)
+            if n < 0:
+                n = search_into(
+                    x, max_contacts, t.arrays, t.prm, t.scratch, False, out, *t.pair.kernel_args
+                )
+                if memory is not None:
+                    remember(max_contacts, n, t.arrays, t.prm, t.scratch, memory.state)
             if n > 1:
                 _peel(
                     x,

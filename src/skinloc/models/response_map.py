@@ -25,9 +25,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from skinloc._typing import Points
+from skinloc.models.map_prior import HYPERPARAMETERS
 
 if TYPE_CHECKING:
     from skinloc.models.map_engine import MapSpec
+    from skinloc.models.map_prior import MapPrior
 
 __all__ = ["AmplitudeMap", "MapLayer", "ResponseMap", "shape_features", "unit_images"]
 
@@ -89,18 +91,22 @@ class MapLayer:
         return _rbf(q_mm, self.points_mm, self.length_scale_mm) @ self.alpha
 
 
-def _fit_layer(
+def fit_gp(
     points_mm: np.ndarray,
     R: np.ndarray,
     length_scale_mm: float | None,
     bounds_mm: tuple[float, float],
     noise: float | None,
-) -> MapLayer:
-    """Fit a zero-mean GP layer to residuals ``R (n, k)`` at ``points_mm (n, 3)``.
+    prior: MapPrior | None = None,
+) -> Any:
+    """A zero-mean GP fitted to residuals ``R (n, k)`` at ``points_mm (n, 3)``.
 
     With ``length_scale_mm`` and ``noise`` both given the hyperparameters stay fixed (used for
     recalibration from a handful of touches, too few to fit them); otherwise they are chosen
-    by maximising the marginal likelihood, starting from the given values.
+    by maximising the marginal likelihood, starting from the given values, or with a
+    ``prior`` the marginal likelihood times the prior (maximum a posteriori), starting from
+    the prior's median. Returns scikit-learn's ``GaussianProcessRegressor``, whose
+    ``kernel_.theta`` are the log amplitude, length scale (mm) and noise.
     """
     from sklearn.exceptions import ConvergenceWarning
     from sklearn.gaussian_process import GaussianProcessRegressor
@@ -109,14 +115,31 @@ def _fit_layer(
 
     fixed = length_scale_mm is not None and noise is not None
     amp0 = float(max(np.mean(R**2), 1e-6))
+    optimizer: Any = "fmin_l_bfgs_b"
+    if prior is not None and not fixed:
+        amp0, length_scale_mm, noise = (prior.typical[k] for k in HYPERPARAMETERS)
+        optimizer = _map_optimizer(prior)
     kernel = C(amp0, "fixed" if fixed else (1e-6, 10.0)) * RBF(
         length_scale_mm or 20.0, "fixed" if fixed else bounds_mm
     ) + WhiteKernel(noise or 1e-3, "fixed" if fixed else (1e-6, 1.0))
-    gp = GaussianProcessRegressor(kernel, normalize_y=False, random_state=0)
+    gp = GaussianProcessRegressor(kernel, normalize_y=False, random_state=0, optimizer=optimizer)
     with warnings.catch_warnings():
         # A bound reached by the optimiser is a fact about the data, not an error.
         warnings.simplefilter("ignore", ConvergenceWarning)
         gp.fit(points_mm, R)
+    return gp
+
+
+def _fit_layer(
+    points_mm: np.ndarray,
+    R: np.ndarray,
+    length_scale_mm: float | None,
+    bounds_mm: tuple[float, float],
+    noise: float | None,
+    prior: MapPrior | None = None,
+) -> MapLayer:
+    """The posterior mean of ``fit_gp`` (same arguments) as a ``MapLayer``."""
+    gp = fit_gp(points_mm, R, length_scale_mm, bounds_mm, noise, prior)
     k = gp.kernel_
     amp, ls, white = (
         float(k.k1.k1.constant_value),
@@ -125,6 +148,26 @@ def _fit_layer(
     )
     alpha = amp * np.asarray(gp.alpha_).reshape(len(points_mm), -1)
     return MapLayer(points_mm.copy(), alpha, ls, white)
+
+
+def _map_optimizer(prior: MapPrior) -> Any:
+    """An optimiser for scikit-learn's GP that maximises the marginal likelihood times ``prior``.
+
+    scikit-learn passes the negative log marginal likelihood and its gradient over the
+    kernel's log hyperparameters (amplitude, length scale, noise: ``HYPERPARAMETERS``).
+    """
+    from scipy.optimize import minimize
+
+    def optimise(obj: Any, theta0: np.ndarray, bounds: np.ndarray) -> tuple[np.ndarray, float]:
+        def neg_post(theta: np.ndarray) -> tuple[float, np.ndarray]:
+            nll, grad = obj(theta, eval_gradient=True)
+            lp, dlp = prior.log_density(theta)
+            return nll - lp, grad - dlp
+
+        res = minimize(neg_post, theta0, jac=True, method="L-BFGS-B", bounds=bounds)
+        return res.x, float(res.fun)
+
+    return optimise
 
 
 @dataclass(frozen=True)
@@ -201,10 +244,16 @@ class ResponseMap:
         candidates: Points,
         length_scale_mm: float = 20.0,
         bounds_mm: tuple[float, float] = (2.0, 300.0),
+        prior: MapPrior | None = None,
     ) -> ResponseMap:
-        """Fit the base map to touch positions ``(n, 3)`` m and their features ``F (n, k)``."""
-        mean = F.mean(axis=0)
-        layer = _fit_layer(1e3 * positions, F - mean, length_scale_mm, bounds_mm, None)
+        """Fit the base map to touch positions ``(n, 3)`` m and their features ``F (n, k)``.
+
+        With a ``prior`` (``skinloc.models.map_prior``) the mean is shrunk towards the
+        skins' common level and the hyperparameters are a posteriori; without, the mean is
+        the touches' and the hyperparameters maximise the marginal likelihood.
+        """
+        mean = F.mean(axis=0) if prior is None else prior.mean(F)
+        layer = _fit_layer(1e3 * positions, F - mean, length_scale_mm, bounds_mm, None, prior)
         return cls(mean, [layer], np.asarray(candidates, dtype=np.float64))
 
     def with_amplitude(self, positions: Points, X: np.ndarray) -> ResponseMap:

@@ -60,7 +60,7 @@ class Timing:
     swipe_speed_m_s: tuple[float, float] = (0.15, 0.30)
     swipe_length_m: tuple[float, float] = (0.04, 0.07)
     two_finger_press_s: tuple[float, float] = (0.06, 0.20)
-    two_finger_separation_m: tuple[float, float] = (0.03, 0.06)
+    two_finger_separation_m: tuple[float, float] = (0.02, 0.06)  # what one hand makes
     two_finger_skew_s: tuple[float, float] = (0.0, 0.04)  # landing (and lifting) time apart
     rest_s: tuple[float, float] = (0.40, 0.50)
     drag_speed_m_s: tuple[float, float] = (0.050, 0.070)
@@ -322,6 +322,9 @@ class GestureScript:
             extra["length_m"] = float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum())
         elif kind == "two_finger_tap":
             strokes = self._two_fingers(now)
+            extra["separation_m"] = float(
+                np.linalg.norm(strokes[1].path_m[0] - strokes[0].path_m[0])
+            )
         else:
             raise ValueError(f"unknown script item {kind!r}")
         item = ScriptItem(kind, direction, strokes)
@@ -332,19 +335,23 @@ class GestureScript:
             "end_s": item.end_s,
             "n_fingers": len({s.slot for s in strokes}),
             "position_m": strokes[0].path_m[0].tolist(),
+            # every finger's landing point, in the order the fingers land
+            "fingers_m": [s.path_m[0].tolist() for s in sorted(strokes, key=lambda s: s.t0_s)],
             **extra,
         }
         return item
 
     def _two_fingers(self, now: float) -> list[Stroke]:
         t, rng = self.timing, self.rng
+        sep = float(rng.uniform(*t.two_finger_separation_m))  # drawn once: places are retried
         for _ in range(_MAX_TRIES):
             p, n = self._point()
-            sep = float(rng.uniform(*t.two_finger_separation_m))
             a = rng.standard_normal(3)
             a -= (a @ n) * n
             q, _ = self._project(p + sep * a / np.linalg.norm(a))
-            if np.linalg.norm(q - p) > 0.8 * sep:  # not pulled back at the skin's edge
+            # the drawn separation is kept (within 1 mm), so that the separations stay evenly
+            # spread: a point pulled back at the skin's edge or by its curvature is drawn again
+            if abs(np.linalg.norm(q - p) - sep) <= 0.001:
                 break
         else:
             raise ValueError("found no place on the skin for two fingers: is the mesh in metres?")

@@ -197,6 +197,7 @@ GESTURE = {
     "track_ids": [7],
     "path_m": [[0.0, 0.0, 0.0], [0.0, 0.04, 0.0]],
     "speed_m_s": 0.13,
+    "confidence": 0.55,
 }
 
 
@@ -276,8 +277,9 @@ def test_foxglove_draws_a_sphere_per_track_and_logs_gestures(tmp_path):
     assert any(b"arm/slot0" in m and b"arm/slot2" in m for m in scene)  # both in one update
     assert b"arm/slot2" in scene[-1]  # the lifted finger's sphere is deleted
     assert len(by_topic["/skinloc/contacts"]) == 3
-    assert b"swipe up (tracks 7)" in by_topic["/skinloc/gestures"][0]
-    assert json.loads(by_topic["/skinloc/gesture_events"][0])["kind"] == "swipe"
+    assert b"swipe up (tracks 7, confidence 0.55)" in by_topic["/skinloc/gestures"][0]
+    event = json.loads(by_topic["/skinloc/gesture_events"][0])
+    assert event["kind"] == "swipe" and event["confidence"] == 0.55
 
 
 def test_lsl_lays_out_k_slots_and_sends_gestures_as_markers():
@@ -307,6 +309,7 @@ def test_lsl_lays_out_k_slots_and_sends_gestures_as_markers():
     assert all(math.isnan(v) for k, v in sample.items() if k.startswith("s1_"))  # empty slot
     assert sample["touch_id"] == 1
     assert json.loads(pushed[1][0])["kind"] == "swipe"
+    assert json.loads(pushed[1][0])["confidence"] == 0.55
 
 
 def test_make_sink_errors_and_callback():

@@ -203,7 +203,11 @@ export class ViewControls {
       // Before the orbit controls see it (they listen on the same element).
       ev.stopImmediatePropagation();
       ev.preventDefault();
-      el.setPointerCapture(ev.pointerId);
+      try {
+        el.setPointerCapture(ev.pointerId); // the drag goes on outside the view
+      } catch {
+        // a pointer the browser does not track (a synthetic event): moves over the view only
+      }
       this.drag = { id: ev.pointerId };
       this._send([p.x / MM, p.y / MM, p.z / MM]);
     };

@@ -154,6 +154,8 @@ class TrainingJobs:
                 for s in influence["suspects"]:  # the session's numbering, not the subset's
                     s["index"] = int(kept[s["index"]])
             holdout["influence"] = influence
+            # whether the map prior from simulated skins was used (few touches: models.map_prior)
+            holdout["map_prior"] = bool(getattr(model, "prior_used_", False))
             # Each touch's error predicted by a model that did not see it, for the Train page's
             # map and histogram: all of them when the cross-validation ran, else the held-out.
             if influence is not None:
@@ -182,8 +184,9 @@ class TrainingJobs:
                     held.info["holdout"] = holdout
             (mine or a).folder.write_info((mine or a).info)
             if mine is not None:
+                prior = " (with the map prior: few touches)" if holdout["map_prior"] else ""
                 self.message = (
-                    f"trained: held-out error {holdout['mean_mm']:.1f} +- "
+                    f"trained{prior}: held-out error {holdout['mean_mm']:.1f} +- "
                     f"{holdout['std_mm']:.1f} mm; next: validate on fresh touches, or go live"
                 )
             self.training = {"running": False, "result": holdout, "session": session}

@@ -241,7 +241,9 @@ class FoxgloveSink(Sink):
         kind = event.get("kind", "?")
         direction = event.get("direction")
         ids = ", ".join(str(i) for i in event.get("track_ids", []))
-        text = f"{kind}{' ' + direction if direction else ''} (tracks {ids})"
+        conf = event.get("confidence")
+        conf_text = f", confidence {conf:.2f}" if isinstance(conf, int | float) else ""
+        text = f"{kind}{' ' + direction if direction else ''} (tracks {ids}{conf_text})"
         self._log.log(
             Log(timestamp=self._stamp(now), level=LogLevel.Info, message=text, name=skin),
             log_time=log_ns,

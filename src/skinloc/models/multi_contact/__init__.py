@@ -6,7 +6,9 @@ The modules, each public to the others (nothing private is imported across them)
 * ``search``: the compiled search (``SearchTables``, ``search_into``, its NNLS kernels);
 * ``pairs``: its seed and pair stages, pruned without changing the answer;
 * ``refit``: a two-contact fit anchored at a known finger (the live pair prior's question);
-* ``rule_calibration``: the count rule calibrated on the training recording alone.
+* ``rule_calibration``: the count rule calibrated on the training recording alone;
+* ``landing``: a second finger in time (the image's change of shape as fingers land and lift),
+  its threshold calibrated on the training touches too (``CountRule.landing_change``).
 
 A touch of strength ``s`` counts at surface point ``p`` gives about ``s * unit(p)``, where
 ``unit`` is the amplitude map (``skinloc.models.response_map.AmplitudeMap``: the un-normalised
@@ -31,6 +33,14 @@ peak signal ``z_m`` (noise levels), ``rho_m * z_m ** z_power``, reaches ``tau_m`
 reaches ``z_m_min``: a strong second contact needs less relative gain than a faint one. The
 thresholds are calibrated on the training recording only
 (``skinloc.models.multi_contact.rule_calibration``: cross-validation over its point logs).
+
+In a stream (``search.SearchMemory``, one per skin's live loop) a held touch skips the full
+search: while the last full search counted one contact well below the rule's threshold, a
+frame refines that one-contact fit and the remembered pair locally, and answers one contact
+unless the pair's score comes near the threshold, the one-contact residual grows, or its
+largest residual grows (a finger landing elsewhere); every ``REFRESH_FRAMES`` frames, and at a
+touch's start, the full search runs again. Only a count of one is ever answered so; anything
+else is the full search's answer.
 
 One contact is reported by the model's own single-contact answer (``Engine.localise_into``),
 so ``max_contacts=1`` is today's answer; its strength is the L2 norm of the image's positive

@@ -64,6 +64,13 @@ class CountRule:
     z_power : float
         Power of the weakest contact's peak signal that weighs the relative reduction (0, rules
         saved before it: the reduction alone).
+    landing_change : float
+        The change of a touch's image while it lands and lifts, noise levels, above which a
+        touch seen as one finger holds two (``multi_contact.landing``; calibrated in ``fit``
+        from the skin's own touches; 0, rules saved before it: the cue is off).
+    landing_hold : float
+        The change above which a touch is no longer surely one finger (the calibration's
+        single fingers' 90th percentile): the recogniser reports no tap of it (0: off).
     """
 
     z_on: float = 8.0
@@ -76,6 +83,8 @@ class CountRule:
     calibrated: bool = False
     misfit: float = 0.0
     z_power: float = 0.0
+    landing_change: float = 0.0
+    landing_hold: float = 0.0
 
     def as_dict(self) -> dict[str, Any]:
         """The rule as plain JSON values."""

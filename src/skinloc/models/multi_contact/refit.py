@@ -81,7 +81,7 @@ def _anchored_pair(
             best = d
             ca = c
     fi[0] = cfine[ca]
-    g1 = polish(1, fi, xw, xx, arrays, 0.0, S, 1)
+    g1 = polish(1, fi, xw, xx, arrays, 0.0, S, 1, False)
     # every coarse candidate against the image and against the anchored contact: two
     # matrix-vector products (BLAS), then a 2 x 2 NNLS per candidate far enough
     ra = Ft[fi[0]]
@@ -105,7 +105,7 @@ def _anchored_pair(
     if cb < 0:
         return 0
     fi[1] = cfine[cb]
-    g2 = polish(2, fi, xw, xx, arrays, min2, S, 1)
+    g2 = polish(2, fi, xw, xx, arrays, min2, S, 1, False)
     r1 = max(xx - g1, 1.0)
     r2 = max(xx - g2, 1.0)
     out[0] = (r1 - r2) / r2

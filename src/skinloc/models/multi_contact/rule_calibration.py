@@ -22,7 +22,8 @@ from typing import Any
 import numpy as np
 
 from skinloc._typing import Points
-from skinloc.models.multi_contact.contacts import N_COLS, CountRule
+from skinloc.models.multi_contact.contacts import N_COLS, CountRule, noise_weights
+from skinloc.models.multi_contact.landing import calibrate_landing
 from skinloc.models.multi_contact.search import SearchTables, search_into
 from skinloc.models.response_map import AmplitudeMap
 
@@ -338,4 +339,15 @@ def fit_contact_model(
         per_touch,
         random_state=random_state,
     )
+    if per_touch is not None:
+        # the time cue: how much a touch's image changes shape as it lands and lifts
+        change, landing = calibrate_landing(
+            per_touch,
+            noise_weights(sensor_noise, X_means.shape[1]),
+            np.asarray(y, dtype=np.float64),
+            z_on=rule.z_on,
+            random_state=random_state,
+        )
+        rule = replace(rule, landing_change=change, landing_hold=landing["hold"])
+        report = {**report, "landing": landing}
     return rmap, {**rule.as_dict(), "cv": report}

@@ -11,11 +11,18 @@ from skinloc.models.multi_contact.contacts import N_COLS, CountRule, noise_weigh
 from skinloc.models.multi_contact.pairs import PairTables, far_apart, seeds_and_pair
 
 __all__ = [
+    "PEAK_GROWTH",
+    "REFRESH_FRAMES",
+    "RESIDUAL_GROWTH",
+    "SAFE_SCORE",
+    "SearchMemory",
     "SearchTables",
     "nnls",
     "nnls2",
     "polish",
+    "recall_into",
     "relative_gain",
+    "remember",
     "search_into",
     "single_into",
     "weakest_z",
@@ -23,6 +30,18 @@ __all__ = [
 
 #: Coarse cells searched around each contact (its own and the nearest others).
 N_NEIGHBOURS = 7
+#: A stream's frames answered from its memory before the full search runs again.
+REFRESH_FRAMES = 25
+#: How far the one-contact residual (relative to the image's energy) may grow over the one
+#: the full search saw before the full search runs again.
+RESIDUAL_GROWTH = 1.15
+#: How far the one-contact fit's largest residual (noise levels) may grow over the one at the
+#: full search (a finger landing away from the first leaves its peak unexplained); below
+#: half the rule's ``z2_min`` it may grow freely.
+PEAK_GROWTH = 1.3
+#: The largest count-rule score, as a share of the rule's threshold, of a frame a memory may
+#: start from: a frame near the threshold is searched in full every time.
+SAFE_SCORE = 0.3
 
 
 # --------------------------------------------------------------------------------------------
@@ -129,6 +148,37 @@ class SearchTables:
         )
 
 
+class SearchMemory:
+    """What one stream's last full search found, so that its next frames can skip it.
+
+    A touch held on a skin is one finger frame after frame; the full search (seeds, every
+    pair) asks each frame afresh whether a second finger arrived. The memory lets a frame
+    answer "one contact" from the last full search's one-contact fit instead (``recall_into``)
+    while (a) that search counted one contact, with its rule's score at most ``SAFE_SCORE``
+    of the threshold (``remember``); (b) the one-contact fit, refined from where it was, leaves
+    a relative residual at most ``RESIDUAL_GROWTH`` times the one the full search left (a
+    second finger landing leaves its image unexplained); (c) fewer than ``REFRESH_FRAMES``
+    frames were answered so since. Anything else runs the full search. One memory per stream
+    (an engine serves several skins); ``reset`` at a touch's start.
+
+    Attributes
+    ----------
+    state : (7,) float64
+        Valid (1.0 or 0.0), the one-contact fit's fine row, its relative residual
+        ``R_1 / |xw|^2`` at the full search, frames answered since, the pair's two fine rows
+        (-1: no pair), the fit's largest whitened residual at the full search (noise levels).
+    """
+
+    __slots__ = ("state",)
+
+    def __init__(self) -> None:
+        self.state = np.zeros(7)
+
+    def reset(self) -> None:
+        """Forget: the next frame is searched in full."""
+        self.state[:] = 0.0
+
+
 # --------------------------------------------------------------------------------------------
 # compiled kernels
 
@@ -223,10 +273,12 @@ def _refine(
     gq: np.ndarray,
     qq: np.ndarray,
     s_out: np.ndarray,
+    spread_on: bool = True,
 ) -> tuple:  # pragma: no cover - compiled
     """Move contact ``i`` of ``m`` (fine rows ``fi``) to its best candidate, the others fixed.
 
-    Returns ``(gain, spread_mm)``; ``fi[i]`` and the strengths ``s_out[:m]`` are updated.
+    Returns ``(gain, spread_mm)`` (spread nan unless ``spread_on``); ``fi[i]`` and the
+    strengths ``s_out[:m]`` are updated.
     """
     w, Ct, Cg, Cd, Cpos, nbr, Ft, Fpos, Fpk, Fcell, off, cfine, Fn = arrays
     G = np.empty((3, 3))  # once per call, not per candidate
@@ -267,6 +319,8 @@ def _refine(
     if n == 0:  # nowhere to go: keep the contact
         return -1.0, math.nan
     fi[i] = best_q
+    if not spread_on:
+        return best, math.nan
     rmin = max(xx - best, 0.0)
     k = xw.shape[0]
     scale = 2.0 * max(rmin / max(k - 4 * m, 1), 1.0)
@@ -296,16 +350,27 @@ def polish(
     min2: float,
     S: tuple,
     rounds: int = 2,
+    spread_on: bool = True,
 ) -> float:  # pragma: no cover - compiled
-    """``rounds`` rounds of ``_refine`` over the ``m`` contacts; returns the gain."""
+    """``rounds`` rounds of ``_refine`` over the ``m`` contacts; returns the gain.
+
+    A round that moves no contact ends the polish: the next would repeat it exactly. The
+    contacts' spreads (``S[9]``) only with ``spread_on`` (the reported contacts need them; a
+    fit that only weighs the count does not).
+    """
     gq, qq, s, spread = S[6], S[7], S[8], S[9]
     g = 0.0
     for _ in range(rounds):
+        moved = False
         for i in range(m):
-            gi, sp = _refine(i, m, fi, xw, xx, arrays, min2, gq, qq, s)
+            before = fi[i]
+            gi, sp = _refine(i, m, fi, xw, xx, arrays, min2, gq, qq, s, spread_on)
             if gi >= 0.0:
                 g = gi
                 spread[i] = sp
+            moved = moved or fi[i] != before
+        if not moved:
+            break
     return g
 
 
@@ -376,9 +441,10 @@ def search_into(
     # seeds: the best one-contact candidates, each at least half the separation from the rest;
     # then every seed with every coarse candidate far enough from it (pruned: multi_contact.pairs)
     n_seeds, pa, pb = seeds_and_pair(bC, g1, Cg, Cd, Cpos, min2, top, pair, pair_s)
-    # one contact, refined (its residual is what a second must improve on)
+    # one contact, refined (its residual is what a second must improve on; its spread is
+    # never reported: one contact is the model's single-contact answer)
     fi[0] = cfine[top[0]]
-    gain1 = polish(1, fi, xw, xx, arrays, 0.0, S)
+    gain1 = polish(1, fi, xw, xx, arrays, 0.0, S, 2, False)
     st[0] = gain1
     st[11] = fi[0]
     if pa < 0:
@@ -476,4 +542,106 @@ def single_into(
         out[0, t] = out7[3 + t]
     out[0, 3] = math.sqrt(nrm)
     out[0, 4] = out7[6]
+    return 1
+
+
+@jit()
+def _residual_peak(xw: np.ndarray, row: int, arrays: tuple) -> float:  # pragma: no cover
+    """The largest whitened residual of the one-contact fit at fine row ``row`` (noise levels)."""
+    Ft, Fn = arrays[6], arrays[12]
+    b = _dot(Ft[row], xw)
+    sc = b / Fn[row] if b > 0.0 and Fn[row] > 0.0 else 0.0
+    e = -np.inf
+    for j in range(xw.shape[0]):
+        e = max(e, float(xw[j]) - sc * float(Ft[row, j]))
+    return e
+
+
+@jit()
+def _score(
+    xx: float, g1: float, g2: float, z2: float, prm: np.ndarray
+) -> float:  # pragma: no cover - compiled
+    """The count rule's score of two contacts over one, as a share of ``tau2`` (0: no pair)."""
+    if g2 <= 0.0:
+        return 0.0
+    r1 = max(xx - g1, 1.0)
+    r2 = max(xx - g2, 1.0)
+    return relative_gain(r1, r2, prm[7] * xx) * max(z2, 0.0) ** prm[8] / prm[2]
+
+
+@jit()
+def remember(
+    K: int, n: int, arrays: tuple, prm: np.ndarray, S: tuple, mem: np.ndarray
+) -> None:  # pragma: no cover - compiled
+    """Record a full search's answer ``n`` (scratch ``S``, ``SearchTables.scratch``) in ``mem``.
+
+    Only a count of one whose rule score is at most ``SAFE_SCORE`` of ``tau2`` starts a
+    memory (``SearchMemory``): its one-contact fit's row and the pair's rows (-1: none).
+    """
+    st, fi = S[10], S[4]
+    mem[0] = 0.0
+    xx = st[5]
+    if K <= 1 or n != 1 or xx <= 0.0 or _score(xx, st[0], st[1], st[3], prm) > SAFE_SCORE:
+        return
+    mem[0] = 1.0
+    mem[1] = st[11]
+    mem[2] = max(xx - st[0], 1.0) / xx
+    mem[3] = 0.0
+    mem[4] = fi[0] if st[1] > 0.0 else -1.0  # a count of one leaves the polished pair in fi
+    mem[5] = fi[1] if st[1] > 0.0 else -1.0
+    mem[6] = _residual_peak(S[0], int(st[11]), arrays)
+
+
+@jit()
+def recall_into(
+    x: np.ndarray, arrays: tuple, prm: np.ndarray, S: tuple, mem: np.ndarray
+) -> int:  # pragma: no cover - compiled
+    """One frame answered from a stream's memory: -1 (search in full), 0 or 1 contacts.
+
+    0 is the full search's own first test (no sensor at ``z_on``); 1 leaves ``out`` to the
+    caller, as the full search does. The one-contact fit is refined from the memory's row as
+    the full search refines its best seed (``polish``, two rounds), the pair from the
+    memory's pair (one round); their rule score must stay at most ``SAFE_SCORE`` of ``tau2``
+    and the one-contact residual within ``RESIDUAL_GROWTH`` of the remembered one. The
+    statistics go to ``S[10]`` as the full search's (g1, g2, weakest z of 2, ``|xw|^2``).
+    """
+    if mem[0] == 0.0 or mem[3] >= REFRESH_FRAMES:
+        return -1
+    w = arrays[0]
+    xw, fi, s, st = S[0], S[4], S[8], S[10]
+    xx = 0.0
+    zmax = 0.0
+    for j in range(x.shape[0]):
+        v = np.float32(x[j] * w[j])
+        xw[j] = v
+        xx += float(v) * float(v)
+        zmax = max(zmax, float(v))
+    st[:] = 0.0
+    st[5] = xx
+    if zmax < prm[0]:
+        mem[0] = 0.0
+        return 0
+    fi[0] = int(mem[1])
+    gain1 = polish(1, fi, xw, xx, arrays, 0.0, S, 2, False)
+    if max(xx - gain1, 1.0) > RESIDUAL_GROWTH * mem[2] * xx:
+        return -1
+    peak = _residual_peak(xw, fi[0], arrays)
+    if peak > PEAK_GROWTH * mem[6] and peak > 0.5 * prm[5]:
+        return -2
+    st[0] = gain1
+    st[11] = fi[0]
+    row1 = fi[0]
+    if mem[4] >= 0.0:
+        fi[0] = int(mem[4])
+        fi[1] = int(mem[5])
+        gain2 = polish(2, fi, xw, xx, arrays, prm[1], S, 1, False)
+        z2 = weakest_z(2, fi, s, arrays[8])
+        if _score(xx, gain1, gain2, z2, prm) > SAFE_SCORE:
+            return -3
+        st[1] = gain2
+        st[3] = z2
+        mem[4] = fi[0]
+        mem[5] = fi[1]
+    mem[1] = row1
+    mem[3] += 1.0
     return 1

@@ -216,6 +216,7 @@ def _two_finger_frames(sink, skin="arm"):
 GESTURE = {
     "event": "gesture", "skin": "arm", "kind": "two_finger_tap", "direction": None,
     "start_s": 100.0, "end_s": 100.02, "timestamp_s": 100.02, "track_ids": [5, 7],
+    "confidence": 0.55,
 }  # fmt: skip
 
 
@@ -252,6 +253,7 @@ def _check_two_finger_frames(point, poses, markers, gestures, frame_of, stamp_of
     (g,) = gestures
     event = json.loads(g.data)
     assert event["kind"] == "two_finger_tap" and event["track_ids"] == [5, 7]
+    assert event["confidence"] == pytest.approx(0.55)  # the count's confidence is carried
     assert event["skin"] == "arm" and event["stamp"] == pytest.approx(stamps[2], abs=2e-6)
 
 

@@ -7,7 +7,7 @@ const LABEL_H = 15; // px, the label's box (12 px text)
 const LABEL_PAD = 4; // px added to the text's width
 const GAP = 3; // px between a dot's edge and its number
 // The boxes the numbers keep clear of: the view's own controls and notes.
-const OBSTACLES = ".view-inset, .view-toolbar, .viewer-legend, .viewer-touch, .viewer-hint";
+const OBSTACLES = ".view-inset, .view-toolbar, .viewer-legend, .viewer-touch, .viewer-hint, .viewer-export";
 // Where a number may go around its dot, in order of preference: unit directions (x right,
 // y down), tried at the dot's edge and then a little farther out.
 const AROUND = [[1, 0], [1, -1], [0, -1], [-1, -1], [-1, 0], [-1, 1], [0, 1], [1, 1]]

@@ -29,8 +29,7 @@ from skinloc.models.multi_contact.search import (
     SearchMemory,
     SearchTables,
     recall_into,
-    remember,
-    search_into,
+    search_remember,
     single_into,
 )
 
@@ -195,6 +194,7 @@ class MapEngine(Engine):
         self._tables: SearchTables | None = None
         self._z_on = float(self.rule.z_on)
         self._z = np.zeros(self.n_features, dtype=np.float32)
+        self._no_memory = np.zeros(7)  # search_remember's memory when the caller has none
 
     def localise_into(self, x: np.ndarray, out: np.ndarray) -> None:
         """One image ``x (n_features,)`` float32 counts into ``out (7,)`` (see ``Engine``)."""
@@ -237,11 +237,17 @@ class MapEngine(Engine):
             if memory is not None:
                 n = recall_into(x, t.arrays, t.prm, t.scratch, memory.state)
             if n < 0:
-                n = search_into(
-                    x, max_contacts, t.arrays, t.prm, t.scratch, False, out, *t.pair.kernel_args
+                n = search_remember(
+                    x,
+                    max_contacts,
+                    t.arrays,
+                    t.prm,
+                    t.scratch,
+                    out,
+                    *t.pair.kernel_args,
+                    self._no_memory if memory is None else memory.state,
+                    memory is not None,
                 )
-                if memory is not None:
-                    remember(max_contacts, n, t.arrays, t.prm, t.scratch, memory.state)
             if n > 1:
                 _peel(
                     x,

@@ -25,7 +25,7 @@ import numpy as np
 
 from skinloc._jit import jit
 from skinloc.models.multi_contact.pairs import far_apart
-from skinloc.models.multi_contact.search import nnls2, polish, weakest_z
+from skinloc.models.multi_contact.search import nnls2_interior, polish, weakest_z
 
 __all__ = ["AnchoredPair", "PairRefit"]
 
@@ -95,8 +95,9 @@ def _anchored_pair(
         bb = float(bc[c])
         if bb <= 0.0 or not far_apart(Cpos[c], Fpos[fi[0]], min2):
             continue
-        g, s1, s2 = nnls2(gaa, float(gc[c]), Cd[c], ba, bb)
-        if g > bestg and s1 > 0.0 and s2 > 0.0:
+        # only two positive strengths count: NNLS's interior answer (its others have a zero)
+        g, s1, s2 = nnls2_interior(gaa, float(gc[c]), Cd[c], ba, bb)
+        if g > bestg:
             bestg = g
             cb = c
     out[0] = 0.0

@@ -19,11 +19,14 @@ __all__ = [
     "SearchTables",
     "nnls",
     "nnls2",
+    "nnls2_interior",
+    "nnls3_interior",
     "polish",
     "recall_into",
     "relative_gain",
     "remember",
     "search_into",
+    "search_remember",
     "single_into",
     "weakest_z",
 ]
@@ -201,6 +204,24 @@ def _row_norms(Ft: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
 
 
 @jit()
+def nnls2_interior(
+    g11: float, g12: float, g22: float, b1: float, b2: float
+) -> tuple:  # pragma: no cover - compiled
+    """``nnls2``'s ``(gain, s1, s2)`` if both its strengths are positive, else ``(-1, 0, 0)``.
+
+    The same arithmetic as ``nnls2``'s interior solution (its other answers have a zero
+    strength).
+    """
+    det = g11 * g22 - g12 * g12
+    if det > 1e-12 * g11 * g22:
+        s1 = (g22 * b1 - g12 * b2) / det
+        s2 = (g11 * b2 - g12 * b1) / det
+        if s1 > 0.0 and s2 > 0.0:
+            return s1 * b1 + s2 * b2, s1, s2
+    return -1.0, 0.0, 0.0
+
+
+@jit()
 def nnls2(
     g11: float, g12: float, g22: float, b1: float, b2: float
 ) -> tuple:  # pragma: no cover - compiled
@@ -259,6 +280,32 @@ def nnls(G: np.ndarray, b: np.ndarray, m: int, s: np.ndarray) -> float:  # pragm
         return g02
     s[0], s[1], s[2] = 0.0, r1, r2
     return g12
+
+
+@jit()
+def nnls3_interior(G: np.ndarray, b: np.ndarray, s: np.ndarray) -> float:  # pragma: no cover
+    """``nnls(G, b, 3, s)``'s gain if its answer has three positive strengths, else -1.
+
+    The same arithmetic as ``nnls``'s interior solution; ``s`` is written only when kept.
+    """
+    a, bb, c = G[0, 0], G[0, 1], G[0, 2]
+    d, e, f = G[1, 1], G[1, 2], G[2, 2]
+    c00 = d * f - e * e
+    c01 = c * e - bb * f
+    c02 = bb * e - c * d
+    det = a * c00 + bb * c01 + c * c02
+    if not det > 1e-12 * a * d * f:
+        return -1.0
+    c11 = a * f - c * c
+    c12 = bb * c - a * e
+    c22 = a * d - bb * bb
+    s0 = (c00 * b[0] + c01 * b[1] + c02 * b[2]) / det
+    s1 = (c01 * b[0] + c11 * b[1] + c12 * b[2]) / det
+    s2 = (c02 * b[0] + c12 * b[1] + c22 * b[2]) / det
+    if not (s0 > 0.0 and s1 > 0.0 and s2 > 0.0):
+        return -1.0
+    s[0], s[1], s[2] = s0, s1, s2
+    return s0 * b[0] + s1 * b[1] + s2 * b[2]
 
 
 @jit()
@@ -358,20 +405,45 @@ def polish(
     contacts' spreads (``S[9]``) only with ``spread_on`` (the reported contacts need them; a
     fit that only weighs the count does not).
     """
+    return _rounds(m, fi, xw, xx, arrays, min2, S, rounds, spread_on)[0]
+
+
+@jit()
+def _rounds(
+    m: int,
+    fi: np.ndarray,
+    xw: np.ndarray,
+    xx: float,
+    arrays: tuple,
+    min2: float,
+    S: tuple,
+    rounds: int,
+    spread_on: bool,
+) -> tuple:  # pragma: no cover - compiled
+    """``polish``'s rounds: ``(gain, settled)``.
+
+    Settled: its last round moved no contact and every contact had somewhere to go (one more
+    round then repeats it exactly).
+    """
     gq, qq, s, spread = S[6], S[7], S[8], S[9]
     g = 0.0
+    settled = False
     for _ in range(rounds):
         moved = False
+        stuck = False
         for i in range(m):
             before = fi[i]
             gi, sp = _refine(i, m, fi, xw, xx, arrays, min2, gq, qq, s, spread_on)
             if gi >= 0.0:
                 g = gi
                 spread[i] = sp
+            else:
+                stuck = True
             moved = moved or fi[i] != before
+        settled = not moved and not stuck
         if not moved:
             break
-    return g
+    return g, settled
 
 
 @jit()
@@ -412,7 +484,7 @@ def search_into(
 
     A count of 1 leaves ``out`` to the caller (the model's single-contact answer). With
     ``calib`` every stage up to ``K`` runs whatever the rule says (for its calibration); the
-    statistics go to ``S[10]``: g1, g2, g3, weakest z of 2 and of 3 contacts, ``|xw|^2``.
+    statistics go to ``S[-1]``: g1, g2, g3, weakest z of 2 and of 3 contacts, ``|xw|^2``.
     """
     w, Ct, Cg, Cd, Cpos, nbr, Ft, Fpos, Fpk, Fcell, off, cfine, Fn = arrays
     xw, bC, g1, top, fi, keep, gq, qq, s, spread, st = S
@@ -451,7 +523,8 @@ def search_into(
         return 1
     fi[0] = cfine[pa]
     fi[1] = cfine[pb]
-    gain2 = polish(2, fi, xw, xx, arrays, min2, S)
+    # the pair's spreads only matter if it is reported: polished without them first
+    gain2, settled = _rounds(2, fi, xw, xx, arrays, min2, S, 2, False)
     z2 = weakest_z(2, fi, s, Fpk)
     st[1] = gain2
     st[3] = z2
@@ -462,6 +535,13 @@ def search_into(
     if not two and not calib:
         return 1
     count = 2 if two else 1
+    if settled:
+        # a round that moves nothing, as the polish with spreads would have ended
+        polish(2, fi, xw, xx, arrays, min2, S, 1, True)
+    else:
+        fi[0] = cfine[pa]
+        fi[1] = cfine[pb]
+        polish(2, fi, xw, xx, arrays, min2, S)
     for j in range(2):
         keep[j] = fi[j]
         out[j, 3] = s[j]
@@ -475,6 +555,7 @@ def search_into(
             b[j] = _dot(Ft[fi[j]], xw)
             for t in range(2):
                 G[j, t] = _dot(Ft[fi[j]], Ft[fi[t]])
+        r0, r1_ = Ft[fi[0]], Ft[fi[1]]
         for c in range(C):
             far = far_apart(Cpos[c], Fpos[fi[0]], min2)
             if not (far and far_apart(Cpos[c], Fpos[fi[1]], min2)):
@@ -483,10 +564,12 @@ def search_into(
             if b[2] <= 0.0:
                 continue
             G[2, 2] = Cd[c]
-            for j in range(2):
-                G[2, j] = G[j, 2] = _dot(Ct[c], Ft[fi[j]])
-            g = nnls(G, b, 3, s)
-            if g > best3 and s[0] > 0.0 and s[1] > 0.0 and s[2] > 0.0:
+            G[2, 0] = G[0, 2] = _dot(Ct[c], r0)
+            G[2, 1] = G[1, 2] = _dot(Ct[c], r1_)
+            # only a solution with three positive strengths is kept: that is NNLS's
+            # interior one (its faces have a zero strength), so the faces are not solved
+            g = nnls3_interior(G, b, s)
+            if g > best3:
                 best3 = g
                 pc = c
         if pc >= 0:
@@ -578,7 +661,7 @@ def remember(
     Only a count of one whose rule score is at most ``SAFE_SCORE`` of ``tau2`` starts a
     memory (``SearchMemory``): its one-contact fit's row and the pair's rows (-1: none).
     """
-    st, fi = S[10], S[4]
+    st, fi = S[-1], S[4]
     mem[0] = 0.0
     xx = st[5]
     if K <= 1 or n != 1 or xx <= 0.0 or _score(xx, st[0], st[1], st[3], prm) > SAFE_SCORE:
@@ -603,12 +686,12 @@ def recall_into(
     the full search refines its best seed (``polish``, two rounds), the pair from the
     memory's pair (one round); their rule score must stay at most ``SAFE_SCORE`` of ``tau2``
     and the one-contact residual within ``RESIDUAL_GROWTH`` of the remembered one. The
-    statistics go to ``S[10]`` as the full search's (g1, g2, weakest z of 2, ``|xw|^2``).
+    statistics go to ``S[-1]`` as the full search's (g1, g2, weakest z of 2, ``|xw|^2``).
     """
     if mem[0] == 0.0 or mem[3] >= REFRESH_FRAMES:
         return -1
     w = arrays[0]
-    xw, fi, s, st = S[0], S[4], S[8], S[10]
+    xw, fi, s, st = S[0], S[4], S[8], S[-1]
     xx = 0.0
     zmax = 0.0
     for j in range(x.shape[0]):
@@ -645,3 +728,27 @@ def recall_into(
     mem[1] = row1
     mem[3] += 1.0
     return 1
+
+
+@jit()
+def search_remember(
+    x: np.ndarray,
+    K: int,
+    arrays: tuple,
+    prm: np.ndarray,
+    S: tuple,
+    out: np.ndarray,
+    pair: tuple,
+    pair_s: tuple,
+    mem: np.ndarray,
+    use_memory: bool,
+) -> int:  # pragma: no cover - compiled
+    """``search_into``, then (``use_memory``) ``remember`` in ``mem``, in one call.
+
+    Each compiled call unboxes every table again (1-2 µs): a frame the memory could not
+    answer pays for ``recall_into``'s and this one's only.
+    """
+    n = search_into(x, K, arrays, prm, S, False, out, pair, pair_s)
+    if use_memory:
+        remember(K, n, arrays, prm, S, mem)
+    return n

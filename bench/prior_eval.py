@@ -3,6 +3,7 @@
 Run from the repository root::
 
     python bench/prior_eval.py --data ../shared/data/hiro-cone-skin [--json OUT]
+    python bench/prior_eval.py --remount    # does the prior help --init? (simulated skins)
 
 Splits (all 2023-12-10): 5 and 10 touches spread evenly (farthest-point, seeds 0-2) over
 20PL_1's targets, and all 20 of 20PL_1, each tested on 50PL_1, 80PL_1 and 30PL_1; 40 touches
@@ -149,6 +150,90 @@ def simulated(n_skins: int = 20, first_seed: int = 5000) -> dict:
     return out
 
 
+def remount(n_skins: int = 20, first_seed: int = 7000, jitter: float = 0.4) -> dict:
+    """Does the prior help ``--init``? Simulated skins re-mounted, judged before any real split.
+
+    Each skin (seeds 7000-, none used by the prior's build): a map of 80 touches on random
+    mesh edges; then a second session of the same wiring with its physics jittered (log-normal,
+    ``jitter``: footprint fall-off at half of it, silicone thickness, line coupling, peak
+    signal, gain spread at twice it) and 40 touches, the first k (5, 10) the new calibration,
+    the last 20 the test (per touch). Compared: the old map as is; ``--init`` as it is (a
+    correction layer with the old map's hyperparameters); the correction layer with its
+    hyperparameters a posteriori under the prior; a shared offset of the new session's mean
+    feature shrunk by the prior's pseudo-touches; the k touches alone, without and with the
+    prior.
+    """
+    import dataclasses
+
+    from skinloc.calibration.prior_build import _draw_params, _errors_mm
+    from skinloc.geometry.mesh import cone_skin, sample_targets, surface_points
+    from skinloc.models.map_prior import load_prior
+    from skinloc.models.response_map import ResponseMap, _fit_layer, shape_features
+    from skinloc.sim.skin import SimulatedSkin
+
+    prior, mesh = load_prior(), cone_skin()
+    cands = surface_points(mesh, 4000)
+
+    def session(params, seed, rng, n):
+        skin = SimulatedSkin(mesh, params=params, random_state=seed)
+        targets, means = sample_targets(mesh, n, "edge", rng), np.empty((n, 64))
+        with skin:
+            base = skin.read_many(50)[0].mean(axis=0)
+            for i, x in enumerate(targets):
+                skin.touch_near(x, rng)
+                means[i] = skin.read_many(50)[0].mean(axis=0) - base
+                skin.release()
+                skin.advance(2.0)
+        return targets, shape_features(means)
+
+    def jittered(p, rng):
+        def j(v: float, rel: float) -> float:
+            return float(v * np.exp(rel * rng.standard_normal()))
+
+        return dataclasses.replace(
+            p,
+            falloff_exponent=j(p.falloff_exponent, jitter / 2),
+            silicone_thickness_m=j(p.silicone_thickness_m, jitter),
+            line_coupling=j(p.line_coupling, jitter),
+            peak_signal_counts=j(p.peak_signal_counts, jitter),
+            gain_std=min(j(p.gain_std, 2 * jitter), 1.5),
+        )
+
+    def corrected(rmap, q, F, how):
+        R = F - rmap.evaluate_mm(1e3 * q)
+        base, off = rmap.layers[0], np.zeros(R.shape[1])
+        if how == "offset":
+            off = R.sum(axis=0) / (len(R) + prior.mean_pseudo_touches)
+        fixed = (None, None) if how == "prior" else (base.length_scale_mm, base.noise)
+        layer = _fit_layer(1e3 * q, R - off, fixed[0], (2.0, 300.0), fixed[1], prior)
+        return ResponseMap(rmap.mean + off, [*rmap.layers, layer], rmap.candidates)
+
+    errs: dict = {}
+    for seed in range(first_seed, first_seed + n_skins):
+        rng = np.random.default_rng([seed, 77])
+        p1 = _draw_params(rng, 8, 8)
+        t1, F1 = session(p1, seed, rng, 80)
+        old = ResponseMap.fit(t1, F1, cands)
+        t2, F2 = session(jittered(p1, rng), seed, rng, 40)
+        for k in (5, 10):
+            q, F = t2[:k], F2[:k]
+            maps = {
+                "old map": old,
+                "--init": old.refined(q, F),
+                "--init, prior hyperparameters": corrected(old, q, F, "prior"),
+                "--init, shrunk offset": corrected(old, q, F, "offset"),
+                "alone, --no-prior": ResponseMap.fit(q, F, cands),
+                "alone, prior": ResponseMap.fit(q, F, cands, prior=prior),
+            }
+            for how, m in maps.items():
+                e = _errors_mm(m, F2[20:], t2[20:]).mean()
+                errs.setdefault(f"k={k}", {}).setdefault(how, []).append(float(e))
+    out = {k: {h: float(np.mean(v)) for h, v in d.items()} for k, d in errs.items()}
+    for k, d in out.items():
+        print(f"re-mounted, {k}:", ", ".join(f"{h} {v:.1f}" for h, v in d.items()))
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--data", type=Path, default=Path("../shared/data/hiro-cone-skin"))
@@ -158,9 +243,10 @@ def main() -> None:
     ap.add_argument("--json", type=Path)
     ap.add_argument("--recalibration", action="store_true", help="2023-12 -> 2024-05 instead")
     ap.add_argument("--simulated", action="store_true", help="20 unseen simulated skins instead")
+    ap.add_argument("--remount", action="store_true", help="--init on re-mounted simulated skins")
     a = ap.parse_args()
-    if a.recalibration or a.simulated:
-        res = recalibration(a.data) if a.recalibration else simulated()
+    if a.recalibration or a.simulated or a.remount:
+        res = recalibration(a.data) if a.recalibration else remount() if a.remount else simulated()
         if a.json:
             a.json.write_text(json.dumps(res, indent=1))
         return

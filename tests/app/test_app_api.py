@@ -109,6 +109,14 @@ def test_full_session_calibrate_train_validate_live(tmp_path):
         assert result["n_test"] >= 1 and result["n_train"] + result["n_test"] == 8
         assert np.isfinite(result["mean_mm"])
         assert (tmp_path / sid / "model.h5").is_file()
+        # the Train page's curve: this session's held-out error with and without the prior
+        curve = result["prior_curve"]
+        assert curve["sizes"][-1] == result["n_train"]
+        assert len(curve["prior_mm"]) == len(curve["no_prior_mm"]) == len(curve["sizes"])
+        assert all(curve["prior_applied"])  # 8 touches: within the prior's reach
+        ref = client.get("/api/accuracy/reference").json()
+        assert {"default", "default, no prior", "paper"} <= set(ref["curves"])
+        assert ref["probing_floor_mm"] > 0
 
         r = client.post("/api/validate/start", json={"n_points": 3}, headers=A)
         assert r.status_code == 200, r.text

@@ -9,7 +9,14 @@ import pytest
 from typer.testing import CliRunner
 
 from skinloc import __version__
-from skinloc.experiments.demo import REAL_SKIN_ERROR_MM, DemoConfig, run_demo
+from skinloc.experiments.demo import (
+    NO_PRIOR,
+    PROBING_FLOOR_MM,
+    REAL_SKIN_ERROR_MM,
+    DemoConfig,
+    reference_curves,
+    run_demo,
+)
 
 runner = CliRunner()
 
@@ -44,10 +51,31 @@ def test_expected_error_is_over_several_skins_with_the_paper_net(demo) -> None:
 
 
 @pytest.mark.slow  # the demo: models per skin and curve size
+def test_the_default_is_drawn_with_and_without_the_map_prior(demo) -> None:
+    _, res = demo
+    main, off = res.skins["main"], res.skins["no prior"]
+    assert off.arch == NO_PRIOR and off.sizes == main.sizes
+    assert np.asarray(off.per_skin).shape == np.asarray(main.per_skin).shape
+    # 6 and 12 touches: both within the prior's reach, so both fitted with and without it
+    assert res.prior_sizes == [6, 12]
+    lines = res.prior_lines()
+    assert len(lines) == 2 and lines[0].startswith("6 touches: ")
+    assert "with the map prior" in lines[0] and "without" in lines[0]
+
+
+@pytest.mark.slow  # the demo: models per skin and curve size
 def test_report_is_a_notebook_page_with_vector_figures(demo) -> None:
     out, _ = demo
     page = (out / "index.html").read_text(encoding="utf-8")
-    for needed in (__version__, "seed", "7 (skins 7-8", "response map", "paper 64-32-3"):
+    for needed in (
+        __version__,
+        "seed",
+        "7 (skins 7-8",
+        "response map",
+        "paper 64-32-3",
+        "map prior, 6 touches",
+        "probing floor",
+    ):
         assert needed in page, needed
     assert "mean +- std over 2 simulated skins" in page
     for name in ("sensor_image", "predictions_3d", "error_vs_points", "uncertainty"):
@@ -59,8 +87,17 @@ def test_report_is_a_notebook_page_with_vector_figures(demo) -> None:
 
 
 def test_real_skin_figures_cover_the_curve_sizes() -> None:
-    for arch in ("default", "paper"):
-        assert sorted(REAL_SKIN_ERROR_MM[arch]) == [10, 20, 40, 80]
+    for arch in ("default", NO_PRIOR, "paper"):
+        assert sorted(REAL_SKIN_ERROR_MM[arch]) == list(DemoConfig().curve_sizes)
+
+
+def test_reference_curves_are_the_real_skin_figures_and_the_floor() -> None:
+    ref = reference_curves()
+    assert ref["probing_floor_mm"] == PROBING_FLOOR_MM
+    assert set(ref["curves"]) == {"default", NO_PRIOR, "paper"}
+    for arch, c in ref["curves"].items():
+        assert dict(zip(c["sizes"], c["mean_mm"], strict=True)) == REAL_SKIN_ERROR_MM[arch]
+    assert ref["trained_on"].endswith("80PL_1.mat") and len(ref["tested_on"]) == 2
 
 
 def test_cli_rejects_zero_skins(tmp_path: Path) -> None:

@@ -107,7 +107,7 @@ def demo(
         n_validation=validation,
         random_state=seed,
         arch=arch.value,
-        curve_sizes=tuple(n for n in (10, 20, 40, 80) if n < points) + (points,),
+        curve_sizes=tuple(n for n in (5, 10, 20, 40, 80) if n < points) + (points,),
         n_skins=skins,
     )
     with progress_steps() as step:
@@ -123,6 +123,8 @@ def demo(
         f"{n_skins} simulated skins)"
         + (f"; on the real skin: {real:.1f} mm (docs/benchmarks.md)" if real else "")
     )
+    for line in res.prior_lines():  # the map prior matters with few touches
+        console.print(f"With {line}", highlight=False)
     console.print(
         f"This skin: {res.stats.mean_mm:.1f} +- {res.stats.std_mm:.1f} mm "
         f"(median {res.stats.median_mm:.1f} mm, p95 {res.stats.p95_mm:.1f} mm)"

@@ -130,10 +130,13 @@ def plot_error_curves(
     simulated: dict[str, tuple[Sequence[int], Sequence[float], Sequence[float]]],
     real: dict[str, tuple[Sequence[int], Sequence[float]]],
     path: str | Path,
+    floor_mm: float | None = None,
 ) -> Path:
     """Error against point logs: simulated curves with error bars, real-skin points beside.
 
-    ``simulated[label] = (sizes, mean_mm, std_mm)`` and ``real[label] = (sizes, mean_mm)``.
+    ``simulated[label] = (sizes, mean_mm, std_mm)`` and ``real[label] = (sizes, mean_mm)``;
+    the i-th real curve takes the i-th simulated one's colour. ``floor_mm`` draws the probing
+    floor (how far a person's touch lands from the prompt) as a dotted line.
     """
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(6.4, 4.4))
@@ -142,6 +145,8 @@ def plot_error_curves(
         ax.errorbar(xs, ys, yerr=es, marker="o", capsize=3, color=colours[i % 4], label=label)
     for i, (label, (xs, ys)) in enumerate(real.items()):
         ax.plot(xs, ys, marker="s", ls="--", mfc="none", color=colours[i % 4], label=label)
+    if floor_mm is not None:
+        ax.axhline(floor_mm, color="0.4", ls=":", label=f"probing floor ({floor_mm:.1f} mm)")
     ax.set_xlabel("calibration point logs")
     ax.set_ylabel("mean localisation error (mm)")
     ax.set_ylim(bottom=0)

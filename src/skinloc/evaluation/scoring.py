@@ -15,6 +15,7 @@ __all__ = [
     "Evaluation",
     "check_compatible",
     "evaluate",
+    "prior_curve",
     "recalibrate_localizer",
     "train_localizer",
     "training_arrays",
@@ -165,3 +166,46 @@ def recalibrate_localizer(model, recordings: Sequence[Recording], *, progress=No
         "n_point_logs": int(sum(r.n_point_logs for r in recordings)),
     }
     return new
+
+
+def prior_curve(
+    train: Recording,
+    tests: Sequence[Recording],
+    sizes: Sequence[int] = (5, 10, 20, 40, 80),
+    *,
+    mesh=None,
+    **overrides,
+) -> dict[str, list]:
+    """Error against calibration touches with and without the map prior, on one skin.
+
+    The default model (a response map) is fitted on evenly spread subsets of ``train``'s
+    touches (farthest-point, the first touch first) of each size in ``sizes`` up to all of
+    them, with its map prior (``overrides["prior"]``, else the package's) and without it, and
+    scored on ``tests``. Where the prior is not applied (more touches than it helps at) the
+    two models are the same and fitted once.
+
+    Returns
+    -------
+    dict
+        ``sizes`` (touches), ``prior_mm`` and ``no_prior_mm`` (mean error per touch, mm,
+        rounded to 0.1), ``prior_applied`` (bool per size).
+    """
+    from skinloc.geometry.mesh import farthest_point_sampling
+
+    n = train.n_point_logs
+    ns = sorted({int(k) for k in sizes if 1 <= k < n} | {n})
+    out: dict[str, list] = {"sizes": ns, "prior_mm": [], "no_prior_mm": [], "prior_applied": []}
+    for k in ns:
+        sub = train if k == n else train.subset(farthest_point_sampling(train.targets, k, 0))
+        with_prior = train_localizer([sub], mesh=mesh, **overrides)
+        used = bool(getattr(with_prior, "prior_used_", False))
+        mm = round(float(evaluate(with_prior, tests).stats.mean_mm), 1)
+        if used:
+            plain = train_localizer([sub], mesh=mesh, **{**overrides, "prior": "none"})
+            plain_mm = round(float(evaluate(plain, tests).stats.mean_mm), 1)
+        else:
+            plain_mm = mm
+        out["prior_mm"].append(mm)
+        out["no_prior_mm"].append(plain_mm)
+        out["prior_applied"].append(used)
+    return out

@@ -25,12 +25,15 @@ from skinloc.geometry.mesh import cone_skin, farthest_point_sampling
 log = logging.getLogger(__name__)
 
 __all__ = [
+    "NO_PRIOR",
+    "PROBING_FLOOR_MM",
     "REAL_SKIN_ERROR_MM",
     "REAL_SKIN_SPLIT",
     "DemoConfig",
     "DemoResult",
     "SkinCurve",
     "real_skin_errors",
+    "reference_curves",
     "run_demo",
 ]
 
@@ -40,10 +43,15 @@ __all__ = [
 #: the recordings when they are present (``tests/experiments/test_real_skin_figures.py``).
 #: "default" uses the map prior where it helps (up to 15 touches), "default, no prior" never.
 REAL_SKIN_ERROR_MM: dict[str, dict[int, float]] = {
-    "default": {10: 17.1, 20: 13.8, 40: 11.2, 80: 9.9},
-    "default, no prior": {10: 16.9, 20: 13.8, 40: 11.2, 80: 9.9},
-    "paper": {10: 36.4, 20: 21.5, 40: 17.7, 80: 14.5},
+    "default": {5: 29.3, 10: 17.1, 20: 13.8, 40: 11.2, 80: 9.9},
+    "default, no prior": {5: 29.9, 10: 16.9, 20: 13.8, 40: 11.2, 80: 9.9},
+    "paper": {5: 46.5, 10: 36.4, 20: 21.5, 40: 17.7, 80: 14.5},
 }
+#: The default model fitted without the map prior (``--no-prior``): a curve of its own.
+NO_PRIOR = "default, no prior"
+#: How far a person's touch lands from the prompted point on the real skin, per touch, mm
+#: (``docs/accuracy.md``, ``bench/label_noise.py``): no model scores below it against prompts.
+PROBING_FLOOR_MM = 6.2
 #: The recordings of ``REAL_SKIN_ERROR_MM``: trained on the first, tested on the others.
 REAL_SKIN_SPLIT = (
     "ConeSkinData80Points_RND_80PL_1.mat",
@@ -52,8 +60,26 @@ REAL_SKIN_SPLIT = (
 )
 
 
+def reference_curves() -> dict:
+    """The real skin's error curves and the probing floor, as plain JSON-ready data.
+
+    ``{"curves": {label: {"sizes": [...], "mean_mm": [...]}}, "probing_floor_mm": float,
+    "trained_on": str, "tested_on": [str, ...]}``; labels are "default" (with the map prior),
+    "default, no prior" and "paper" (the paper's 64-32-3 network).
+    """
+    return {
+        "curves": {
+            arch: {"sizes": list(errs), "mean_mm": list(errs.values())}
+            for arch, errs in REAL_SKIN_ERROR_MM.items()
+        },
+        "probing_floor_mm": PROBING_FLOOR_MM,
+        "trained_on": REAL_SKIN_SPLIT[0],
+        "tested_on": list(REAL_SKIN_SPLIT[1:]),
+    }
+
+
 def real_skin_errors(
-    data_dir: str | Path, arch: str = "default", sizes: tuple[int, ...] = (10, 20, 40, 80)
+    data_dir: str | Path, arch: str = "default", sizes: tuple[int, ...] = (5, 10, 20, 40, 80)
 ) -> dict[int, float]:
     """``REAL_SKIN_ERROR_MM[arch]`` recomputed from the real recordings in ``data_dir``.
 
@@ -63,7 +89,7 @@ def real_skin_errors(
     from skinloc.data.recording import read_recording
 
     train, *tests = (read_recording(Path(data_dir) / n) for n in REAL_SKIN_SPLIT)
-    kw = {"arch": arch} if arch != "default, no prior" else {"prior": "none"}
+    kw = {"arch": arch} if arch != NO_PRIOR else {"prior": "none"}
     out = {}
     for n in sizes:
         sub = train.subset(_even_subset(train.targets, n))
@@ -104,7 +130,7 @@ class DemoConfig:
     n_points: int = 80
     n_validation: int = 20
     samples_per_touch: int = 50
-    curve_sizes: tuple[int, ...] = (10, 20, 40, 80)
+    curve_sizes: tuple[int, ...] = (5, 10, 20, 40, 80)
     random_state: int = 0
     arch: str = "default"
     n_skins: int = 3
@@ -140,6 +166,29 @@ class DemoResult:
     fit_time_s: float = float("nan")
     skins: dict[str, SkinCurve] = field(default_factory=dict)
     uncertainty_spearman: float = float("nan")
+    prior_sizes: list[int] = field(default_factory=list)
+
+    def prior_lines(self) -> list[str]:
+        """One line per calibration size the map prior was applied at: with it and without.
+
+        The simulated skins' mean +- std, and the real skin's figures where known, mm.
+        """
+        main, off = self.skins.get("main"), self.skins.get("no prior")
+        if main is None or off is None:
+            return []
+        lines = []
+        for n in self.prior_sizes:
+            i = main.sizes.index(n)
+            line = (
+                f"{n} touches: {main.mean()[i]:.1f} +- {main.spread()[i]:.1f} mm with the map "
+                f"prior, {off.mean()[i]:.1f} +- {off.spread()[i]:.1f} mm without "
+                f"({len(main.per_skin)} simulated skins)"
+            )
+            real = [REAL_SKIN_ERROR_MM[a].get(n) for a in (main.arch, NO_PRIOR)]
+            if None not in real:
+                line += f"; real skin {real[0]:.1f} / {real[1]:.1f} mm"
+            lines.append(line)
+        return lines
 
     def headline(self) -> tuple[float, float, int]:
         """Mean and spread (std over skins) of the error at the largest size, mm; skins."""
@@ -209,7 +258,9 @@ def _run(cfg: DemoConfig, step: Callable[[str, int, int], None] | None) -> DemoR
     without_torch = compare and importlib.util.find_spec("torch") is None
     if without_torch:
         log.warning("the paper's network is left out: it trains in PyTorch (skinloc[nets])")
-    archs = [cfg.arch] + (["paper"] if compare and not without_torch else [])
+    # the default model is drawn with and without the map prior (a curve each)
+    archs = [cfg.arch] + ([NO_PRIOR] if cfg.arch == "default" else [])
+    archs += ["paper"] if compare and not without_torch else []
     sizes = sorted({n for n in cfg.curve_sizes if 1 <= n <= cfg.n_points} | {cfg.n_points})
     per_skin: dict[str, list[list[float]]] = {a: [] for a in archs}
     ev = cal = val = model = None
@@ -243,12 +294,19 @@ def _run(cfg: DemoConfig, step: Callable[[str, int, int], None] | None) -> DemoR
                     say,
                     "validating (fresh random touches)" + tag,
                 )
+            prior_used: dict[int, bool] = {}
             for arch in archs:
                 row = []
                 for i, n in enumerate(sizes):
+                    if arch == NO_PRIOR and not prior_used[n]:
+                        # the default fitted this size without the prior: the same model
+                        row.append(per_skin[cfg.arch][-1][i])
+                        continue
                     say("error against point logs" + tag, i, len(sizes))
                     sub = c if n == c.n_point_logs else c.subset(_even_subset(c.targets, n))
-                    m = train_localizer([sub], arch=arch, random_state=seed)
+                    kw = {"prior": "none"} if arch == NO_PRIOR else {"arch": arch}
+                    m = train_localizer([sub], random_state=seed, **kw)
+                    prior_used.setdefault(n, bool(getattr(m, "prior_used_", False)))
                     e = evaluate(m, [v])
                     row.append(e.stats.mean_mm)
                     if first and arch == cfg.arch:
@@ -262,9 +320,15 @@ def _run(cfg: DemoConfig, step: Callable[[str, int, int], None] | None) -> DemoR
     model.save(out / "model.h5")
     snr = mean_snr_db(cal.touch_means, cal.baseline_frames)
     skins = {"main": SkinCurve(cfg.arch, sizes, per_skin[cfg.arch])}
+    if NO_PRIOR in per_skin:
+        skins["no prior"] = SkinCurve(NO_PRIOR, sizes, per_skin[NO_PRIOR])
     if "paper" in per_skin and cfg.arch != "paper":
         skins["paper"] = SkinCurve("paper", sizes, per_skin["paper"])
 
+    applied = sorted(n for n, used in prior_used.items() if used) if NO_PRIOR in archs else []
+    res = DemoResult(
+        ev.stats, snr, curve, None, model.fit_time_s_, skins, ev.uncertainty_spearman, applied
+    )
     figs = _figures(cfg, out, mesh, cal, ev, skins, report)
     mean, spread, n_sk = (
         float(skins["main"].mean()[-1]),
@@ -311,6 +375,10 @@ def _run(cfg: DemoConfig, step: Callable[[str, int, int], None] | None) -> DemoR
             if without_torch
             else {}
         ),
+        **{
+            f"map prior, {line.split(': ', 1)[0]}": line.split(": ", 1)[1]
+            for line in res.prior_lines()
+        },
         "this skin's error": str(ev.stats),
         "uncertainty vs error": f"Spearman {ev.uncertainty_spearman:.2f}",
         "mean SNR (Eq. 1)": f"{snr:.1f} dB",
@@ -326,7 +394,8 @@ def _run(cfg: DemoConfig, step: Callable[[str, int, int], None] | None) -> DemoR
         f"`skinloc demo --seed {cfg.random_state} --points {cfg.n_points} "
         f"--validation {cfg.n_validation} --skins {len(seeds)}`.",
     )
-    return DemoResult(ev.stats, snr, curve, page, model.fit_time_s_, skins, ev.uncertainty_spearman)
+    res.report = page
+    return res
 
 
 def _describe(arch: str, cfg: dict) -> str:
@@ -348,10 +417,14 @@ def _figures(cfg, out, mesh, cal, ev, skins, report) -> list[tuple[str, str]]:
     curves = {
         f"{main.arch} (simulated, {n_sk} skins)": (main.sizes, main.mean(), main.spread()),
     }
+    if "no prior" in skins:
+        p = skins["no prior"]
+        curves[f"{NO_PRIOR} (simulated, {n_sk} skins)"] = (p.sizes, p.mean(), p.spread())
     if "paper" in skins:
         p = skins["paper"]
         curves[f"paper 64-32-3 (simulated, {n_sk} skins)"] = (p.sizes, p.mean(), p.spread())
-    shown = [main.arch] + (["default, no prior"] if main.arch == "default" else [])
+    # the real skin's curves in the same order (and so colours) as the simulated ones
+    shown = [main.arch] + ([NO_PRIOR] if "no prior" in skins else [])
     shown += ["paper"] if "paper" in skins else []
     real = {
         f"{a} (real skin)": (list(REAL_SKIN_ERROR_MM[a]), list(REAL_SKIN_ERROR_MM[a].values()))
@@ -375,12 +448,17 @@ def _figures(cfg, out, mesh, cal, ev, skins, report) -> list[tuple[str, str]]:
             "target (o) to the prediction (x); colour is the error.",
         ),
         (
-            report.plot_error_curves(curves, real, out / "error_vs_points.png"),
+            report.plot_error_curves(
+                curves, real, out / "error_vs_points.png", floor_mm=PROBING_FLOOR_MM
+            ),
             f"Validation error against calibration point logs. Simulated: mean over {n_sk} "
             "skins, error bars one standard deviation between skins (each skin's error is "
             f"the mean over its validation touches). Real skin: {', '.join(real)} from "
             "docs/benchmarks.md (trained on evenly spread subsets of one real recording, "
-            "tested on two others of the same day).",
+            'tested on two others of the same day). "default" uses the map prior learned '
+            'from simulated skins where it helps (few touches); "default, no prior" is '
+            "`skinloc train --no-prior`. Dotted: the probing floor, how far a person's touch "
+            f"lands from the prompt on the real skin (~{PROBING_FLOOR_MM:.1f} mm).",
         ),
         (
             report.plot_uncertainty(ev.uncertainty_mm, ev.errors_mm, out / "uncertainty.png"),

@@ -20,7 +20,12 @@ STATIC = Path(str(resources.files("skinloc.app") / "static"))
 
 
 def add_routes(app: FastAPI, workspace: Workspace, token: str) -> None:
-    """``/``, ``/static``, ``GET /api/state``, ``/api/session[/coverage|/mesh]``, the lease."""
+    """``/``, ``/static``, ``GET /api/state``, ``/api/session[/coverage|/mesh]``, the lease.
+
+    ``GET /api/accuracy/reference``: the real skin's error against calibration touches with
+    and without the map prior and the paper's network, and the probing floor (the reference
+    the Train page draws the session's own ``prior_curve`` against).
+    """
 
     @app.get("/", include_in_schema=False)
     def index() -> HTMLResponse:
@@ -54,6 +59,12 @@ def add_routes(app: FastAPI, workspace: Workspace, token: str) -> None:
     @app.get("/api/session/mesh")
     def session_mesh() -> Response:
         return json_response(workspace.session_mesh())
+
+    @app.get("/api/accuracy/reference")
+    def accuracy_reference() -> Response:
+        from skinloc.experiments.demo import reference_curves
+
+        return json_response(reference_curves())
 
     # The one action that does not first take control (``actions_router``): it takes it over.
     @app.post("/api/lease")

@@ -102,7 +102,7 @@ class TrainingJobs:
         ``rec`` holds the touches trained on; ``inputs["kept"]`` maps them to the session's.
         """
         from skinloc.evaluation.influence import touch_influence
-        from skinloc.evaluation.scoring import evaluate, train_localizer
+        from skinloc.evaluation.scoring import evaluate, prior_curve, train_localizer
         from skinloc.models.localizer import ARCHITECTURES
 
         opts = self.config.train_options
@@ -129,6 +129,12 @@ class TrainingJobs:
                 [rec.subset(fit)], mesh=a.mesh, progress=progress("held-out check"), **opts
             )
             ev = evaluate(check, [rec.subset(test)])
+            # The Train page's curve: this session's held-out error against calibration
+            # touches, with the map prior and without (a few map fits: seconds).
+            curve = None
+            if check.config_["kind"] == "map" and check.map_prior() is not None:
+                progress("with and without the map prior")(0, 1)
+                curve = prior_curve(rec.subset(fit), [rec.subset(test)], mesh=a.mesh, **opts)
             model = train_localizer([rec], mesh=a.mesh, progress=progress("final model"), **opts)
             holdout = {
                 **ev.stats.as_dict(),
@@ -165,6 +171,7 @@ class TrainingJobs:
                 how = "held out"
                 touched, errs = kept[test].tolist(), np.round(ev.errors_mm, 2).tolist()
             holdout["touch_errors"] = {"how": how, "index": touched, "error_mm": errs}
+            holdout["prior_curve"] = curve
             holdout["train_s"] = round(time.perf_counter() - t0, 2)
             model.save(a.folder.model, extra_meta={"holdout": holdout, "session": session})
         except Exception as exc:  # reported to the tabs; the session itself is untouched

@@ -229,6 +229,17 @@ def test_train_page_shows_each_touch_error_on_the_skin_and_as_a_histogram(chromi
         ]
         assert sum(counts) == 8
         assert result.locator("svg.hist .mark-mean").count() == 1
+        # Error against touches: this session with and without the map prior, the real skin's
+        # three reference curves (dashed) and the probing floor.
+        curve = ws.active.info["holdout"]["prior_curve"]
+        assert curve["sizes"] and len(curve["prior_mm"]) == len(curve["sizes"])
+        expect(result.locator("svg.curve path")).to_have_count(5)
+        assert result.locator("svg.curve .line-prior title").text_content().startswith(
+            "this session, with the prior"
+        )
+        assert result.locator("svg.curve .line-paper").count() == 1
+        assert result.locator("svg.curve line.floor").count() == 1
+        expect(result.locator(".prior-curve")).to_contain_text("Dashed: the real skin")
         worst = int(np.argmax(te["error_mm"]))
         expect(result.locator(".evidence .hint")).to_contain_text(f"#{te['index'][worst] + 1} (")
         # One dot per touch on the 3D skin, at its target, shown on the Train page only.

@@ -4,7 +4,7 @@ import { LivePage } from "/static/live.js";
 import { drawHeat } from "/static/heatmap.js";
 import { ExportPage } from "/static/export.js";
 import { RecordPanel } from "/static/record.js";
-import { TrainEvidence } from "/static/evidence.js";
+import { TrainEvidence, referenceReady } from "/static/evidence.js";
 import { LivePlot, SensorTrace, TouchView } from "/static/traces.js";
 import { LiveSettings } from "/static/settings.js";
 
@@ -904,6 +904,7 @@ app.viewer = new Viewer($("#viewer"));
 app.live = new LivePage(app.viewer, { $, esc, mm, later, mode: () => app.state?.mode });
 app.exporter = new ExportPage($("#export-card"), { viewer: app.viewer, esc, sessionId: () => app.state?.session?.id });
 app.evidence = new TrainEvidence(app.viewer);
+referenceReady.then(() => renderTraining()); // the real skin's curves beside the session's
 app.sensorTrace = new SensorTrace();
 app.plot = new LivePlot($("#heat-live"));
 app.touchView = new TouchView({ esc });

@@ -72,6 +72,73 @@ export function histogramSvg(errors, { width = 420, height = 190 } = {}) {
   return out.join("");
 }
 
+// The real skin's curves and the probing floor (GET /api/accuracy/reference), drawn beside the
+// session's own; fetched once, the chart shows the session's curves alone until they arrive.
+let reference = null;
+export const referenceReady = fetch("/api/accuracy/reference")
+  .then((r) => (r.ok ? r.json() : null))
+  .then((j) => { reference = j; })
+  .catch(() => {});
+
+const CURVE_STYLE = {
+  prior: { colour: "#2563eb", label: "this session, with the prior" },
+  noPrior: { colour: "#d97706", label: "this session, without" },
+  "default": { colour: "#2563eb", dash: "5 4", label: "real skin, with the prior" },
+  "default, no prior": { colour: "#d97706", dash: "5 4", label: "real skin, without" },
+  paper: { colour: "#6b7280", dash: "2 3", label: "real skin, the paper's network" },
+};
+
+// Error against calibration touches as SVG: the session's held-out error with and without the
+// map prior (``curve``: prior_curve's sizes, prior_mm, no_prior_mm), the real skin's reference
+// curves dashed, and the probing floor dotted. Touches on a log axis.
+export function curveSvg(curve, ref = reference, { width = 420, height = 210 } = {}) {
+  if (!curve?.sizes?.length) return "";
+  const lines = [
+    ["prior", curve.sizes, curve.prior_mm],
+    ["noPrior", curve.sizes, curve.no_prior_mm],
+  ];
+  for (const [name, c] of Object.entries(ref?.curves ?? {})) {
+    if (CURVE_STYLE[name]) lines.push([name, c.sizes, c.mean_mm]);
+  }
+  const floor = ref?.probing_floor_mm;
+  const xs = lines.flatMap(([, x]) => x), ys = lines.flatMap(([, , y]) => y).filter(Number.isFinite);
+  const x0 = Math.log(Math.min(...xs)), x1 = Math.log(Math.max(...xs) * 1.05);
+  const yTop = Math.max(...ys, floor ?? 0) * 1.08;
+  const L = 36, R = 10, T = 10, B = 64, pw = width - L - R, ph = height - T - B;
+  const X = (n) => L + ((Math.log(n) - x0) / Math.max(x1 - x0, 1e-9)) * pw;
+  const Y = (mm) => T + ph - (mm / yTop) * ph;
+  const out = [`<svg class="curve" xmlns="http://www.w3.org/2000/svg" width="${width}" height="${height}" viewBox="0 0 ${width} ${height}" role="img" aria-label="error against calibration touches">`];
+  out.push(`<line x1="${L}" y1="${T + ph}" x2="${L + pw}" y2="${T + ph}" stroke="#667"/><line x1="${L}" y1="${T}" x2="${L}" y2="${T + ph}" stroke="#667"/>`);
+  for (const n of [...new Set(xs)].sort((a, b) => a - b)) {
+    out.push(`<text x="${X(n).toFixed(1)}" y="${T + ph + 12}" font-size="10" text-anchor="middle" fill="#556">${n}</text>`);
+  }
+  const step = binWidth(yTop, 4);
+  for (let v = 0; v <= yTop; v += step) {
+    out.push(`<text x="${L - 3}" y="${(Y(v) + 3).toFixed(1)}" font-size="10" text-anchor="end" fill="#556">${+v.toFixed(1)}</text>`);
+  }
+  out.push(`<text x="${L + pw / 2}" y="${T + ph + 25}" font-size="11" text-anchor="middle" fill="#556">calibration touches</text>`);
+  out.push(`<text x="9" y="${T + ph / 2}" font-size="11" text-anchor="middle" fill="#556" transform="rotate(-90 9 ${T + ph / 2})">mean error (mm)</text>`);
+  if (Number.isFinite(floor)) {
+    out.push(`<line class="floor" x1="${L}" y1="${Y(floor).toFixed(1)}" x2="${L + pw}" y2="${Y(floor).toFixed(1)}" stroke="#059669" stroke-dasharray="1 3"><title>probing floor ${floor} mm</title></line>`);
+  }
+  const legend = [];
+  for (const [name, sx, sy] of lines) {
+    const st = CURVE_STYLE[name];
+    const pts = sx.map((n, k) => [n, sy[k]]).filter(([, y]) => Number.isFinite(y));
+    if (!pts.length) continue;
+    const d = pts.map(([n, y], k) => `${k ? "L" : "M"}${X(n).toFixed(1)},${Y(y).toFixed(1)}`).join("");
+    out.push(`<path class="line-${name.replace(/[^a-z]+/gi, "-")}" d="${d}" fill="none" stroke="${st.colour}" stroke-width="${name === "prior" || name === "noPrior" ? 2 : 1.3}"${st.dash ? ` stroke-dasharray="${st.dash}"` : ""}><title>${st.label}: ${pts.map(([n, y]) => `${n}: ${y} mm`).join(", ")}</title></path>`);
+    legend.push([st, name]);
+  }
+  if (Number.isFinite(floor)) legend.push([{ colour: "#059669", dash: "1 3", label: `probing floor ${floor} mm` }, "floor"]);
+  legend.forEach(([st, name], k) => {
+    const lx = L + (k % 2) * (pw / 2), ly = T + ph + 38 + Math.floor(k / 2) * 12;
+    out.push(`<line x1="${lx}" y1="${ly - 3}" x2="${lx + 16}" y2="${ly - 3}" stroke="${st.colour}" stroke-width="${name === "prior" || name === "noPrior" ? 2 : 1.3}"${st.dash ? ` stroke-dasharray="${st.dash}"` : ""}/><text x="${lx + 20}" y="${ly}" font-size="10" fill="#1d2330">${st.label}</text>`);
+  });
+  out.push("</svg>");
+  return out.join("");
+}
+
 export class TrainEvidence {
   constructor(viewer) {
     this.viewer = viewer;
@@ -93,7 +160,16 @@ export class TrainEvidence {
       <h3>Error of each touch <small>predicted by a model that did not see it (${te.how}, ${te.error_mm.length} touches)</small></h3>
       ${histogramSvg(te.error_mm)}
       <p class="hint">Worst: ${worst}. On the 3D view each touch is a dot at its target, coloured by its error:
-      <span class="err-scale"><span class="bar"></span> 0 to ≥ ${scaleTop(te.error_mm)} mm</span></p></div>`;
+      <span class="err-scale"><span class="bar"></span> 0 to ≥ ${scaleTop(te.error_mm)} mm</span></p></div>${this.curveHtml(h)}`;
+  }
+
+  // The session's error against calibration touches with and without the map prior.
+  curveHtml(h) {
+    const c = h?.prior_curve;
+    if (!c?.sizes?.length) return "";
+    const ref = reference ? ` Dashed: the real skin (trained on ${reference.trained_on}, tested on ${reference.tested_on.join(", ")}).` : "";
+    return `<div class="prior-curve"><h3>Error against touches <small>this session's held-out touches, models of evenly spread subsets with the map prior and without</small></h3>
+      ${curveSvg(c)}<p class="hint">The prior is used up to the touches where it helped on simulated skins; above, both are one model.${ref}</p></div>`;
   }
 
   // The dots on the skin: ``h.touch_errors`` placed at the calibration's targets ``done``.

@@ -169,17 +169,16 @@ def off_target(
     targets: np.ndarray,
     touch_means: np.ndarray,
     *,
-    k: int = 3,
-    factor: float = 3.0,
-    floor_mm: float = 25.0,
+    limit: float = 4.5,
     min_touches: int = 6,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Flag touches whose image looks nothing like the images of their neighbours.
+    """Flag touches whose image the other touches' response map does not expect there.
 
-    Each touch's position is guessed from the ``k`` other touches with the most similar
-    images (cosine similarity of the clipped, baseline-subtracted mean images, weighted); a touch
-    whose guess lands more than ``max(floor_mm, factor x median miss)`` from its target is
-    off-target: the finger was probably elsewhere.
+    Each touch's image is predicted at its target by the response map of the other touches
+    (``leave_one_out_residuals``); a residual more than ``limit`` robust standard deviations
+    (median and scaled MAD of the other touches' residuals) above the others' median means
+    the finger was probably elsewhere. The worst such touch is left out of the map before
+    looking again, so one wrong touch does not drag down its neighbours.
 
     Parameters
     ----------
@@ -192,33 +191,30 @@ def off_target(
     -------
     flags : (n,) bool
         Off-target touches (all False with fewer than ``min_touches``).
-    miss_mm : (n,) float
-        Distance of each guess from its target, mm (nan with too few touches).
+    score : (n,) float
+        Robust z-score of each touch's residual among the unflagged touches (nan with too
+        few touches).
     """
+    from skinloc.evaluation.influence import leave_one_out_residuals
+
     targets = np.asarray(targets, dtype=np.float64).reshape(-1, 3)
     n = len(targets)
-    if n < max(min_touches, k + 2):
+    if n < min_touches:
         return np.zeros(n, dtype=bool), np.full(n, np.nan)
-    Z = np.maximum(np.asarray(touch_means, dtype=np.float64), 0.0)
-    Z = Z / np.maximum(np.linalg.norm(Z, axis=1, keepdims=True), 1e-9)
-    S = Z @ Z.T
-    np.fill_diagonal(S, -np.inf)
     flags = np.zeros(n, dtype=bool)
-    # Flag the worst touch, leave it out of everyone's neighbours, and look again: a touch
-    # made at the wrong place must not drag the touches it resembles down with it.
     for _ in range(max(1, n // 5)):
-        S_use = np.where(flags[None, :], -np.inf, S)
-        nearest = np.argsort(-S_use, axis=1)[:, :k]
-        w = np.maximum(np.take_along_axis(S_use, nearest, axis=1), 0.0) ** 4 + 1e-12
-        guess = (w[..., None] * targets[nearest]).sum(axis=1) / w.sum(axis=1, keepdims=True)
-        miss = 1e3 * np.linalg.norm(guess - targets, axis=1)
-        limit = max(floor_mm, factor * float(np.median(miss[~flags])))
-        over = np.where(flags, -np.inf, miss - limit)
+        resid = leave_one_out_residuals(targets, touch_means, exclude=flags)
+        good = resid[~flags]
+        med = float(np.median(good))
+        # a floor on the spread: a session of near-identical residuals flags nothing small
+        spread = max(1.4826 * float(np.median(np.abs(good - med))), 0.1 * med, 1e-9)
+        score = (resid - med) / spread
+        over = np.where(flags, -np.inf, score - limit)
         worst = int(np.argmax(over))
         if over[worst] <= 0:
             break
         flags[worst] = True
-    return flags, miss
+    return flags, score
 
 
 def baseline_drift_sigma(frames: np.ndarray, baseline: np.ndarray, noise: np.ndarray) -> float:

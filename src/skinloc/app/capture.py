@@ -169,7 +169,7 @@ def off_target(
     targets: np.ndarray,
     touch_means: np.ndarray,
     *,
-    limit: float = 4.5,
+    limit: float = 4.0,
     min_touches: int = 6,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Flag touches whose image the other touches' response map does not expect there.

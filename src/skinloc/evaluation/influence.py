@@ -169,7 +169,6 @@ def touch_influence(
     return TouchInfluence(base, k, out)
 
 
-
 def leave_one_out_residuals(
     positions: np.ndarray, touch_means: np.ndarray, *, exclude: np.ndarray | None = None
 ) -> np.ndarray:

@@ -201,7 +201,9 @@ def off_target(
     n = len(targets)
     if n < min_touches:
         return np.zeros(n, dtype=bool), np.full(n, np.nan)
-    flags = np.zeros(n, dtype=bool)
+    # The residual misses a press made far away at a target far from the other touches (the
+    # map predicts there only loosely); the image neighbours catch that one.
+    flags = _unlike_neighbours(targets, touch_means, factor=4.0, min_touches=min_touches)[0]
     for _ in range(max(1, n // 5)):
         resid = leave_one_out_residuals(targets, touch_means, exclude=flags)
         good = resid[~flags]
@@ -215,6 +217,65 @@ def off_target(
             break
         flags[worst] = True
     return flags, score
+
+
+def _unlike_neighbours(
+    targets: np.ndarray,
+    touch_means: np.ndarray,
+    *,
+    k: int = 3,
+    factor: float = 3.0,
+    floor_mm: float = 25.0,
+    min_touches: int = 6,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Flag touches whose image looks nothing like the images of their neighbours (coarse).
+
+    Catches a press far from its target (its image resembles touches far away) but with 20
+    targets ~50 mm apart its limit is ~100 mm.
+
+    Each touch's position is guessed from the ``k`` other touches with the most similar
+    images (cosine similarity of the clipped, baseline-subtracted mean images, weighted); a touch
+    whose guess lands more than ``max(floor_mm, factor x median miss)`` from its target is
+    off-target: the finger was probably elsewhere.
+
+    Parameters
+    ----------
+    targets : (n, 3) float
+        Prompted positions, m.
+    touch_means : (n, n_sensors) float
+        Baseline-subtracted mean image of each touch, counts.
+
+    Returns
+    -------
+    flags : (n,) bool
+        Off-target touches (all False with fewer than ``min_touches``).
+    miss_mm : (n,) float
+        Distance of each guess from its target, mm (nan with too few touches).
+    """
+    targets = np.asarray(targets, dtype=np.float64).reshape(-1, 3)
+    n = len(targets)
+    if n < max(min_touches, k + 2):
+        return np.zeros(n, dtype=bool), np.full(n, np.nan)
+    Z = np.maximum(np.asarray(touch_means, dtype=np.float64), 0.0)
+    Z = Z / np.maximum(np.linalg.norm(Z, axis=1, keepdims=True), 1e-9)
+    S = Z @ Z.T
+    np.fill_diagonal(S, -np.inf)
+    flags = np.zeros(n, dtype=bool)
+    # Flag the worst touch, leave it out of everyone's neighbours, and look again: a touch
+    # made at the wrong place must not drag the touches it resembles down with it.
+    for _ in range(max(1, n // 5)):
+        S_use = np.where(flags[None, :], -np.inf, S)
+        nearest = np.argsort(-S_use, axis=1)[:, :k]
+        w = np.maximum(np.take_along_axis(S_use, nearest, axis=1), 0.0) ** 4 + 1e-12
+        guess = (w[..., None] * targets[nearest]).sum(axis=1) / w.sum(axis=1, keepdims=True)
+        miss = 1e3 * np.linalg.norm(guess - targets, axis=1)
+        limit = max(floor_mm, factor * float(np.median(miss[~flags])))
+        over = np.where(flags, -np.inf, miss - limit)
+        worst = int(np.argmax(over))
+        if over[worst] <= 0:
+            break
+        flags[worst] = True
+    return flags, miss
 
 
 def baseline_drift_sigma(frames: np.ndarray, baseline: np.ndarray, noise: np.ndarray) -> float:

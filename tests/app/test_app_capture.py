@@ -14,7 +14,7 @@ from skinloc.app.capture import (
 )
 from skinloc.app.sheet import layout_sheet, render_pdf, render_svg
 from skinloc.calibration.session import SessionConfig, TouchDetector, simulate_session
-from skinloc.geometry.mesh import cone_skin, sample_targets
+from skinloc.geometry.mesh import cone_skin, sample_targets, surface_points
 from skinloc.sim.skin import SimulatedSkin
 
 N = 16
@@ -106,6 +106,44 @@ def test_a_touch_made_elsewhere_is_off_target_and_only_it(sim_session):
     means[4] = 1.1 * means[far]  # the finger went to the wrong place
     flags, _ = off_target(targets, means)
     assert flags[4] and flags.sum() == 1
+
+
+@pytest.fixture(scope="module")
+def session_of_20(tmp_path_factory):
+    """A 20-touch session (targets ~50 mm apart) and surface points to move its touches to."""
+    mesh = cone_skin()
+    skin = SimulatedSkin(mesh, random_state=2)
+    path = tmp_path_factory.mktemp("cap20") / "s.h5"
+    rec = simulate_session(skin, mesh, path, SessionConfig(n_points=20, samples_per_touch=10))
+    return rec, surface_points(mesh, 2000)
+
+
+def moved(targets: np.ndarray, surface: np.ndarray, j: int, d_mm: float) -> np.ndarray:
+    """``targets`` with target ``j`` replaced by the surface point nearest ``d_mm`` from it."""
+    dist = 1e3 * np.linalg.norm(surface - targets[j], axis=1)
+    out = targets.copy()
+    out[j] = surface[int(np.argmin(np.abs(dist - d_mm)))]
+    return out
+
+
+def test_a_clean_session_of_20_flags_nothing(session_of_20):
+    rec, _ = session_of_20
+    flags, score = off_target(rec.targets, rec.touch_means)
+    assert not flags.any() and np.all(np.isfinite(score))
+
+
+def test_a_touch_80mm_off_its_target_in_20_is_flagged_alone(session_of_20):
+    rec, surface = session_of_20
+    # touch 7 was pressed 80 mm from where it was prompted (the image is of the press)
+    flags, _ = off_target(moved(rec.targets, surface, 7, 80.0), rec.touch_means)
+    assert flags[7] and flags.sum() == 1
+    # and it is not that one touch: about half the touches of this session, each moved 80 mm,
+    # are flagged alone (the nearest-image guess found 2 of 20)
+    alone = 0
+    for j in range(20):
+        flags, _ = off_target(moved(rec.targets, surface, j, 80.0), rec.touch_means)
+        alone += bool(flags[j] and flags.sum() == 1)
+    assert alone >= 8
 
 
 def test_too_few_touches_are_never_flagged(sim_session):

@@ -169,12 +169,69 @@ def off_target(
     targets: np.ndarray,
     touch_means: np.ndarray,
     *,
+    limit: float = 4.0,
+    min_touches: int = 6,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Flag touches whose image the other touches' response map does not expect there.
+
+    Each touch's image is predicted at its target by the response map of the other touches
+    (``leave_one_out_residuals``); a residual more than ``limit`` robust standard deviations
+    (median and scaled MAD of the other touches' residuals) above the others' median means
+    the finger was probably elsewhere. The worst such touch is left out of the map before
+    looking again, so one wrong touch does not drag down its neighbours.
+
+    Parameters
+    ----------
+    targets : (n, 3) float
+        Prompted positions, m.
+    touch_means : (n, n_sensors) float
+        Baseline-subtracted mean image of each touch, counts.
+
+    Returns
+    -------
+    flags : (n,) bool
+        Off-target touches (all False with fewer than ``min_touches``).
+    score : (n,) float
+        Robust z-score of each touch's residual among the unflagged touches (nan with too
+        few touches).
+    """
+    from skinloc.evaluation.influence import leave_one_out_residuals
+
+    targets = np.asarray(targets, dtype=np.float64).reshape(-1, 3)
+    n = len(targets)
+    if n < min_touches:
+        return np.zeros(n, dtype=bool), np.full(n, np.nan)
+    # The residual misses a press made far away at a target far from the other touches (the
+    # map predicts there only loosely); the image neighbours catch that one.
+    flags = _unlike_neighbours(targets, touch_means, factor=4.0, min_touches=min_touches)[0]
+    for _ in range(max(1, n // 5)):
+        resid = leave_one_out_residuals(targets, touch_means, exclude=flags)
+        good = resid[~flags]
+        med = float(np.median(good))
+        # a floor on the spread: a session of near-identical residuals flags nothing small
+        spread = max(1.4826 * float(np.median(np.abs(good - med))), 0.1 * med, 1e-9)
+        score = (resid - med) / spread
+        over = np.where(flags, -np.inf, score - limit)
+        worst = int(np.argmax(over))
+        if over[worst] <= 0:
+            break
+        flags[worst] = True
+    return flags, score
+
+
+def _unlike_neighbours(
+    targets: np.ndarray,
+    touch_means: np.ndarray,
+    *,
     k: int = 3,
     factor: float = 3.0,
     floor_mm: float = 25.0,
     min_touches: int = 6,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Flag touches whose image looks nothing like the images of their neighbours.
+    """Flag touches whose image looks nothing like the images of their neighbours (coarse).
+
+    Catches a press far from its target (its image resembles touches far away) but with 20
+    targets ~50 mm apart its limit is ~100 mm.
 
     Each touch's position is guessed from the ``k`` other touches with the most similar
     images (cosine similarity of the clipped, baseline-subtracted mean images, weighted); a touch

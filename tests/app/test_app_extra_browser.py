@@ -234,8 +234,10 @@ def test_train_page_shows_each_touch_error_on_the_skin_and_as_a_histogram(chromi
         curve = ws.active.info["holdout"]["prior_curve"]
         assert curve["sizes"] and len(curve["prior_mm"]) == len(curve["sizes"])
         expect(result.locator("svg.curve path")).to_have_count(5)
-        assert result.locator("svg.curve .line-prior title").text_content().startswith(
-            "this session, with the prior"
+        assert (
+            result.locator("svg.curve .line-prior title")
+            .text_content()
+            .startswith("this session, with the prior")
         )
         assert result.locator("svg.curve .line-paper").count() == 1
         assert result.locator("svg.curve line.floor").count() == 1

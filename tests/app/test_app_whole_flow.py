@@ -349,7 +349,7 @@ def test_the_whole_flow_as_a_user(chromium, server, tmp_path):
         said = []
         for attempt in range(8):
             ends = [ax, ay, bx, by] if attempt % 2 == 0 else [bx, by, ax, ay]
-            page.evaluate(STROKE, [*ends, 500])
+            page.evaluate(STROKE, [*ends, 300])
             page.wait_for_function(
                 "() => document.querySelector('#live-state').textContent === 'not touched'"
             )

@@ -183,6 +183,23 @@ def test_larger_pressure_gives_larger_signal(skin: SimulatedSkin, params: SkinPa
     assert np.all(sensor_image(skin.layout, params, contact, 0.0, 0.008) == 0)
 
 
+def test_a_sliding_finger_keeps_its_pressure_and_radius(
+    skin: SimulatedSkin, params: SkinParams
+) -> None:
+    a, b = (skin.sensor_positions[k] for k in (10, 12))
+    skin.press(a, pressure=1.7, finger_radius_m=0.009)
+    skin.slide(b)
+    np.testing.assert_allclose(
+        skin._signal, sensor_image(skin.layout, params, b, 1.7, 0.009), rtol=1e-12
+    )
+    np.testing.assert_allclose(skin.contact, b)
+    skin.release()
+    # With no finger down, a slide is a new press (pressure and radius drawn).
+    skin.slide(a)
+    np.testing.assert_allclose(skin.contact, a)
+    assert skin._signal.max() > 0
+
+
 def test_touch_near_lands_a_few_mm_from_the_target_on_the_surface(
     skin: SimulatedSkin, cone: trimesh.Trimesh
 ) -> None:

@@ -109,6 +109,8 @@ class SimulatedSkin(FrameSource):
         self._drift = self.params.drift_std_counts * self._rng.standard_normal(self.n_sensors)
         self._signal = np.zeros(self.n_sensors)
         self.contact: np.ndarray | None = None
+        # The pressure and finger radius (m) of the press in progress, kept while it slides.
+        self._pressed: tuple[float, float] | None = None
 
     # -- FrameSource -------------------------------------------------------------------------
     @property
@@ -240,12 +242,25 @@ class SimulatedSkin(FrameSource):
         radius = drawn_r if finger_radius_m is None else float(finger_radius_m)
         self._signal = sensor_image(self.layout, self.params, point, pressure, radius)
         self.contact = point
+        self._pressed = (pressure, radius)
         log.debug(
             "press at %s mm, pressure %.2f, radius %.1f mm",
             np.round(point * 1e3, 1),
             pressure,
             radius * 1e3,
         )
+
+    def slide(self, point: np.ndarray) -> None:
+        """Move the finger that is down to ``point (3,)`` m, pressing as it did (a drag).
+
+        A finger sliding on the skin keeps its pressure and contact radius; without a finger
+        down this is ``press`` (a new touch, its pressure and radius drawn).
+        """
+        if self.contact is None or self._pressed is None:
+            self.press(point)
+            return
+        pressure, radius = self._pressed
+        self.press(point, pressure=pressure, finger_radius_m=radius)
 
     def touch(self, fingers: Sequence[Finger]) -> None:
         """Put ``fingers`` on the skin at once, replacing any (``[]`` lifts them all).
@@ -256,11 +271,13 @@ class SimulatedSkin(FrameSource):
         fingers = tuple(fingers)
         self._signal = multi_touch_image(self.layout, self.params, fingers)
         self.contact = np.asarray(fingers[0].position_m, dtype=np.float64) if fingers else None
+        self._pressed = None
 
     def release(self) -> None:
         """Lift the finger (every finger)."""
         self._signal = np.zeros(self.n_sensors)
         self.contact = None
+        self._pressed = None
 
     def touch_near(self, target: np.ndarray, rng: np.random.Generator | None = None) -> np.ndarray:
         """Press near ``target (3,)`` m as a person asked to touch it would.

@@ -86,9 +86,15 @@ class LinkActions:
             p = np.asarray(point, dtype=np.float64).reshape(-1)
             if p.shape != (3,) or not np.all(np.isfinite(p)):
                 raise ValueError(f"point must be 3 finite coordinates in m, got {point!r}")
-            # A mouse press is meant: never one of the light touches the skin may not feel
-            # (which of them comes would depend on how many frames the noise drew before).
-            skin.press(nearest_on_surface(skin.mesh, p)[0][0], weak=False)
+            on_skin = nearest_on_surface(skin.mesh, p)[0][0]
+            if skin.contact is not None:
+                # A drag: the finger slides, pressing as it landed (a new pressure at every
+                # mouse move would make its image flicker and its track split).
+                skin.slide(on_skin)
+            else:
+                # A mouse press is meant: never one of the light touches the skin may not feel
+                # (which of them comes would depend on how many frames the noise drew before).
+                skin.press(on_skin, weak=False)
 
     @contextmanager
     def _locked_for(self, device: DeviceLink | None) -> Iterator[bool]:

@@ -421,7 +421,7 @@ class Runner:
                     pass
             except BaseException as exc:  # noqa: BLE001 - kept for the caller
                 self._error = exc
-                log.error("runner stopped: %s", exc)
+                log.exception("runner stopped: %s", exc)
 
         self._thread = threading.Thread(target=loop, name="skinloc-runner", daemon=True)
         self._thread.start()

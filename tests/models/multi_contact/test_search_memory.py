@@ -112,3 +112,20 @@ def test_the_live_loop_emits_the_same_contacts_with_and_without_the_memory(engin
             np.testing.assert_allclose(p.position_m, q.position_m, rtol=0, atol=1e-9)
         touched += bool(a)
     assert touched > 100
+
+
+def test_a_rule_that_counts_any_pair_never_divides_by_its_zero_threshold(streams):
+    """A small session's rule may have tau2 0 (no held-out single touch reached z2_min): the
+    memory's safety score is then unbounded, and the stream keeps the full search's answers
+    (it raised ZeroDivisionError in the compiled score and stopped the live loop)."""
+    from skinloc.models.localizer import ContactLocalizer
+
+    model = ContactLocalizer.load(model_path("map"))
+    model.contact_rule_ = {**model.contact_rule_, "tau2": 0.0}
+    engine = load_engine(model)
+    assert engine.search_tables().prm[2] == 0.0
+    for X in streams["single"][:5] + streams["pairs"][:5]:
+        mem = SearchMemory()
+        for x in X:
+            ref = engine.contacts(x, 3).rows.copy()
+            assert _same(engine.contacts(x, 3, mem).rows, ref)

@@ -649,7 +649,12 @@ def _score(
         return 0.0
     r1 = max(xx - g1, 1.0)
     r2 = max(xx - g2, 1.0)
-    return relative_gain(r1, r2, prm[7] * xx) * max(z2, 0.0) ** prm[8] / prm[2]
+    rho = relative_gain(r1, r2, prm[7] * xx) * max(z2, 0.0) ** prm[8]
+    if prm[2] <= 0.0:
+        # tau2 0: no held-out single touch reached z2_min at calibration (a small session), so
+        # any pair counts; its share of tau2 is unbounded, never safe
+        return math.inf if rho > 0.0 else 0.0
+    return rho / prm[2]
 
 
 @jit()

@@ -495,3 +495,22 @@ def test_a_second_finger_landing_later_makes_the_tap_two_finger_whatever_the_sea
         assert (events[0]["confidence"] < 1.0) == second  # a count from the change: less sure
     finally:
         del engine.contacts
+
+
+def test_the_core_hands_its_recogniser_the_skins_two_point_threshold():
+    import dataclasses
+
+    from skinloc.models.multi_contact.two_point import recogniser_mm, two_point_of
+
+    engine = load_engine(model_path("map"))
+    core = SkinCore(engine, name="s")
+    want, _ = recogniser_mm(two_point_of(engine.spec.contact_rule))
+    assert want is not None and core._recognizer.two_point_mm == want
+    # a rule that has no threshold (saved before it): unknown, the rule is off
+    rule = {k: v for k, v in engine.spec.contact_rule.items() if k != "two_point"}
+    engine.spec = dataclasses.replace(engine.spec, contact_rule=rule)
+    assert SkinCore(engine, name="s")._recognizer.two_point_mm is None
+    # measured, counted two at no separation: no separation is sure
+    none = {"counted_two_mm": None, "threshold_mm": None, "bins": {}}
+    engine.spec = dataclasses.replace(engine.spec, contact_rule={**rule, "two_point": none})
+    assert SkinCore(engine, name="s")._recognizer.two_point_mm == math.inf

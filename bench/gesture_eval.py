@@ -10,6 +10,11 @@ For each skin seed: a calibration session of that skin (`skinloc simulate --poin
   (`start_s`..`end_s`, widened by `--slack-s` on each side), each truth matched at most once;
 * precision per kind: matched events / events of that kind; recall: matched truths / truths;
 * swipe direction: share of matched swipes whose reported direction is the true one;
+* two-finger recall by separation (10 mm bins of the script's separation) and above each
+  skin's own two-point threshold (the one its recogniser uses, read from its model:
+  `two_point.recogniser_mm`; none when no separation is counted two 90 % of the time, so no
+  two-finger tap of that skin is above it);
+* events of confidence below 1 (the recogniser unsure of the count): how many, how many right;
 * delay: the event's `timestamp_s` after the moment the gesture became unambiguous: for a tap
   the end of the double-tap window after its lift, for a long press the moment it has been held
   `long_press_s`, for the others the last lift (truth `end_s`).
@@ -38,6 +43,8 @@ from live_delivery import match_gestures as match
 from live_delivery import unambiguous_s
 
 from skinloc.live.gestures import GestureConfig
+from skinloc.models.engine import load_engine
+from skinloc.models.multi_contact.two_point import recogniser_mm, two_point_of
 from skinloc.sim.gesture_stream import read_gesture_truth
 
 
@@ -63,9 +70,18 @@ def one_skin(skin_seed: int, seed: int, n: int, slack_s: float, tmp: Path) -> di
         skinloc("run", "--model", d / "model.h5", "--source", d / "g.h5", "--fast",
                 "--sink", f"jsonl:{d / 'out.jsonl'}")  # fmt: skip
     truth = read_gesture_truth(d / "g.h5")
+    tp = two_point_of(load_engine(d / "model.h5").spec.contact_rule)
+    two_point_mm, basis = recogniser_mm(tp)
     lines = (d / "out.jsonl").read_text().splitlines()
     events = [e for e in map(json.loads, lines) if e.get("event") == "gesture"]
-    return {"skin_seed": skin_seed, "seed": seed, "events": events, **truth}
+    return {
+        "skin_seed": skin_seed,
+        "seed": seed,
+        "events": events,
+        "two_point_mm": two_point_mm,
+        "two_point_basis": basis,
+        **truth,
+    }
 
 
 def _sep_bin(sep_m: float) -> str:
@@ -81,6 +97,8 @@ def score(runs: list[dict], slack_s: float, cfg: GestureConfig) -> dict:
     dir_ok = dir_n = 0
     confusions: Counter = Counter()
     sep_n, sep_ok = Counter(), Counter()  # two-finger taps by separation bin
+    above: dict[str, dict] = {}  # two-finger taps above each skin's own two-point threshold
+    unsure_n, unsure_ok = Counter(), Counter()  # events of confidence < 1, by kind
     for run in runs:
         truths, events = run["truth_gestures"], run["events"]
         pairs = match(events, truths, slack_s)
@@ -88,11 +106,30 @@ def score(runs: list[dict], slack_s: float, cfg: GestureConfig) -> dict:
         n_tr.update(t["kind"] for t in truths)
         n_ok.update(t["kind"] for _, t in pairs)
         found = {id(t) for _, t in pairs}
+        thr = run.get("two_point_mm")
+        sk = above.setdefault(
+            str(run["skin_seed"]),
+            # inf (none at any separation) as null: the basis says which
+            {
+                "two_point_mm": thr if thr is None or np.isfinite(thr) else None,
+                "basis": run.get("two_point_basis"),
+                "n": 0,
+                "found": 0,
+            },
+        )
         for t in truths:
             if t["kind"] == "two_finger_tap" and "separation_m" in t:
                 b = _sep_bin(t["separation_m"])
                 sep_n[b] += 1
                 sep_ok[b] += id(t) in found
+                if thr is not None and 1e3 * t["separation_m"] >= thr:
+                    sk["n"] += 1
+                    sk["found"] += id(t) in found
+        matched_ev = {id(e) for e, _ in pairs}
+        for ev in events:
+            if ev.get("confidence", 1.0) < 1.0:
+                unsure_n[ev["kind"]] += 1
+                unsure_ok[ev["kind"]] += id(ev) in matched_ev
         for ev, t in pairs:
             delays[t["kind"]].append(
                 ev["timestamp_s"] - unambiguous_s(t, cfg.double_tap_gap_s, cfg.long_press_s)
@@ -128,6 +165,16 @@ def score(runs: list[dict], slack_s: float, cfg: GestureConfig) -> dict:
         "two_finger_recall_by_separation_mm": {
             b: {"n": sep_n[b], "recall": sep_ok[b] / sep_n[b]} for b in sorted(sep_n)
         },
+        "two_finger_recall_above_two_point": {
+            "n": sum(v["n"] for v in above.values()),
+            "recall": (
+                sum(v["found"] for v in above.values()) / n
+                if (n := sum(v["n"] for v in above.values()))
+                else float("nan")
+            ),
+            "per_skin": above,
+        },
+        "unsure_events": {k: {"n": unsure_n[k], "right": unsure_ok[k]} for k in sorted(unsure_n)},
         "false_events": {f"{a} during {b}": c for (a, b), c in confusions.most_common()},
     }
 
@@ -163,6 +210,14 @@ def main() -> None:
     print(f"swipe direction right: {res['swipe_direction_accuracy']:.3f}")
     for b, r in res["two_finger_recall_by_separation_mm"].items():
         print(f"two-finger taps {b} mm apart: {r['n']:3d}, recall {r['recall']:.3f}")
+    ab = res["two_finger_recall_above_two_point"]
+    for k, v in ab["per_skin"].items():
+        thr = v["basis"] if v["two_point_mm"] is None else f"{v['two_point_mm']:.0f} mm"
+        print(f"skin {k}: two-point threshold {thr} ({v['basis']}), "
+              f"{v['found']} of {v['n']} two-finger taps above it found")  # fmt: skip
+    print(f"two-finger taps above their skin's threshold: {ab['n']}, recall {ab['recall']:.3f}")
+    for k, v in res["unsure_events"].items():
+        print(f"  {k} of confidence < 1: {v['n']}, {v['right']} right")
     for k, c in res["false_events"].items():
         print(f"  false: {k}: {c}")
     if args.out:

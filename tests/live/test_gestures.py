@@ -314,3 +314,87 @@ def test_landing_thresholds_are_checked(bad):
         GestureRecognizer("s", SkinFrame(None, None, up=(0.0, 1.0, 0.0)), landing_change=bad)
     with pytest.raises(ValueError, match="landing_hold"):
         GestureRecognizer("s", SkinFrame(None, None, up=(0.0, 1.0, 0.0)), landing_hold=bad)
+
+
+# the skin's two-point threshold (``two_point_mm``): tracks closer than it may be one finger
+NEAR = (0.03, 0.0, 0.0)  # 30 mm from P: under a 50 mm threshold
+
+
+def _run_two_point(frames, change, two_point_mm, thr=2.5, hold=2.0):
+    """``run`` with the image change and the skin's two-point threshold."""
+    rec = GestureRecognizer(
+        "s",
+        SkinFrame(None, None, up=(0.0, 1.0, 0.0)),
+        CFG,
+        landing_change=thr,
+        landing_hold=hold,
+        two_point_mm=two_point_mm,
+    )
+    events = []
+    for t, cs in frames:
+        events += rec.update(t, cs, change=change) if cs else rec.tick(t)
+    events += rec.flush(frames[-1][0])
+    return events, rec
+
+
+def _pair(b, first=100):
+    return stream(
+        [(1, 0, first, first + 10, still(P)), (2, 1, first + 3, first + 9, still(b))], 300
+    )
+
+
+def test_two_tracks_closer_than_the_threshold_that_changed_as_one_finger_are_held_back():
+    ev, rec = _run_two_point(_pair(NEAR), change=1.4, two_point_mm=50.0)
+    assert ev == [] and rec.n_held == 1  # neither a tap nor a two-finger tap is said
+    # a skin measured to count two at no separation: the same at any distance
+    ev, rec = _run_two_point(_pair(FAR), change=1.4, two_point_mm=math.inf)
+    assert ev == [] and rec.n_held == 1
+
+
+def test_two_tracks_at_or_beyond_the_threshold_are_a_sure_two_finger_tap():
+    ev, _ = _run_two_point(_pair(FAR), change=1.4, two_point_mm=50.0)  # 60 mm apart
+    assert [e["kind"] for e in ev] == ["two_finger_tap"] and ev[0]["confidence"] == 1.0
+
+
+def test_closer_than_the_threshold_the_change_makes_a_two_finger_tap_of_lower_confidence():
+    ev, _ = _run_two_point(_pair(NEAR), change=4.0, two_point_mm=50.0)  # past landing_change
+    assert [e["kind"] for e in ev] == ["two_finger_tap"]
+    assert ev[0]["confidence"] == pytest.approx(0.9)
+    ev, _ = _run_two_point(_pair(NEAR), change=2.2, two_point_mm=50.0)  # past the hold only
+    assert [e["kind"] for e in ev] == ["two_finger_tap"]
+    assert ev[0]["confidence"] == pytest.approx(0.5 + 0.4 * 30.0 / 50.0)
+    assert ev[0]["track_ids"] == [1, 2]
+
+
+def test_without_a_threshold_or_a_hold_level_two_tracks_are_two_fingers_as_before():
+    for tp, hold in ((None, 2.0), (50.0, 0.0)):
+        ev, rec = _run_two_point(_pair(NEAR), change=1.4, two_point_mm=tp, hold=hold)
+        assert [e["kind"] for e in ev] == ["two_finger_tap"] and rec.n_held == 0
+        assert ev[0]["confidence"] == (1.0 if tp is None else pytest.approx(0.5 + 0.4 * 0.6))
+
+
+def test_a_split_second_track_in_a_double_taps_tap_leaves_one_double_tap():
+    # the first tap's image split for a few frames into a second track 20 mm away
+    ghost = (0.02, 0.0, 0.0)
+    frames = stream(
+        [(1, 0, 100, 110, still(P)), (2, 1, 104, 107, still(ghost)), (3, 0, 125, 135, still(P))],
+        300,
+    )
+    ev, rec = _run_two_point(frames, change=1.3, two_point_mm=50.0)
+    assert [e["kind"] for e in ev] == ["double_tap"] and ev[0]["track_ids"] == [1, 3]
+    # the split in the second tap: the first tap is not reported while the ghost is down
+    frames = stream(
+        [(1, 0, 100, 110, still(P)), (2, 0, 125, 135, still(P)), (3, 1, 130, 133, still(ghost))],
+        300,
+    )
+    ev, _ = _run_two_point(frames, change=1.3, two_point_mm=50.0)
+    assert [e["kind"] for e in ev] == ["double_tap"] and ev[0]["track_ids"] == [1, 2]
+    # without the threshold the split is a second finger (the old reading)
+    ev, _ = _run_two_point(frames, change=1.3, two_point_mm=None)
+    assert [e["kind"] for e in ev] == ["tap", "two_finger_tap"]
+
+
+@pytest.mark.parametrize("bad", [0.0, -10.0, math.nan])
+def test_the_two_point_threshold_is_checked(bad):
+    with pytest.raises(ValueError, match="two_point_mm"):
+        GestureRecognizer("s", SkinFrame(None, None, up=(0.0, 1.0, 0.0)), two_point_mm=bad)

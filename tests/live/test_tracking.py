@@ -165,6 +165,9 @@ def test_pipeline_emits_one_contact_per_track_and_a_two_finger_tap():
     engine.contacts = _Scripted(script)
     try:
         core = SkinCore(engine, PipelineConfig(baseline_frames=50), name="s")
+        # tracking is tested here: this model counts two at no separation, so two tracks whose
+        # image never changed would be held back (test_gestures.py covers that rule)
+        core._recognizer.two_point_mm = None
         sink = ListSink()
         frames = _frames(12, rng)
         for k, f in enumerate(frames):
@@ -342,6 +345,15 @@ def test_pipeline_with_a_real_model_finds_the_second_finger_the_search_missed():
         core.flush_gestures()
         ids = {c.track_id for c in out}
         assert ids == {1, 2}
+        # both fingers landed in one frame (no change of shape) on a skin that counts two at
+        # no separation: not sure of two, the tap is held back, never said as a tap
+        assert core.take_gestures() == [] and core._recognizer.n_held == 1
+        core = SkinCore(engine, PipelineConfig(baseline_frames=50), name="s")
+        core._recognizer.two_point_mm = None  # the threshold unknown: two tracks, two fingers
+        out = []
+        for k, f in enumerate(frames):
+            out += core.process_frame(f, k * 0.01, k)
+        core.flush_gestures()
         second = [c for c in out if c.track_id == 2 and c.state == "start"][0]
         assert np.linalg.norm(np.subtract(second.raw_m, Fpos[j])) < 0.015
         assert [g["kind"] for g in core.take_gestures()] == ["two_finger_tap"]
@@ -495,3 +507,22 @@ def test_a_second_finger_landing_later_makes_the_tap_two_finger_whatever_the_sea
         assert (events[0]["confidence"] < 1.0) == second  # a count from the change: less sure
     finally:
         del engine.contacts
+
+
+def test_the_core_hands_its_recogniser_the_skins_two_point_threshold():
+    import dataclasses
+
+    from skinloc.models.multi_contact.two_point import recogniser_mm, two_point_of
+
+    engine = load_engine(model_path("map"))
+    core = SkinCore(engine, name="s")
+    want, _ = recogniser_mm(two_point_of(engine.spec.contact_rule))
+    assert want is not None and core._recognizer.two_point_mm == want
+    # a rule that has no threshold (saved before it): unknown, the rule is off
+    rule = {k: v for k, v in engine.spec.contact_rule.items() if k != "two_point"}
+    engine.spec = dataclasses.replace(engine.spec, contact_rule=rule)
+    assert SkinCore(engine, name="s")._recognizer.two_point_mm is None
+    # measured, counted two at no separation: no separation is sure
+    none = {"counted_two_mm": None, "threshold_mm": None, "bins": {}}
+    engine.spec = dataclasses.replace(engine.spec, contact_rule={**rule, "two_point": none})
+    assert SkinCore(engine, name="s")._recognizer.two_point_mm == math.inf

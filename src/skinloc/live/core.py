@@ -40,6 +40,7 @@ from skinloc.live.pair_prior import pair_prior
 from skinloc.live.tracking import Track, Tracker, frame_contacts
 from skinloc.models.engine import Engine, load_engine
 from skinloc.models.multi_contact.search import SearchMemory
+from skinloc.models.multi_contact.two_point import recogniser_mm, two_point_of
 
 log = logging.getLogger(__name__)
 
@@ -170,12 +171,15 @@ class SkinCore:
                 frame = SkinFrame(vertices, getattr(spec, "faces", None), up)
                 rule = getattr(self.engine, "rule", None)
                 change = float(getattr(rule, "landing_change", 0.0))
+                # the skin's two-point threshold: tracks closer than it may be one finger
+                two_point_mm, _ = recogniser_mm(two_point_of(getattr(spec, "contact_rule", None)))
                 self._recognizer = GestureRecognizer(
                     name,
                     frame,
                     gesture_config,
                     landing_change=change,
                     landing_hold=float(getattr(rule, "landing_hold", 0.0)),
+                    two_point_mm=two_point_mm,
                 )
                 if change > 0:
                     self._landing = LandingWatch(self.engine.noise_weights())

@@ -22,6 +22,17 @@ the skin's calibrated ``landing_change`` and ``landing_hold``) makes such a tap 
 tap (``confidence`` below 1) or, when it is uncertain, holds it back: no tap is reported of a
 touch that may have been two fingers. ``confidence`` is 1.0 when every finger was tracked.
 
+Two tracks are not always two fingers either: below the skin's two-point threshold
+(``two_point_mm``, measured at calibration: ``models.multi_contact.two_point``) the search
+cannot reliably tell two fingers from one, and a finger's image split for a few frames makes a
+second track beside the first. So a tap of several tracks all closer than the threshold is a
+two-finger tap only if the image changed more than one finger's does as they landed and lifted
+(``landing_hold``); otherwise it is one finger's tap whose count is uncertain: held back like
+the taps above, or one tap of a double tap. A two-finger tap closer than the threshold carries
+a ``confidence`` below 1. The threshold is a distance between two fingers: it replaces none of
+the distances of one finger (``still_mm``, ``double_tap_mm``, ``swipe_min_mm``: how far one
+finger moves), and a swipe is one moving finger whatever its length.
+
 Directions are in the skin's own frame, the one the simulator's gesture script uses too
 (``geometry.skin_frame``): ``up`` is a direction of the mesh frame (per skin; default: the mesh's
 long axis, ``skin_up_axis``) and "right" is up x the skin's mean outward normal (the right hand
@@ -205,6 +216,11 @@ class GestureRecognizer:
         The change above which a tap of one track is no longer surely one finger
         (``CountRule.landing_hold``): such a tap is not reported (``n_held`` counts them),
         unless it is one of a double tap; 0: off.
+    two_point_mm : float or None
+        The skin's two-point threshold, mm (``two_point.recogniser_mm`` of the model's rule):
+        tracks closer than it need the change to reach ``landing_hold`` to be two fingers;
+        ``math.inf``: no separation is reliably two; None: unknown (two tracks are two
+        fingers, the rule is off; so it is with ``landing_hold`` 0).
     """
 
     def __init__(
@@ -214,10 +230,14 @@ class GestureRecognizer:
         config: GestureConfig | None = None,
         landing_change: float = 0.0,
         landing_hold: float = 0.0,
+        two_point_mm: float | None = None,
     ) -> None:
         for name, v in (("landing_change", landing_change), ("landing_hold", landing_hold)):
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"{name} must be a number >= 0, got {v!r}")
+        if two_point_mm is not None and not (two_point_mm > 0):  # inf: none at any separation
+            raise ValueError(f"two_point_mm must be a number > 0 or None, got {two_point_mm!r}")
+        self.two_point_mm = None if two_point_mm is None else float(two_point_mm)
         self.landing_change = float(landing_change)
         self.landing_hold = float(landing_hold)
         self.n_held = 0  # taps not reported: the count was uncertain
@@ -378,14 +398,54 @@ class GestureRecognizer:
         """Whether the image changed more than the skin's single fingers (but not enough)."""
         return self.landing_hold > 0.0 and ep.change >= self.landing_hold
 
+    @staticmethod
+    def _spread_m(fs: list[_Finger]) -> float:
+        """Largest distance between the tracks' last places, m (where each was last seen)."""
+        return max(
+            (math.dist(a.path[-1], b.path[-1]) for i, a in enumerate(fs) for b in fs[i + 1 :]),
+            default=0.0,
+        )
+
+    def _one_finger(self, ep: _Episode) -> _Finger | None:
+        """The episode's finger if it may be one (its first track), else None.
+
+        A single track, or tracks all closer than the skin's two-point threshold whose image
+        changed as one finger's does: below the threshold a second contact is as likely a piece
+        of one finger's image the search split off (a few frames beside a tapping finger) as a
+        second finger; without the time cue (a change past ``landing_hold``) nothing says it
+        is two.
+        """
+        fs = ep.fingers
+        if len(fs) == 1:
+            return fs[0]
+        tp = self.two_point_mm
+        if tp is None or self.landing_hold <= 0.0 or self._uncertain(ep):
+            return None
+        return fs[0] if self._spread_m(fs) < tp * 1e-3 else None
+
+    def _pair_confidence(self, ep: _Episode, fs: list[_Finger]) -> float:
+        """How sure a two-finger tap of several tracks is of its count.
+
+        1.0 at or beyond the skin's two-point threshold (or with it unknown); closer, 0.9 when
+        the image's change reached the skin's two-finger level, else 0.5 to 0.9 with the
+        separation's share of the threshold.
+        """
+        tp = self.two_point_mm
+        sep_mm = self._spread_m(fs) * 1e3
+        if tp is None or sep_mm >= tp:
+            return 1.0
+        if self._two_in_time(ep):
+            return 0.9
+        return 0.5 + 0.4 * (sep_mm / tp if math.isfinite(tp) else 0.0)
+
     def _could_pair(self, ep: _Episode, pend: _Finger) -> bool:
         """Whether episode ``ep`` may still be the second tap of the pending tap."""
         cfg = self.cfg
-        if ep.done or len(ep.fingers) != 1 or ep.start_s > pend.end_s + cfg.double_tap_gap_s:
+        if ep.done or ep.start_s > pend.end_s + cfg.double_tap_gap_s:
             return False
-        if self._two_in_time(ep):
+        f = self._one_finger(ep)
+        if f is None or self._two_in_time(ep):
             return False
-        f = ep.fingers[0]
         if math.dist(f.path[0], pend.path[-1]) > cfg.double_tap_mm * 1e-3:
             return False
         if f.max_from_first > cfg.still_mm * 1e-3:
@@ -441,15 +501,30 @@ class GestureRecognizer:
             ):
                 out.append(self._event("swipe", [f], ts))
             return out
-        out += self._resolve_pending(ts)
         if all(self._is_tap(f) for f in fs):
             # two fingers tapping together; a third track within the same window is a piece of
             # one of them (the localiser lost a finger for a few frames), not a third finger
             sync = cfg.two_finger_sync_s
             starts, ends = [f.start_s for f in fs], [f.end_s for f in fs]
             if max(starts) - min(starts) <= sync and max(ends) - min(ends) <= sync:
-                out.append(self._event("two_finger_tap", fs, ts))
-        return out
+                f = self._one_finger(ep)
+                if f is not None:
+                    # tracks closer than the two-point threshold, the image changed as one
+                    # finger's: one finger's tap of uncertain count (a second tap or held)
+                    f.uncertain = True
+                    pend = self._pending
+                    if pend is not None and self._could_pair(ep, pend):
+                        self._pending = None
+                        out.append(self._event("double_tap", [pend, f], ts))
+                    else:
+                        out += self._resolve_pending(ts)
+                        self._pending = f
+                    return out
+                out += self._resolve_pending(ts)
+                conf = self._pair_confidence(ep, fs)
+                out.append(self._event("two_finger_tap", fs, ts, confidence=conf))
+                return out
+        return out + self._resolve_pending(ts)
 
     def _event(
         self,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -11,6 +12,7 @@ from skinloc.models.localizer import ContactLocalizer
 from skinloc.models.multi_contact.two_point import (
     describe,
     placed_both,
+    recogniser_mm,
     threshold_from_pairs,
     two_point_of,
 )
@@ -92,3 +94,13 @@ def test_model_files_saved_before_it_load_with_it_unknown():
     assert two_point_of(model.contact_rule_) is None
     assert "unknown" in describe(two_point_of(model.contact_rule_))
     assert two_point_of({"tau2": 1.0, "two_point": None}) is None
+
+
+def test_the_recogniser_takes_the_full_threshold_else_the_count():
+    assert recogniser_mm({"counted_two_mm": 50.0, "threshold_mm": 70.0}) == (70.0, "placed")
+    assert recogniser_mm({"counted_two_mm": 50.0, "threshold_mm": None}) == (50.0, "counted")
+    # measured, and no separation is counted two: two fingers are never sure by distance
+    assert recogniser_mm({"counted_two_mm": None, "threshold_mm": None}) == (math.inf, "none")
+    assert recogniser_mm(None) == (None, "unknown")
+    # a damaged value is not a threshold
+    assert recogniser_mm({"counted_two_mm": -5.0, "threshold_mm": "x"})[1] == "none"

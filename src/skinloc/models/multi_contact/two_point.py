@@ -11,10 +11,17 @@ touches, summed); ``bench/multitouch_eval.py`` on sums of other recordings' touc
 ``bench/two_point_sim.py`` on the simulator's physical two-finger images use the same
 ``threshold_from_pairs``. It is stored in the model's contact rule (``"two_point"``); models
 saved before it have none (unknown).
+
+The gesture recogniser uses it as the separation below which two tracks may be one finger
+(``recogniser_mm``): the full threshold where it exists, else the count's, ``counted_two_mm``.
+The count's is what the recogniser's question is (one finger or two), and on the real and
+simulated skins measured so far the full threshold exists at no separation (placement is
+bounded by the single touch's own error, docs/multitouch.md).
 """
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -26,6 +33,7 @@ __all__ = [
     "WITHIN_MM",
     "describe",
     "placed_both",
+    "recogniser_mm",
     "threshold_from_pairs",
     "two_point_of",
 ]
@@ -102,6 +110,23 @@ def two_point_of(contact_rule: dict[str, Any] | None) -> dict[str, Any] | None:
         return None
     tp = contact_rule.get("two_point")
     return tp if isinstance(tp, dict) and "counted_two_mm" in tp else None
+
+
+def recogniser_mm(tp: dict[str, Any] | None) -> tuple[float | None, str]:
+    """The separation, mm, below which the recogniser cannot tell two fingers from one.
+
+    Returns ``(mm, basis)``: ``threshold_mm`` (basis ``"placed"``) when the skin has the full
+    threshold, else ``counted_two_mm`` (``"counted"``); ``math.inf`` (``"none"``) when no
+    separation is counted two 90 % of the time (two fingers are never sure by their
+    separation alone); ``None`` (``"unknown"``) when it was not measured.
+    """
+    if tp is None:
+        return None, "unknown"
+    for key, basis in (("threshold_mm", "placed"), ("counted_two_mm", "counted")):
+        v = tp.get(key)
+        if isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) and v > 0:
+            return float(v), basis
+    return math.inf, "none"
 
 
 def describe(tp: dict[str, Any] | None) -> str:

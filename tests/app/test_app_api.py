@@ -6,6 +6,7 @@ target, as in the browser; the tests wait for what the app reports, with generou
 
 from __future__ import annotations
 
+import threading
 import warnings
 from pathlib import Path
 
@@ -489,3 +490,58 @@ def test_active_sampling_then_the_coverage_map_of_the_trained_model(tmp_path):
         from skinloc.geometry.mesh import nearest_on_surface
 
         assert nearest_on_surface(cone_skin(), pts)[1].max() < 1e-3
+
+
+def test_a_mouse_path_moves_the_simulated_finger_at_its_pace(tmp_path):
+    """``POST /api/sim/touch {path}``: the points with the page's event times are played on the
+    server's clock, each piece after the last (a slow answer delays a stroke, never bunches it)."""
+    with make_client(tmp_path) as client:
+        skin = client.app.state.workspace.device.source
+        a, b = cone_skin().vertices[[10, 60]]
+        seen = []
+        pressed = threading.Event()
+        original = skin.press
+
+        def press(point, **kw):  # every press and slide, in order (a slide presses too)
+            seen.append(np.asarray(point).copy())
+            pressed.set()
+            original(point, **kw)
+
+        skin.press = press
+        r = client.post("/api/sim/touch", json={"path": [[5.0, a.tolist()]]}, headers=A)
+        assert r.status_code == 200
+        r = client.post(
+            "/api/sim/touch", json={"path": [[5.02, b.tolist()], [5.04, None]]}, headers=A
+        )
+        assert r.status_code == 200
+        wait_until(lambda: skin.contact is None and len(seen) >= 2, "the path played", 30)
+        # pressed on the skin where the mouse pressed, slid where it moved, lifted at the end
+        assert np.linalg.norm(seen[0] - a) < 1e-3 and np.linalg.norm(seen[-1] - b) < 1e-3
+        # bad paths: times out of order, a point of two coordinates, an empty path
+        for path in ([[2.0, a.tolist()], [1.0, None]], [[1.0, [0.0, 0.0]]], []):
+            r = client.post("/api/sim/touch", json={"path": path}, headers=A)
+            assert r.status_code in (400, 422), path
+            assert "\n" not in str(r.json()["detail"])
+
+
+def test_page_clock_keeps_the_mouse_pace_and_learns_the_delay():
+    from skinloc.app.workspace.link import PageClock
+
+    clock = PageClock(delay_s=0.02, max_delay_s=0.5)
+    # a new path starts its delay after the first piece arrives; the page's spacing is kept
+    assert clock.to_monotonic([10.0], now=100.0, lifted=False) == pytest.approx([100.02])
+    got = clock.to_monotonic([10.01, 10.02], now=100.015, lifted=False)
+    assert got == pytest.approx([100.03, 100.04])
+    # a piece that arrives after its time pauses the path by its lateness (no jump) ...
+    got = clock.to_monotonic([10.03, 10.05, 10.06], now=100.25, lifted=True)
+    assert got == pytest.approx([100.25, 100.27, 100.28])
+    # ... and the next path waits 1.5 x that lateness for its pieces
+    assert clock.delay_s == pytest.approx(1.5 * 0.2)
+    assert clock.to_monotonic([20.0], now=200.0, lifted=False) == pytest.approx([200.3])
+    # never more than max_delay_s; a page reloaded mid-path (its clock restarted, or moved on)
+    # plays from now on, neither in the past nor later than the largest delay
+    clock.to_monotonic([20.1], now=210.0, lifted=False)
+    assert clock.delay_s == 0.5
+    for t in (1.0, 5000.0):
+        (got,) = clock.to_monotonic([t], now=300.0, lifted=False)
+        assert 300.0 <= got <= 300.5

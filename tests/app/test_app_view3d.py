@@ -215,17 +215,21 @@ def test_dragging_on_the_skin_moves_the_simulated_finger(chromium, server):  # n
 
     ws.connect(SourceOptions(source="sim", rate_hz=400.0, seed=0))
     ws.create_session("drag", n_points=6, samples=10, baseline_frames=20)
-    # What the page asks of the simulated skin: every point (m) or None (lifted), in order.
+    # What the page asks of the simulated skin: every point (m) or None (lifted), in order,
+    # and the page's event times of the points.
     pressed: list[list[float] | None] = []
+    times: list[float] = []
     lock = threading.Lock()
-    real = ws.sim_touch
+    real = ws.sim_path
 
-    def record(point):
+    def record(path):
         with lock:
-            pressed.append(None if point is None else list(point))
-        real(point)
+            for t, point in path:
+                pressed.append(None if point is None else list(point))
+                times.append(t)
+        real(path)
 
-    ws.sim_touch = record
+    ws.sim_path = record
     sync_api.expect.set_options(timeout=60_000)
     expect = sync_api.expect
     errors: list[str] = []
@@ -260,6 +264,8 @@ def test_dragging_on_the_skin_moves_the_simulated_finger(chromium, server):  # n
         assert along[-1] == pytest.approx(1.0, abs=0.02), along
         assert all(y >= x - 0.02 for x, y in itertools.pairwise(along)), along  # forward only
         assert pressed.count(None) == 1  # one lift, at the end
+        # the path keeps the mouse's pace: the page's times span the drag (12 moves 40 ms apart)
+        assert all(b >= a for a, b in itertools.pairwise(times)) and times[-1] - times[0] > 0.3
 
         # A drag off the skin turns the view and touches nothing.
         n = len(pressed)

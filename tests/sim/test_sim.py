@@ -445,3 +445,41 @@ def test_golden_sensor_image(cone: trimesh.Trimesh, params: SkinParams) -> None:
     assert img.shape == golden.shape == (64,)
     rms = np.sqrt(np.mean((img - golden) ** 2))
     assert rms < 1e-6 * max(1.0, np.abs(golden).max()), f"RMS {rms:.3g} counts off the golden"
+
+
+def test_follow_makes_each_move_at_its_frame(cone: trimesh.Trimesh) -> None:
+    """Moves queued with their times are made by the first frame at or after each time: a
+    paced skin's frame of simulated time s is the one of wall time s after its start, so a
+    reader that is behind still sees the finger where it was then."""
+    skin = SimulatedSkin(cone, random_state=SEED, rate_hz=100.0, realtime=True)
+    a, b = sample_targets(cone, 2, mode="even", random_state=1)
+    skin.connect()
+    try:
+        t0 = skin._wall_start
+        skin.follow([(t0 + 0.045, a), (t0 + 0.095, b), (t0 + 0.145, None)])
+        seen = []
+        for _ in range(20):  # read as fast as the clock lets: frame k is wall time t0 + k / 100
+            skin.read(1.0)
+            seen.append(None if skin.contact is None else skin.contact.copy())
+    finally:
+        skin.disconnect()
+    # frame k carries the moves due at t0 + k / 100 (read before the frame is made)
+    assert all(s is None for s in seen[:5])
+    assert all(s is not None and np.allclose(s, a) for s in seen[5:10])
+    assert all(s is not None and np.allclose(s, b) for s in seen[10:15])
+    assert all(s is None for s in seen[15:])
+
+
+def test_follow_slides_with_the_pressure_it_landed_with(skin: SimulatedSkin) -> None:
+    a, b = sample_targets(skin.mesh, 2, mode="even", random_state=2)
+    skin.connect()
+    now = time.monotonic()
+    skin.follow([(now - 0.02, a), (now - 0.01, b)])
+    skin.read(1.0)  # not paced: every move due now is made
+    assert np.allclose(skin.contact, b)
+    pressed = skin._pressed
+    skin.follow([(time.monotonic(), a)])
+    skin.read(1.0)
+    assert skin._pressed == pressed and np.allclose(skin.contact, a)
+    with pytest.raises(ValueError):
+        skin.follow([(now, np.zeros(2))])

@@ -11,7 +11,9 @@ described in ``docs/simulator.md``.
 from __future__ import annotations
 
 import logging
+import threading
 import time
+from collections import deque
 from collections.abc import Sequence
 
 import numpy as np
@@ -111,6 +113,9 @@ class SimulatedSkin(FrameSource):
         self.contact: np.ndarray | None = None
         # The pressure and finger radius (m) of the press in progress, kept while it slides.
         self._pressed: tuple[float, float] | None = None
+        # Finger moves queued by ``follow``: (monotonic time s, point (3,) m or None to lift).
+        self._moves: deque[tuple[float, np.ndarray | None]] = deque()
+        self._moves_lock = threading.Lock()
 
     # -- FrameSource -------------------------------------------------------------------------
     @property
@@ -151,6 +156,11 @@ class SimulatedSkin(FrameSource):
                 raise FrameTimeoutError(f"{self.name}: no frame within {timeout_s} s")
             if wait > 0:
                 time.sleep(wait)
+        if self._moves:
+            # the finger where it was at this frame's time (a reader that is behind still sees
+            # the path as it was drawn); a skin that is not paced: where it is now
+            paced = self.realtime and self._wall_start is not None
+            self._apply_moves(self._wall_start + self._time_s if paced else time.monotonic())
         values = self._frame()
         frame = Frame(values=values, timestamp_s=self._time_s, index=self._index)
         self._index += 1
@@ -261,6 +271,32 @@ class SimulatedSkin(FrameSource):
             return
         pressure, radius = self._pressed
         self.press(point, pressure=pressure, finger_radius_m=radius)
+
+    def follow(self, moves: Sequence[tuple[float, np.ndarray | None]]) -> None:
+        """Queue finger moves, each made by the first frame at or after its time.
+
+        ``moves`` are ``(t, point)`` in time order: ``t`` on this machine's ``time.monotonic``
+        clock, s; ``point (3,)`` m on the skin presses there (never a light touch, as a person
+        pressing until the skin responds) or slides the finger that is down, ``None`` lifts
+        it. A paced skin's frame of simulated time ``s`` belongs to wall time ``s`` after its
+        start, so a path drawn with the mouse keeps its pace however late frames are read.
+        """
+        with self._moves_lock:
+            for t, point in moves:
+                p = None if point is None else np.asarray(point, dtype=np.float64).reshape(3)
+                self._moves.append((float(t), p))
+
+    def _apply_moves(self, now: float) -> None:
+        """Make the queued moves due at ``now`` (monotonic s), oldest first."""
+        with self._moves_lock:
+            while self._moves and self._moves[0][0] <= now:
+                _, point = self._moves.popleft()
+                if point is None:
+                    self.release()
+                elif self.contact is not None and self._pressed is not None:
+                    self.slide(point)
+                else:
+                    self.press(point, weak=False)
 
     def touch(self, fingers: Sequence[Finger]) -> None:
         """Put ``fingers`` on the skin at once, replacing any (``[]`` lifts them all).

@@ -35,12 +35,21 @@ class SessionBody(BaseModel):
 
 #: A coordinate of a touch, m: any skin fits in +-10 m, and larger numbers are a mistake.
 Coordinate = Annotated[float, Field(ge=-10.0, le=10.0)]
+#: A page's event time, s (its clock starts when the page loads).
+PageTime = Annotated[float, Field(ge=0.0, le=1e9)]
 
 
 class TouchBody(BaseModel):
-    """``POST /api/sim/touch``: a point in m, or none to lift."""
+    """``POST /api/sim/touch``: a point in m, or none to lift, now; or a mouse ``path``.
+
+    ``path``: ``[t, point]`` pairs in time order, ``t`` the page's event time (s), ``point`` in m
+    or null where the mouse was released (``LinkActions.sim_path``).
+    """
 
     point: list[Coordinate] | None = Field(None, min_length=3, max_length=3)
+    path: list[tuple[PageTime, list[Coordinate] | None]] | None = Field(
+        None, min_length=1, max_length=1000
+    )
 
 
 class IndexBody(BaseModel):

@@ -55,7 +55,10 @@ def add_routes(app: FastAPI, workspace: Workspace) -> None:
 
     @router.post("/api/sim/touch")
     def sim_touch(body: TouchBody) -> dict[str, Any]:
-        workspace.sim_touch(body.point)
+        if body.path is not None:
+            workspace.sim_path(body.path)
+        else:
+            workspace.sim_touch(body.point)
         return OK
 
     app.include_router(router)

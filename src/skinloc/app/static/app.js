@@ -910,7 +910,7 @@ app.plot = new LivePlot($("#heat-live"));
 app.touchView = new TouchView({ esc });
 app.settings = new LiveSettings($("#record-panel"), $("#live-rate").closest("table"), { act, esc });
 app.record = new RecordPanel($("#record-panel"), { act, esc });
-app.viewer.onTouch = (p) => api("/api/sim/touch", { point: p }).catch(() => {});
+app.viewer.onTouch = (path) => api("/api/sim/touch", { path }).catch(() => {});
 const touchByMouse = () => {
   // The view's controls (view_controls.js): a drag on the skin moves the simulated finger.
   app.viewer.touchMode = $("#mouse-touch").checked;

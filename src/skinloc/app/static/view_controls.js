@@ -190,8 +190,9 @@ export class ViewControls {
   // ---------------------------------------------------------------- the simulated finger
   _finger() {
     // A press on the skin puts the finger there and a drag moves it; a press off the skin (or
-    // with Alt) turns the view as before. One request at a time, the newest point next: a slow
-    // server gets fewer points of the same path, never a queue of old ones.
+    // with Alt) turns the view as before. The path goes with its event times, one request at
+    // a time carrying every point since the last: the server plays it at the mouse's pace, so
+    // a slow server delays a stroke but never turns it into a slow one or a jump.
     const v = this.viewer, el = v.renderer.domElement;
     this.drag = null;
     const down = (ev) => {
@@ -209,25 +210,25 @@ export class ViewControls {
         // a pointer the browser does not track (a synthetic event): moves over the view only
       }
       this.drag = { id: ev.pointerId };
-      this._send([p.x / MM, p.y / MM, p.z / MM]);
+      this._send(ev.timeStamp, [p.x / MM, p.y / MM, p.z / MM]);
     };
     const move = (ev) => {
       if (!this.drag || ev.pointerId !== this.drag.id) return;
       ev.stopImmediatePropagation();
       const p = v.hit(ev.clientX, ev.clientY);
-      if (p) this._send([p.x / MM, p.y / MM, p.z / MM]); // off the skin: the finger stays
+      if (p) this._send(ev.timeStamp, [p.x / MM, p.y / MM, p.z / MM]); // off the skin: it stays
     };
     const up = (ev) => {
       if (!this.drag || ev.pointerId !== this.drag.id) return;
       ev.stopImmediatePropagation();
       this.drag = null;
-      this._send(null);
+      this._send(ev.timeStamp, null);
     };
     el.addEventListener("pointerdown", down, { capture: true });
     el.addEventListener("pointermove", move, { capture: true });
     el.addEventListener("pointerup", up, { capture: true });
     el.addEventListener("pointercancel", up, { capture: true });
-    this.outbox = { busy: false, has: false, point: null };
+    this.outbox = { busy: false, path: [] };
   }
 
   _screenDistance(p, ev) {
@@ -236,16 +237,16 @@ export class ViewControls {
     return Math.hypot(r.left + ((s.x + 1) / 2) * r.width - ev.clientX, r.top + ((1 - s.y) / 2) * r.height - ev.clientY);
   }
 
-  async _send(point) {
+  async _send(ms, point) {
+    // ``ms``: the event's time (ms, the page's clock)
     const o = this.outbox;
-    o.point = point;
-    o.has = true;
+    o.path.push([ms / 1000, point]);
     if (o.busy) return;
     o.busy = true;
     try {
-      while (o.has) {
-        o.has = false;
-        await this.viewer.onTouch(o.point); // the newest point, read as the request goes
+      while (o.path.length) {
+        const path = o.path.splice(0, 1000); // the server takes at most 1000 points a request
+        await this.viewer.onTouch(path);
       }
     } finally {
       o.busy = false;

@@ -26,7 +26,7 @@ from skinloc.app.store import SessionStore
 from skinloc.app.workspace.export import ExportFiles
 from skinloc.app.workspace.finger import FingerActions
 from skinloc.app.workspace.guided import GuidedCapture
-from skinloc.app.workspace.link import LinkActions
+from skinloc.app.workspace.link import LinkActions, PageClock
 from skinloc.app.workspace.live import LiveView
 from skinloc.app.workspace.record import LiveRecording, RecordTee
 from skinloc.app.workspace.sessions import SessionActions
@@ -80,6 +80,7 @@ class Workspace(
         self._finger: Any = None
         self._finger_due: float | None = None
         self._finger_down = False
+        self._page_clock = PageClock()  # the mouse's path on the simulated skin
         self._quiet: list[np.ndarray] = []
         self._last_push = 0.0
         self._last_report = 0.0

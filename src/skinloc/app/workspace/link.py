@@ -23,6 +23,41 @@ from skinloc.sources.base import Frame, SourceKind, SourceOptions
 log = logging.getLogger(__name__)
 
 
+class PageClock:
+    """The page's event times mapped onto this machine's ``time.monotonic`` clock.
+
+    A path starts ``delay_s`` after its first piece arrives; later pieces keep the page's
+    spacing. A piece that arrives after its time (the machine was busy) shifts the rest of the
+    path by its lateness, a pause instead of a jump, and the delay of the next paths grows to
+    1.5 x that lateness (at most ``max_delay_s``): a jitter buffer, as audio streams keep one.
+
+    Parameters
+    ----------
+    delay_s, max_delay_s : float
+        The first and the largest delay, s.
+    """
+
+    def __init__(self, delay_s: float = 0.02, max_delay_s: float = 0.5) -> None:
+        self.delay_s = float(delay_s)
+        self.max_delay_s = float(max_delay_s)
+        self._offset: float | None = None
+        self._open = False  # a path is under way (its last piece did not lift the finger)
+
+    def to_monotonic(self, times: list[float], now: float, lifted: bool) -> list[float]:
+        """``times`` (page s, in order) on the monotonic clock; ``lifted``: the path ends."""
+        if not times:
+            return []
+        ahead = self._offset is not None and times[0] + self._offset > now + self.max_delay_s
+        if not self._open or self._offset is None or ahead:  # a new path (or a new page)
+            self._offset = now - times[0] + self.delay_s
+        late = now - (times[0] + self._offset)
+        if late > 0:
+            self._offset += late
+            self.delay_s = min(self.max_delay_s, max(self.delay_s, 1.5 * late))
+        self._open = not lifted
+        return [t + self._offset for t in times]
+
+
 class LinkActions:
     """Part of ``Workspace``: the device, and every frame the reader thread hands over."""
 
@@ -74,27 +109,55 @@ class LinkActions:
             self._need_device().monitor.rezero()
 
     def sim_touch(self, point: list[float] | None) -> None:
-        """Press the simulated skin at ``point`` (m; snapped onto the skin) or lift (None)."""
-        with self._lock:
-            device = self._need_device()
-            if not device.is_sim:
-                raise ValueError("touching with the mouse works on the simulated skin only")
-            skin = device.source
-            if point is None:
-                skin.release()
-                return
-            p = np.asarray(point, dtype=np.float64).reshape(-1)
-            if p.shape != (3,) or not np.all(np.isfinite(p)):
-                raise ValueError(f"point must be 3 finite coordinates in m, got {point!r}")
-            on_skin = nearest_on_surface(skin.mesh, p)[0][0]
-            if skin.contact is not None:
-                # A drag: the finger slides, pressing as it landed (a new pressure at every
-                # mouse move would make its image flicker and its track split).
-                skin.slide(on_skin)
-            else:
-                # A mouse press is meant: never one of the light touches the skin may not feel
-                # (which of them comes would depend on how many frames the noise drew before).
-                skin.press(on_skin, weak=False)
+        """Press the simulated skin at ``point`` (m; snapped onto the skin) or lift (None), now.
+
+        Without the workspace's lock: the reader thread holds it for every frame and, behind on
+        a loaded machine, takes it back at once, so a touch waiting for it reached the skin
+        late. The simulated finger is the skin's own state, replaced whole by each call and read
+        whole by its frame thread.
+        """
+        skin = self._sim_skin()
+        if point is None:
+            skin.release()
+        elif skin.contact is not None:
+            # A drag: the finger slides, pressing as it landed (a new pressure at every mouse
+            # move would make its image flicker and its track split).
+            skin.slide(self._on_skin(skin, point))
+        else:
+            # A mouse press is meant: never one of the light touches the skin may not feel
+            # (which of them comes would depend on how many frames the noise drew before).
+            skin.press(self._on_skin(skin, point), weak=False)
+
+    def sim_path(self, path: list[tuple[float, list[float] | None]]) -> None:
+        """Move the simulated finger along a mouse path at the mouse's pace.
+
+        ``path`` is ``(t, point)`` in time order: ``t`` the page's event time, s (any origin),
+        ``point`` m (snapped onto the skin) or None for the mouse's release. The page sends the
+        path in pieces, one request at a time, and a loaded machine answers late: the points
+        are played on this machine's clock (``PageClock``), never bunched into a jump, so a
+        quick stroke stays a quick stroke.
+        """
+        skin = self._sim_skin()
+        times = [float(t) for t, _ in path]
+        if not np.all(np.isfinite(times)) or np.any(np.diff(times) < 0):
+            raise ValueError("path times must be finite and in order")
+        points = [None if p is None else self._on_skin(skin, p) for _, p in path]
+        wall = self._page_clock.to_monotonic(times, time.monotonic(), lifted=points[-1] is None)
+        skin.follow(list(zip(wall, points, strict=True)))
+
+    def _sim_skin(self) -> Any:
+        device = self._need_device()  # one read: a device detached meanwhile is pressed unseen
+        if not device.is_sim:
+            raise ValueError("touching with the mouse works on the simulated skin only")
+        return device.source
+
+    @staticmethod
+    def _on_skin(skin: Any, point: list[float]) -> np.ndarray:
+        """``point`` (m) snapped onto the skin's surface, ``(3,)``."""
+        p = np.asarray(point, dtype=np.float64).reshape(-1)
+        if p.shape != (3,) or not np.all(np.isfinite(p)):
+            raise ValueError(f"point must be 3 finite coordinates in m, got {point!r}")
+        return nearest_on_surface(skin.mesh, p)[0][0]
 
     @contextmanager
     def _locked_for(self, device: DeviceLink | None) -> Iterator[bool]:

@@ -374,10 +374,8 @@ def test_pipeline_with_a_real_model_finds_the_second_finger_the_search_missed():
         ids = {c.track_id for c in out}
         assert ids == {1, 2}
         # both fingers landed in one frame (no change of shape) on a skin that counts two at
-        # no separation, but both tracks were down for most of the tap: two fingers, of
-        # uncertain count (never said as a tap)
-        ev = core.take_gestures()
-        assert [g["kind"] for g in ev] == ["two_finger_tap"] and ev[0]["confidence"] < 1.0
+        # no separation: not sure of two, the tap is held back, never said as a tap
+        assert core.take_gestures() == [] and core._recognizer.n_held == 1
         core = SkinCore(engine, PipelineConfig(baseline_frames=50), name="s")
         core._recognizer.two_point_mm = None  # the threshold unknown: two tracks, two fingers
         out = []

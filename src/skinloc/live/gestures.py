@@ -27,13 +27,11 @@ Two tracks are not always two fingers either: below the skin's two-point thresho
 cannot reliably tell two fingers from one, and a finger's image split for a few frames makes a
 second track beside the first. So a tap of several tracks all closer than the threshold is a
 two-finger tap only if the image changed more than one finger's does as they landed and lifted
-(``landing_hold``) or every track was down for most of the tap (``PAIR_MIN_SHARE``: a piece
-split off lasts a few frames); otherwise it is one finger's tap whose count is uncertain: held
-back like the taps above, or one tap of a double tap. A two-finger tap closer than the
-threshold carries a ``confidence`` below 1. The threshold is a distance between two fingers: it
-replaces none of the distances of one finger (``still_mm``, ``double_tap_mm``,
-``swipe_min_mm``: how far one finger moves), and a swipe is one moving finger whatever its
-length.
+(``landing_hold``); otherwise it is one finger's tap whose count is uncertain: held back like
+the taps above, or one tap of a double tap. A two-finger tap closer than the threshold carries
+a ``confidence`` below 1. The threshold is a distance between two fingers: it replaces none of
+the distances of one finger (``still_mm``, ``double_tap_mm``, ``swipe_min_mm``: how far one
+finger moves), and a swipe is one moving finger whatever its length.
 
 Directions are in the skin's own frame, the one the simulator's gesture script uses too
 (``geometry.skin_frame``): ``up`` is a direction of the mesh frame (per skin; default: the mesh's
@@ -66,11 +64,6 @@ BRIEF_SLACK_S = 0.05
 #: Longest track, s, that is a piece of a moving finger's image (the search splitting it for
 #: a few frames) rather than a second finger: a second finger touches for 60 ms or more.
 GHOST_S = 0.045
-#: Share of a tap's time that every finger of it touched, at least, for tracks closer than the
-#: skin's two-point threshold to be two fingers without the time cue: a piece of one finger's
-#: image split off by the search lasts a few frames of the tap (27-44 % on skin seeds 1-5),
-#: a second finger tapping with the first most of it.
-PAIR_MIN_SHARE = 0.5
 
 
 @dataclass
@@ -419,8 +412,8 @@ class GestureRecognizer:
         A single track, or tracks all closer than the skin's two-point threshold whose image
         changed as one finger's does: below the threshold a second contact is as likely a piece
         of one finger's image the search split off (a few frames beside a tapping finger) as a
-        second finger; without the time cue (a change past ``landing_hold``) only how long each
-        track was down says it is two (each at least ``PAIR_MIN_SHARE`` of the tap).
+        second finger; without the time cue (a change past ``landing_hold``) nothing says it
+        is two.
         """
         fs = ep.fingers
         if len(fs) == 1:
@@ -428,14 +421,7 @@ class GestureRecognizer:
         tp = self.two_point_mm
         if tp is None or self.landing_hold <= 0.0 or self._uncertain(ep):
             return None
-        if self._spread_m(fs) >= tp * 1e-3:
-            return None
-        # every track down for most of the tap: two fingers, not a piece split off
-        downs = [(f.end_s if f.ended else f.last_s) - f.start_s for f in fs]
-        span = max(f.end_s if f.ended else f.last_s for f in fs) - min(f.start_s for f in fs)
-        if span > 0 and min(downs) >= PAIR_MIN_SHARE * span:
-            return None
-        return fs[0]
+        return fs[0] if self._spread_m(fs) < tp * 1e-3 else None
 
     def _pair_confidence(self, ep: _Episode, fs: list[_Finger]) -> float:
         """How sure a two-finger tap of several tracks is of its count.

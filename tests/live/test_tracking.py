@@ -314,6 +314,34 @@ def test_pair_prior_wants_a_second_contact_that_stays_put_strong_and_early():
     assert got == [1, 1, 1, 1, 1, 2]
 
 
+def test_pair_prior_takes_two_close_fingers_fit_either_way_round():
+    # two close fingers: the anchored contact swaps between them from frame to frame; the
+    # pair stays put, so it is consistent evidence (the second contact jumps 50 mm)
+    tr, _ = _pair_tracker([_Fit(0.5, 12.0, A, B), _Fit(0.5, 12.0, B, A)] * 3)
+    _step(tr, 0.0, A, start=True)
+    assert [len(_step(tr, k * 0.01, A)) for k in (1, 2, 3)] == [1, 1, 2]
+    # or the second contact on either side of an unmoved first, as far along one line
+    # (the mirror): consistent while the fingers land (mirror_s), not later in the touch
+    M = 2.0 * A - B
+    tr, _ = _pair_tracker([_Fit(0.5, 12.0, A, B), _Fit(0.5, 12.0, A, M)] * 3)
+    _step(tr, 0.0, A, start=True)
+    assert [len(_step(tr, k * 0.01, A)) for k in (1, 2, 3)] == [1, 1, 2]
+    tr, prior = _pair_tracker([_Fit(0.01, 1.0, A, B)])
+    _step(tr, 0.0, A, start=True)
+    for k in range(1, 12):
+        _step(tr, k * 0.01, A)
+    prior.refit.fits, prior.refit.calls = [_Fit(0.5, 12.0, A, B), _Fit(0.5, 12.0, A, M)] * 5, 0
+    assert [len(_step(tr, k * 0.01, A)) for k in range(12, 20)] == [1] * 8
+    # a mirror about a first that moved, or a swap of a pair that moved: not consistent
+    A2 = A + np.array([0.0, 0.03, 0.0])
+    tr, _ = _pair_tracker([_Fit(0.5, 12.0, A, B), _Fit(0.5, 12.0, A2, 2.0 * A2 - B)] * 3)
+    _step(tr, 0.0, A, start=True)
+    assert [len(_step(tr, k * 0.01, A)) for k in range(1, 7)] == [1] * 6
+    tr, _ = _pair_tracker([_Fit(0.5, 12.0, A, B), _Fit(0.5, 12.0, B, C)] * 3)
+    _step(tr, 0.0, A, start=True)
+    assert [len(_step(tr, k * 0.01, A)) for k in range(1, 7)] == [1] * 6
+
+
 def test_pair_prior_stays_out_of_the_way_when_the_search_sees_two_or_the_touch_releases():
     tr, prior = _pair_tracker([_Fit(0.5, 12.0, A, B)])
     _step(tr, 0.0, A, start=True)

@@ -10,7 +10,11 @@ and the search reports one contact, for the two-contact fit anchored at that con
   the last ``start_frames`` frames the fit has been better than one contact by ``start_ratio``
   on average (relative residual reduction) with its weaker contact at ``start_z`` noise
   levels on average, its second contact staying within ``consistent_mm`` from frame to frame
-  (a finger stays put; the second contact of a single finger's fit wanders); a frame in which
+  (a finger stays put; the second contact of a single finger's fit wanders), or the pair
+  staying put either way round, or, while the fingers land (``mirror_s``), the second contact
+  on the other side of an unmoved first, as far along the same line (two fingers closer than
+  about 30 mm: their fit swaps which one is anchored, or puts the second beyond either finger,
+  side to side from frame to frame); a frame in which
   the search itself reports two contacts counts as one at the thresholds, with its contact
   farthest from the track as the second (the search sees some fingers in some frames only);
 * **keeps** two fingers, once there are two tracks and the search is back to one contact,
@@ -52,6 +56,7 @@ class PairRule:
     start_z: float = 5.0
     start_frames: int = 3
     consistent_mm: float = 15.0
+    mirror_s: float = 0.10
     keep_ratio: float = 0.08
     keep_z: float = 3.0
     max_fits: int = 30
@@ -76,7 +81,8 @@ class PairPrior:
         self.rule = PairRule() if rule is None else rule
         self.run = 0
         self.fits = 0  # anchored fits asked in this touch
-        self._last = np.zeros(3)
+        self._last = np.zeros(3)  # the last frame's second contact, m
+        self._last_first = np.zeros(3)  # and its anchored one
         n = max(int(self.rule.start_frames), 1)
         self._ratio = np.zeros(n)
         self._z = np.zeros(n)
@@ -98,15 +104,35 @@ class PairPrior:
         first_s = min(t.start_s for t in live)
         return ts - first_s <= (r.window_s if n == 1 else r.keep_s)
 
-    def _push(self, second_m: np.ndarray, ratio: float, z2: float) -> bool:
+    def _push(
+        self,
+        second_m: np.ndarray,
+        ratio: float,
+        z2: float,
+        first_m: np.ndarray | None = None,
+        landing: bool = False,
+    ) -> bool:
         """One frame's evidence; whether the window's means reach the start thresholds."""
         r = self.rule
-        if self.run and math.dist(second_m, self._last) > r.consistent_mm * 1e-3:
-            self.run = 0
+        tol = r.consistent_mm * 1e-3
+        if self.run and math.dist(second_m, self._last) > tol:
+            # two close fingers: their fit may swap which one is anchored, or put the second
+            # on the other side of an unmoved first, as far along the same line (the mirror)
+            last1 = self._last_first
+            if first_m is None or not (
+                math.dist(first_m, self._last) <= tol
+                and math.dist(second_m, last1) <= tol
+                or landing
+                and math.dist(first_m, last1) <= tol
+                and math.dist(second_m, 2.0 * first_m - self._last) <= tol
+            ):
+                self.run = 0
         i = self.run % len(self._ratio)
         self._ratio[i], self._z[i] = ratio, z2
         self.run += 1
         self._last[:] = second_m
+        if first_m is not None:
+            self._last_first[:] = first_m
         return (
             self.run >= len(self._ratio)
             and float(self._ratio.mean()) >= r.start_ratio
@@ -124,7 +150,8 @@ class PairPrior:
             self.run = 0
             return
         d = np.linalg.norm(positions - live[0].last_m, axis=1)
-        self._push(positions[int(np.argmax(d))], self.rule.start_ratio, self.rule.start_z)
+        far = positions[int(np.argmax(d))]
+        self._push(far, self.rule.start_ratio, self.rule.start_z, live[0].last_m)
 
     def step(self, ts: float, live: Sequence[Any], contact_m: np.ndarray) -> np.ndarray | None:
         """Two contacts ``(2, 3)`` m for this frame instead of ``contact_m``, or None.
@@ -144,7 +171,8 @@ class PairPrior:
             if fit.ratio >= r.keep_ratio and fit.z2 >= r.keep_z:
                 return np.array([fit.first_m, fit.second_m])
             return None
-        if self._push(fit.second_m, fit.ratio, fit.z2):
+        landing = ts - live[0].start_s <= r.mirror_s
+        if self._push(fit.second_m, fit.ratio, fit.z2, fit.first_m, landing):
             return np.array([fit.first_m, fit.second_m])
         return None
 

@@ -151,3 +151,44 @@ def test_bad_mesh(tmp_path):
     bad.write_text("garbage\n")
     res = run("simulate", "--out", tmp_path / "x.h5", "--mesh", bad, "--points", "2")
     assert res.exit_code == 1 and "mesh" in res.output
+
+
+def test_info_describes_an_app_sessions_history(tmp_path):
+    """The Export page offers history.h5: ``info`` lists what was taken back, as a table and as
+    JSON; an HDF5 file that is neither a recording nor a history is still a one-line error."""
+    import h5py
+
+    from skinloc.app.store import SessionFolder
+    from skinloc.errors import RecordingError
+
+    folder = SessionFolder(tmp_path)
+    frames = np.ones((5, 64), dtype=np.float32)
+    target = np.array([0.01, -0.02, 0.05])
+    folder.archive("touch", {"target": target, "frames": frames}, {"reason": "retake", "index": 3})
+    folder.archive("baseline", {"frames": frames}, {"reason": "new baseline"})
+    res = run("info", str(folder.history), "--json")
+    assert res.exit_code == 0, res.output
+    info = json.loads(res.output)
+    assert info["format"] == "skinloc-history"
+    first, second = info["entries"]
+    assert (first["kind"], first["reason"], first["index"], first["n_frames"]) == (
+        "touch",
+        "retake",
+        3,
+        5,
+    )
+    assert first["target_mm"] == pytest.approx([10.0, -20.0, 50.0])
+    assert second["kind"] == "baseline" and "target_mm" not in second
+    res = run("info", str(folder.history))
+    assert res.exit_code == 0 and "retake" in res.output
+    other = tmp_path / "other.h5"
+    with h5py.File(other, "w") as f:
+        f["x"] = np.zeros(3)
+    res = run("info", str(other))
+    assert res.exit_code != 0 and "Traceback" not in res.output
+    # a history.h5 that is something else is never written over by the app
+    other.replace(folder.history)
+    with pytest.raises(RecordingError, match="not a session history"):
+        folder.archive("touch", {"frames": frames}, {})
+    with h5py.File(folder.history, "r") as f:
+        assert list(f) == ["x"]

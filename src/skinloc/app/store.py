@@ -26,11 +26,39 @@ from skinloc.files import atomic_write
 
 log = logging.getLogger(__name__)
 
-__all__ = ["SessionBusyError", "SessionFolder", "SessionStore"]
+__all__ = ["HISTORY_FORMAT", "SessionBusyError", "SessionFolder", "SessionStore", "read_history"]
+
+#: The ``format`` attribute of a session's ``history.h5``.
+HISTORY_FORMAT = "skinloc-history"
 
 
 class SessionBusyError(SkinlocError):
     """The session is open elsewhere (another app process)."""
+
+
+def read_history(path: Path) -> list[tuple[str, dict[str, np.ndarray], dict[str, Any]]] | None:
+    """A session's ``history.h5`` in the order kept: ``(name, arrays, attrs)`` per entry.
+
+    Names are ``{kind}_{n}`` (``touch``: a touch taken back, ``baseline``: a replaced one);
+    attrs carry ``time`` and what the app knew (target, reason). None when ``path`` is an HDF5
+    file of another kind; raises ``RecordingError`` when it cannot be read.
+    """
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            if f.attrs.get("format") != HISTORY_FORMAT:
+                return None
+            return [
+                (
+                    name,
+                    {k: f[name][k][()] for k in f[name]},
+                    {k: json.loads(v) for k, v in f[name].attrs.items()},
+                )
+                for name in sorted(f, key=lambda s: int(s.split("_")[-1]))
+            ]
+    except (OSError, ValueError, KeyError) as exc:
+        raise RecordingError(f"cannot read {path}: {exc}") from exc
 
 
 def _slug(text: str) -> str:
@@ -130,24 +158,15 @@ class SessionFolder:
         """
         import h5py
 
-        old: list[tuple[str, dict[str, np.ndarray], dict[str, Any]]] = []
-        if self.history.is_file():
-            with h5py.File(self.history, "r") as f:
-                for name in sorted(f, key=lambda s: int(s.split("_")[-1])):
-                    g = f[name]
-                    old.append(
-                        (
-                            name,
-                            {k: g[k][()] for k in g},
-                            {k: json.loads(v) for k, v in g.attrs.items()},
-                        )
-                    )
+        old = read_history(self.history) if self.history.is_file() else []
+        if old is None:  # never written over: whatever it holds stays
+            raise RecordingError(f"{self.history} is not a session history; move it away first")
         entry = f"{kind}_{len(old)}"
         old.append((entry, arrays, {**attrs, "time": utc_now()}))
 
         def write(tmp: Path) -> None:
             with h5py.File(tmp, "w") as f:
-                f.attrs["format"] = "skinloc-history"
+                f.attrs["format"] = HISTORY_FORMAT
                 for name, arrs, meta in old:
                     g = f.create_group(name)
                     for k, v in arrs.items():

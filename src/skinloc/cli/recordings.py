@@ -26,6 +26,36 @@ def _truth_layout(rec) -> dict[str, Any]:
     return {} if truth is None else {"truth_sensor_positions_m": truth}
 
 
+def _history_info(path: Path, history: list, as_json: bool) -> None:
+    """``info`` of an app session's ``history.h5``: each touch taken back or baseline replaced."""
+    entries = []
+    for name, arrays, attrs in history:
+        e: dict[str, Any] = {"entry": name, "kind": name.rsplit("_", 1)[0], **attrs}
+        if "target" in arrays:
+            e["target_mm"] = [round(1e3 * float(v), 2) for v in arrays["target"]]
+        if "frames" in arrays:
+            e["n_frames"] = int(len(arrays["frames"]))
+        entries.append(e)
+    if as_json:
+        print_json({"file": str(path), "format": "skinloc-history", "entries": entries})
+        return
+    table = Table(title=f"{path}: an app session's history (kept, never used for training)")
+    for col in ("entry", "time", "reason", "recording", "index", "target (mm)", "frames"):
+        table.add_column(col)
+    for e in entries:
+        target = e.get("target_mm")
+        table.add_row(
+            e["entry"],
+            str(e.get("time", "")),
+            str(e.get("reason", "")),
+            str(e.get("recording", "")),
+            str(e.get("index", "")),
+            "" if target is None else ", ".join(f"{v:.1f}" for v in target),
+            str(e.get("n_frames", "")),
+        )
+    console.print(table)
+
+
 def register(app: typer.Typer) -> None:
     """Add ``skinloc snr``, ``info`` and ``convert`` to ``app``."""
 
@@ -91,6 +121,13 @@ def register(app: typer.Typer) -> None:
         from skinloc.sim.gesture_stream import read_gesture_truth
         from skinloc.sources.replay import stream_summary
 
+        if data.suffix.lower() in (".h5", ".hdf5") and data.is_file():
+            from skinloc.app.store import read_history
+
+            history = read_history(data)
+            if history is not None:  # an app session's history.h5: what was taken back
+                _history_info(data, history, as_json)
+                return
         (rec,) = read_recordings([data])
         summary = {
             "file": str(data),

@@ -224,21 +224,25 @@ def seeds_and_pair(
             n_cand += 0 if (g1a + g1o[c]) * ka < bestg else 1
         for r in range(n_cand):
             c = cand[r]
-            if c == a:
-                continue
             bb = bC[c]
             gab = float(ga_row[c])
             gbb = Cd[c]
             det = gaa * gbb - gab * gab
-            if det <= 1e-12 * gaa * gbb:
-                continue
-            # s_a, s_b and the gain over det, free of divisions: det > 0
+            # s_a, s_b and the gain over det, free of divisions (det > 0 where it counts)
             na = gbb * ba - gab * bb
             nb_ = gaa * bb - gab * ba
-            if na <= 0.0 or nb_ <= 0.0:
-                continue
-            if na * ba + nb_ * bb > bestg * det and far_apart(Cpos[a], Cpos[c], min2):
-                bestg = (na * ba + nb_ * bb) / det
+            num = na * ba + nb_ * bb
+            # the plain loop's tests all at once: each passes unpredictably, a branch apiece
+            # cost more than the arithmetic; only a pair that beats the best branches
+            beats = (
+                (c != a)
+                & (det > 1e-12 * gaa * gbb)
+                & (na > 0.0)
+                & (nb_ > 0.0)
+                & (num > bestg * det)
+            )
+            if beats and far_apart(Cpos[a], Cpos[c], min2):
+                bestg = num / det
                 pa = a
                 pb = c
         if t + 1 < n_seeds:

@@ -225,15 +225,17 @@ def nnls2_interior(
     """``nnls2``'s ``(gain, s1, s2)`` if both its strengths are positive, else ``(-1, 0, 0)``.
 
     The same arithmetic as ``nnls2``'s interior solution (its other answers have a zero
-    strength).
+    strength). Without branches (the scans that call it per candidate pass its tests
+    unpredictably): a degenerate pair divides by 1 and is refused.
     """
     det = g11 * g22 - g12 * g12
-    if det > 1e-12 * g11 * g22:
-        s1 = (g22 * b1 - g12 * b2) / det
-        s2 = (g11 * b2 - g12 * b1) / det
-        if s1 > 0.0 and s2 > 0.0:
-            return s1 * b1 + s2 * b2, s1, s2
-    return -1.0, 0.0, 0.0
+    ok = det > 1e-12 * g11 * g22
+    d = det if ok else 1.0
+    s1 = (g22 * b1 - g12 * b2) / d
+    s2 = (g11 * b2 - g12 * b1) / d
+    g = s1 * b1 + s2 * b2
+    ok = ok & (s1 > 0.0) & (s2 > 0.0)
+    return (g if ok else -1.0), (s1 if ok else 0.0), (s2 if ok else 0.0)
 
 
 @jit()

@@ -78,10 +78,8 @@ class PairPrior:
         self.fits = 0  # anchored fits asked in this touch
         self._last = np.zeros(3)
         n = max(int(self.rule.start_frames), 1)
-        # Python lists: numpy's mean of three numbers cost more than the rest of a frame's
-        # evidence (the same sums, in the same order)
-        self._ratio = [0.0] * n
-        self._z = [0.0] * n
+        self._ratio = np.zeros(n)
+        self._z = np.zeros(n)
 
     def reset(self) -> None:
         """Forget the evidence gathered so far."""
@@ -109,11 +107,10 @@ class PairPrior:
         self._ratio[i], self._z[i] = ratio, z2
         self.run += 1
         self._last[:] = second_m
-        n = len(self._ratio)
         return (
-            self.run >= n
-            and sum(self._ratio) / n >= r.start_ratio
-            and sum(self._z) / n >= r.start_z
+            self.run >= len(self._ratio)
+            and float(self._ratio.mean()) >= r.start_ratio
+            and float(self._z.mean()) >= r.start_z
         )
 
     def saw(self, ts: float, live: Sequence[Any], positions: np.ndarray) -> None:

@@ -124,6 +124,23 @@ def _block_max(
 
 
 @jit()
+def _pair_terms(
+    gaa: float, ba: float, gab: float, gbb: float, bb: float
+) -> tuple:  # pragma: no cover - compiled
+    """A seed and a partner's pair: ``(num, det, ok)``, its gain ``num / det``.
+
+    ``ok``: the partner correlates with the image, the pair is not degenerate and both
+    strengths are positive (then ``det > 0``); computed without branches and without
+    divisions (``s_a``, ``s_b`` and the gain over ``det``).
+    """
+    det = gaa * gbb - gab * gab
+    na = gbb * ba - gab * bb
+    nb_ = gaa * bb - gab * ba
+    ok = (bb > 0.0) & (det > 1e-12 * gaa * gbb) & (na > 0.0) & (nb_ > 0.0)
+    return na * ba + nb_ * bb, det, ok
+
+
+@jit()
 def seeds_and_pair(
     bC: np.ndarray,
     g1: np.ndarray,
@@ -184,20 +201,9 @@ def seeds_and_pair(
         ba = bC[a]
         for u in range(t + 1, n_seeds):
             c = top[u]
-            bb = bC[c]
-            if bb <= 0.0:
-                continue
-            gab = float(Cg[a, c])
-            gbb = Cd[c]
-            det = gaa * gbb - gab * gab
-            if det <= 1e-12 * gaa * gbb:
-                continue
-            na = gbb * ba - gab * bb
-            nb_ = gaa * bb - gab * ba
-            if na <= 0.0 or nb_ <= 0.0:
-                continue
-            if na * ba + nb_ * bb > bestg * det and far_apart(Cpos[a], Cpos[c], min2):
-                bestg = (na * ba + nb_ * bb) / det
+            num, det, ok = _pair_terms(gaa, ba, float(Cg[a, c]), Cd[c], bC[c])
+            if ok and num > bestg * det and far_apart(Cpos[a], Cpos[c], min2):
+                bestg = num / det
                 pa = a
                 pb = c
     # a partner the image does not correlate with cannot take a positive strength (rows are
@@ -224,24 +230,10 @@ def seeds_and_pair(
             n_cand += 0 if (g1a + g1o[c]) * ka < bestg else 1
         for r in range(n_cand):
             c = cand[r]
-            bb = bC[c]
-            gab = float(ga_row[c])
-            gbb = Cd[c]
-            det = gaa * gbb - gab * gab
-            # s_a, s_b and the gain over det, free of divisions (det > 0 where it counts)
-            na = gbb * ba - gab * bb
-            nb_ = gaa * bb - gab * ba
-            num = na * ba + nb_ * bb
-            # the plain loop's tests all at once: each passes unpredictably, a branch apiece
-            # cost more than the arithmetic; only a pair that beats the best branches
-            beats = (
-                (c != a)
-                & (det > 1e-12 * gaa * gbb)
-                & (na > 0.0)
-                & (nb_ > 0.0)
-                & (num > bestg * det)
-            )
-            if beats and far_apart(Cpos[a], Cpos[c], min2):
+            num, det, ok = _pair_terms(gaa, ba, float(ga_row[c]), Cd[c], bC[c])
+            # the tests all at once: each passes unpredictably, a branch apiece cost more than
+            # the arithmetic; only a pair that beats the best branches
+            if ok & (c != a) & (num > bestg * det) and far_apart(Cpos[a], Cpos[c], min2):
                 bestg = num / det
                 pa = a
                 pb = c

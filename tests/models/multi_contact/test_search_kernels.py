@@ -7,6 +7,8 @@ import pytest
 
 from skinloc.models.engine import load_engine
 from skinloc.models.multi_contact.search import (
+    _dot,
+    _dot2,
     _rounds,
     nnls,
     nnls2,
@@ -79,3 +81,14 @@ def test_a_settled_polish_then_one_round_with_spreads_is_the_polish_with_spreads
             np.testing.assert_allclose(S[8][:2], s_ref, rtol=1e-12)
             np.testing.assert_allclose(S[9][:2], sp_ref, rtol=1e-12, equal_nan=True)
     assert settled_seen > 0
+
+
+def test_two_dot_products_in_one_pass_are_the_single_ones_bit_for_bit(engine):
+    # the refinement's candidates and the third contact's scan take both products of a row at
+    # once: the answers stay bitwise those of the search with one product at a time
+    Ft = engine.search_tables().arrays[6]
+    rng = np.random.default_rng(5)
+    x = rng.normal(0.0, 20.0, Ft.shape[1]).astype(np.float32)
+    for q in rng.choice(len(Ft), 300, replace=False):
+        other = Ft[(q + 7) % len(Ft)]
+        assert _dot2(Ft[q], x, other) == (_dot(Ft[q], x), _dot(Ft[q], other))

@@ -80,7 +80,8 @@ class PairTables:
         ``(near_off (C + 1,) int, near_idx (n,) int, kappa (C,) float64)``: each candidate's
         near candidates (within half the separation) and its bound factor.
     scratch : tuple
-        ``(g1 (C,) float64, block max (nb,) float64, block argmax (nb,) int, list (C,) int)``.
+        ``(g1 (C,) float64, block max (nb,) float64, block argmax (nb,) int, list (C,) int,
+        one seed's partners (C,) int)``.
     """
 
     def __init__(self, Cg: np.ndarray, Cpos: np.ndarray, min2: float) -> None:
@@ -101,6 +102,7 @@ class PairTables:
             np.zeros(nb),
             np.zeros(nb, dtype=np.int64),
             np.zeros(C, dtype=np.int64),
+            np.zeros(C, dtype=np.int64),
         )
         #: ``search_into``'s last two arguments
         self.kernel_args = (self.arrays, self.scratch)
@@ -119,6 +121,23 @@ def _block_max(
             bi = c
     bmax[b] = best
     barg[b] = bi
+
+
+@jit()
+def _pair_terms(
+    gaa: float, ba: float, gab: float, gbb: float, bb: float
+) -> tuple:  # pragma: no cover - compiled
+    """A seed and a partner's pair: ``(num, det, ok)``, its gain ``num / det``.
+
+    ``ok``: the partner correlates with the image, the pair is not degenerate and both
+    strengths are positive (then ``det > 0``); computed without branches and without
+    divisions (``s_a``, ``s_b`` and the gain over ``det``).
+    """
+    det = gaa * gbb - gab * gab
+    na = gbb * ba - gab * bb
+    nb_ = gaa * bb - gab * ba
+    ok = (bb > 0.0) & (det > 1e-12 * gaa * gbb) & (na > 0.0) & (nb_ > 0.0)
+    return na * ba + nb_ * bb, det, ok
 
 
 @jit()
@@ -142,7 +161,7 @@ def seeds_and_pair(
     docstring): every seed with every candidate, the first strictly best pair kept.
     """
     near_off, near_idx, kappa = pair
-    g1o, bmax, barg, lst = pair_s
+    g1o, bmax, barg, lst, cand = pair_s
     C = g1.shape[0]
     nb = bmax.shape[0]
     for c in range(C):
@@ -173,9 +192,28 @@ def seeds_and_pair(
     bestg = -1.0
     pa = -1
     pb = -1
-    n_list = C
+    # the best pair of two seeds first (the loop's own test, the earlier seed first, as the
+    # loop meets them): its gain prunes from the first seed on. The loop below still visits,
+    # in its order, every pair that could beat it, so it ends on the pair the plain loop keeps
+    for t in range(n_seeds):
+        a = top[t]
+        gaa = float(Cg[a, a])
+        ba = bC[a]
+        for u in range(t + 1, n_seeds):
+            c = top[u]
+            num, det, ok = _pair_terms(gaa, ba, float(Cg[a, c]), Cd[c], bC[c])
+            if ok and num > bestg * det and far_apart(Cpos[a], Cpos[c], min2):
+                bestg = num / det
+                pa = a
+                pb = c
+    # a partner the image does not correlate with cannot take a positive strength (rows are
+    # mostly non-negative): the list holds the others only. The compactions below are
+    # branch-free: their tests pass about one time in three, unpredictably, and mispredicted
+    # branches were most of this stage's time
+    n_list = 0
     for c in range(C):
-        lst[c] = c
+        lst[n_list] = c
+        n_list += 1 if bC[c] > 0.0 else 0
     for t in range(n_seeds):
         a = top[t]
         gaa = float(Cg[a, a])
@@ -183,28 +221,20 @@ def seeds_and_pair(
         ga_row = Cg[a]
         g1a = g1o[a]
         ka = kappa[a]
+        # the partners whose pair could beat the best so far (the exact bound, with the best
+        # as this seed starts: a later best only skips more of them)
+        n_cand = 0
         for r in range(n_list):
             c = lst[r]
-            # the exact bound: this pair cannot beat the best so far
-            if (g1a + g1o[c]) * ka < bestg:
-                continue
-            bb = bC[c]
-            # rows are mostly non-negative: a partner the image does not correlate with
-            # cannot take a positive strength
-            if bb <= 0.0 or c == a:
-                continue
-            gab = float(ga_row[c])
-            gbb = Cd[c]
-            det = gaa * gbb - gab * gab
-            if det <= 1e-12 * gaa * gbb:
-                continue
-            # s_a, s_b and the gain over det, free of divisions: det > 0
-            na = gbb * ba - gab * bb
-            nb_ = gaa * bb - gab * ba
-            if na <= 0.0 or nb_ <= 0.0:
-                continue
-            if na * ba + nb_ * bb > bestg * det and far_apart(Cpos[a], Cpos[c], min2):
-                bestg = (na * ba + nb_ * bb) / det
+            cand[n_cand] = c
+            n_cand += 0 if (g1a + g1o[c]) * ka < bestg else 1
+        for r in range(n_cand):
+            c = cand[r]
+            num, det, ok = _pair_terms(gaa, ba, float(ga_row[c]), Cd[c], bC[c])
+            # the tests all at once: each passes unpredictably, a branch apiece cost more than
+            # the arithmetic; only a pair that beats the best branches
+            if ok & (c != a) & (num > bestg * det) and far_apart(Cpos[a], Cpos[c], min2):
+                bestg = num / det
                 pa = a
                 pb = c
         if t + 1 < n_seeds:
@@ -217,8 +247,7 @@ def seeds_and_pair(
             n = 0
             for r in range(n_list):
                 c = lst[r]
-                if not ((g1n + g1o[c]) * kn < bestg):
-                    lst[n] = c
-                    n += 1
+                lst[n] = c
+                n += 0 if (g1n + g1o[c]) * kn < bestg else 1
             n_list = n
     return n_seeds, pa, pb

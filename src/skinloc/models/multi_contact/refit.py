@@ -93,11 +93,10 @@ def _anchored_pair(
     cb = -1
     for c in range(C):
         bb = float(bc[c])
-        if bb <= 0.0 or not far_apart(Cpos[c], Fpos[fi[0]], min2):
-            continue
-        # only two positive strengths count: NNLS's interior answer (its others have a zero)
+        # only two positive strengths count: NNLS's interior answer (its others have a zero);
+        # the tests at once, one branch for a better pair (each test passes unpredictably)
         g, s1, s2 = nnls2_interior(gaa, float(gc[c]), Cd[c], ba, bb)
-        if g > bestg:
+        if (bb > 0.0) & far_apart(Cpos[c], Fpos[fi[0]], min2) & (g > bestg):
             bestg = g
             cb = c
     out[0] = 0.0

@@ -195,6 +195,21 @@ def _dot(a: np.ndarray, b: np.ndarray) -> float:  # pragma: no cover - compiled
 
 
 @jit()
+def _dot2(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> tuple:  # pragma: no cover - compiled
+    """``(_dot(a, b), _dot(a, c))`` in one pass over ``a``: the same sums, bit for bit.
+
+    Each accumulator is reduced as ``_dot`` reduces its own; ``a`` is read once (the
+    refinement's candidates cost about half as much).
+    """
+    ab = np.float32(0.0)
+    ac = np.float32(0.0)
+    for i in range(a.shape[0]):
+        ab += a[i] * b[i]
+        ac += a[i] * c[i]
+    return float(ab), float(ac)
+
+
+@jit()
 def _row_norms(Ft: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
     """``_dot(row, row)`` of every row of ``Ft (P, k)``: ``(P,)`` float64 (the search's own)."""
     n = np.empty(Ft.shape[0])
@@ -210,15 +225,17 @@ def nnls2_interior(
     """``nnls2``'s ``(gain, s1, s2)`` if both its strengths are positive, else ``(-1, 0, 0)``.
 
     The same arithmetic as ``nnls2``'s interior solution (its other answers have a zero
-    strength).
+    strength). Without branches (the scans that call it per candidate pass its tests
+    unpredictably): a degenerate pair divides by 1 and is refused.
     """
     det = g11 * g22 - g12 * g12
-    if det > 1e-12 * g11 * g22:
-        s1 = (g22 * b1 - g12 * b2) / det
-        s2 = (g11 * b2 - g12 * b1) / det
-        if s1 > 0.0 and s2 > 0.0:
-            return s1 * b1 + s2 * b2, s1, s2
-    return -1.0, 0.0, 0.0
+    ok = det > 1e-12 * g11 * g22
+    d = det if ok else 1.0
+    s1 = (g22 * b1 - g12 * b2) / d
+    s2 = (g11 * b2 - g12 * b1) / d
+    g = s1 * b1 + s2 * b2
+    ok = ok & (s1 > 0.0) & (s2 > 0.0)
+    return (g if ok else -1.0), (s1 if ok else 0.0), (s2 if ok else 0.0)
 
 
 @jit()
@@ -349,10 +366,16 @@ def _refine(
             if not ok:
                 continue
             row = Ft[q]
-            b[i] = _dot(row, xw)
-            for j in range(m):
-                if j != i:
-                    G[i, j] = G[j, i] = _dot(row, Ft[fi[j]])
+            if m == 1:
+                b[i] = _dot(row, xw)
+            else:
+                # the image and the first other contact in one pass over the row
+                j0 = 1 if i == 0 else 0
+                b[i], g0 = _dot2(row, xw, Ft[fi[j0]])
+                G[i, j0] = G[j0, i] = g0
+                for j in range(j0 + 1, m):
+                    if j != i:
+                        G[i, j] = G[j, i] = _dot(row, Ft[fi[j]])
             G[i, i] = Fn[q]  # _dot(row, row), once per model
             g = nnls(G, b, m, s)
             gq[n] = g
@@ -564,8 +587,9 @@ def search_into(
             if b[2] <= 0.0:
                 continue
             G[2, 2] = Cd[c]
-            G[2, 0] = G[0, 2] = _dot(Ct[c], r0)
-            G[2, 1] = G[1, 2] = _dot(Ct[c], r1_)
+            g20, g21 = _dot2(Ct[c], r0, r1_)
+            G[2, 0] = G[0, 2] = g20
+            G[2, 1] = G[1, 2] = g21
             # only a solution with three positive strengths is kept: that is NNLS's
             # interior one (its faces have a zero strength), so the faces are not solved
             g = nnls3_interior(G, b, s)

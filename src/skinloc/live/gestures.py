@@ -438,6 +438,16 @@ class GestureRecognizer:
             return 0.9
         return 0.5 + 0.4 * (sep_mm / tp if math.isfinite(tp) else 0.0)
 
+    def _one_tap(self, ep: _Episode, f: _Finger, ts: float) -> list[dict[str, Any]]:
+        """One finger's tap ``f``: the second of a double tap with the pending one, or pending."""
+        pend = self._pending
+        if pend is not None and self._could_pair(ep, pend):
+            self._pending = None
+            return [self._event("double_tap", [pend, f], ts)]
+        out = self._resolve_pending(ts)
+        self._pending = f
+        return out
+
     def _could_pair(self, ep: _Episode, pend: _Finger) -> bool:
         """Whether episode ``ep`` may still be the second tap of the pending tap."""
         cfg = self.cfg
@@ -478,14 +488,7 @@ class GestureRecognizer:
                 return out
             if len(fs) == 1 and self._is_tap(f):
                 f.uncertain = self._uncertain(ep)
-                pend = self._pending
-                if pend is not None and self._could_pair(ep, pend):
-                    self._pending = None
-                    out.append(self._event("double_tap", [pend, f], ts))
-                else:
-                    out += self._resolve_pending(ts)
-                    self._pending = f
-                return out
+                return out + self._one_tap(ep, f, ts)
             out += self._resolve_pending(ts)
             if len(fs) > 1 and any(g.end_s - g.start_s > GHOST_S for g in fs[1:]):
                 # a swipe is one finger: a brief second touch within a moving one is as likely
@@ -512,14 +515,7 @@ class GestureRecognizer:
                     # tracks closer than the two-point threshold, the image changed as one
                     # finger's: one finger's tap of uncertain count (a second tap or held)
                     f.uncertain = True
-                    pend = self._pending
-                    if pend is not None and self._could_pair(ep, pend):
-                        self._pending = None
-                        out.append(self._event("double_tap", [pend, f], ts))
-                    else:
-                        out += self._resolve_pending(ts)
-                        self._pending = f
-                    return out
+                    return out + self._one_tap(ep, f, ts)
                 out += self._resolve_pending(ts)
                 conf = self._pair_confidence(ep, fs)
                 out.append(self._event("two_finger_tap", fs, ts, confidence=conf))

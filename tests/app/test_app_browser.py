@@ -25,7 +25,7 @@ uvicorn = pytest.importorskip("uvicorn")
 
 from skinloc.app.server import create_app  # noqa: E402
 from skinloc.app.workspace import AppConfig  # noqa: E402
-from tests._helpers import wait_until  # noqa: E402
+from tests._helpers import scaled, wait_until  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 ARTIFACTS = Path(os.environ.get("SKINLOC_ARTIFACTS", ROOT / "build" / "test-artifacts" / "app"))
@@ -507,7 +507,8 @@ def watch(page, errors: list[str]) -> None:
 
     page.on("pageerror", lambda exc: errors.append(str(exc)))
     page.on("console", console)
-    page.set_default_timeout(60_000)
+    # a page's own waits (clicks, wait_for_function) get the load's stretch, as wait_until does
+    page.set_default_timeout(scaled(60.0) * 1000.0)
 
 
 def hover_cell(page, canvas: str, tx: int, rx: int) -> None:

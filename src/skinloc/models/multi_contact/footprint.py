@@ -73,6 +73,8 @@ PAIR_MM = (15.0, 50.0)
 RATE, HOLD_RATE = 0.02, 0.05
 #: Fewest held-out single touches and pairs to calibrate on (fewer: the cue is off).
 MIN_SETS = 40
+#: The features the score weighs (the others get weight 0).
+USED = tuple(range(N_FEATURES))
 
 
 @jit()
@@ -198,11 +200,13 @@ def calibrate_footprint(
     n_s = sum(len(s) for s in singles)
     if not singles or len(pairs) < MIN_SETS:
         return np.zeros(0), 0.0, 0.0, {"singles": n_s, "pairs": int(len(pairs))}
-    S = np.concatenate(singles)
-    cov = np.cov(S.T) + np.cov(pairs.T)
+    use = list(USED)
+    S, P = np.concatenate(singles)[:, use], pairs[:, use]
+    cov = np.cov(S.T).reshape(len(use), -1) + np.cov(P.T).reshape(len(use), -1)
     # a ridge of 1e-3 of the mean variance: the features are few but correlated
     cov += 1e-3 * float(np.trace(cov)) / len(cov) * np.eye(len(cov))
-    weights = np.linalg.solve(cov, pairs.mean(axis=0) - S.mean(axis=0))
+    weights = np.zeros(N_FEATURES)
+    weights[use] = np.linalg.solve(cov, P.mean(axis=0) - S.mean(axis=0))
     scores = [s @ weights for s in singles]
     threshold = max(float(np.quantile(v, 1.0 - rate)) for v in scores) + 1e-9
     hold = min(max(float(np.quantile(v, 1.0 - hold_rate)) for v in scores), threshold)

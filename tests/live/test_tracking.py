@@ -563,7 +563,8 @@ def test_the_core_scores_a_touchs_footprint_for_its_recogniser():
 
     engine = load_engine(model_path("map"))
     rule = engine.rule
-    core = SkinCore(engine, PipelineConfig(baseline_frames=50), name="s")
+    assert SkinCore(engine, name="s")._footprint is None  # off unless asked for
+    core = SkinCore(engine, PipelineConfig(baseline_frames=50, footprint_gestures=True), name="s")
     assert core._recognizer.footprint_levels == (rule.footprint_two, rule.footprint_hold)
     t = engine.search_tables()
     i = int(np.argmax(t.Fpos[:, 2]))
@@ -599,7 +600,7 @@ def test_the_core_scores_a_touchs_footprint_for_its_recogniser():
     engine.spec = dataclasses.replace(engine.spec, contact_rule=old)
     engine.rule = type(rule).from_dict(old)
     try:
-        core = SkinCore(engine, name="s")
+        core = SkinCore(engine, PipelineConfig(footprint_gestures=True), name="s")
         assert core._footprint is None and core._recognizer.footprint_levels is None
     finally:
         engine.rule = rule

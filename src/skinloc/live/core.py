@@ -173,10 +173,11 @@ class SkinCore:
                 frame = SkinFrame(vertices, getattr(spec, "faces", None), up)
                 rule = getattr(self.engine, "rule", None)
                 change = float(getattr(rule, "landing_change", 0.0))
-                # the footprint is read off the contact search's scratch: tracks (K > 1) only
+                # the footprint (opt-in) is read off the contact search's scratch: K > 1 only
                 tables = getattr(self.engine, "search_tables", None)
                 if (
-                    self._tracker is not None
+                    cfg.footprint_gestures
+                    and self._tracker is not None
                     and tables is not None
                     and getattr(rule, "footprint_on", False)
                 ):

@@ -20,22 +20,23 @@ A tap of one track is not always one finger: two fingers too close for the conta
 land as one track. The touch's image change as it landed and lifted (``live.landing``, against
 the skin's calibrated ``landing_change`` and ``landing_hold``) makes such a tap a two-finger
 tap (``confidence`` below 1) or, when it is uncertain, holds it back: no tap is reported of a
-touch that may have been two fingers. So does the image's footprint (``live.footprint``:
-wider and fuller than one finger's at its place, against the skin's calibrated
-``footprint_two`` and ``footprint_hold``; such a two-finger tap has ``confidence`` 0.7).
-``confidence`` is 1.0 when every finger was tracked.
+touch that may have been two fingers. So, when the pipeline asks for it
+(``PipelineConfig.footprint_gestures``, off by default), does the image's footprint
+(``live.footprint``: wider and fuller than one finger's at its place, against the skin's
+calibrated ``footprint_two`` and ``footprint_hold``; such a two-finger tap has ``confidence``
+0.7). ``confidence`` is 1.0 when every finger was tracked.
 
 Two tracks are not always two fingers either: below the skin's two-point threshold
 (``two_point_mm``, measured at calibration: ``models.multi_contact.two_point``) the search
 cannot reliably tell two fingers from one, and a finger's image split for a few frames makes a
 second track beside the first. So a tap of several tracks all closer than the threshold is a
 two-finger tap only if the image changed more than one finger's does as they landed and lifted
-(``landing_hold``) or its footprint is two fingers' (``footprint_two``); otherwise it is one
-finger's tap whose count is uncertain: held back like
-the taps above, or one tap of a double tap. A two-finger tap closer than the threshold carries
-a ``confidence`` below 1. The threshold is a distance between two fingers: it replaces none of
-the distances of one finger (``still_mm``, ``double_tap_mm``, ``swipe_min_mm``: how far one
-finger moves), and a swipe is one moving finger whatever its length.
+(``landing_hold``) or its footprint is two fingers' (``footprint_two``); otherwise it is
+one finger's tap whose count is uncertain: held back like the taps above, or one tap of a
+double tap. A two-finger tap closer than the threshold carries a ``confidence`` below 1. The
+threshold is a distance between two fingers: it replaces none of the distances of one finger
+(``still_mm``, ``double_tap_mm``, ``swipe_min_mm``: how far one finger moves), and a swipe is
+one moving finger whatever its length.
 
 Directions are in the skin's own frame, the one the simulator's gesture script uses too
 (``geometry.skin_frame``): ``up`` is a direction of the mesh frame (per skin; default: the mesh's

@@ -21,12 +21,15 @@ their parts above ``FLOOR`` noise levels, the features are:
 7. ``log`` of the peak signal, noise levels (more fingers, more signal).
 
 No one of them separates two fingers 20-40 mm apart from the skin's single touches at a 2 %
-false rate (real single touches misfit the map as much), but a linear combination does: the
-*footprint score* ``f . a``, its weights ``a`` a linear discriminant between held-out single
+false rate (real single touches misfit the map as much), but a linear combination of all does:
+the *footprint score* ``f . a``, its weights ``a`` a linear discriminant between held-out single
 touches and held-out pairs 15-50 mm apart, fitted in the count rule's cross-validation in
 ``fit`` (``rule_calibration``) on the skin's own calibration touches; its threshold
 (``CountRule.footprint_two``) calls at most 2 % of the held-out single touches (touch means and
 single frames alike) two, and its hold level (``footprint_hold``) lies above 95 % of them.
+The peak signal makes the score depend on pressure: calibrated on held touches it finds sums of
+held touches across recordings, but not the lighter taps of a gesture (docs/multitouch.md, "A
+second finger in the footprint"), so no count uses it yet.
 
 Units: counts in, noise levels inside; the score has none.
 """
@@ -43,6 +46,7 @@ __all__ = [
     "FEATURES",
     "N_FEATURES",
     "calibrate_footprint",
+    "features_of",
     "footprint_features",
     "footprint_score",
 ]

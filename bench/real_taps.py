@@ -43,11 +43,12 @@ def tap_frames(touch: np.ndarray, noise: np.ndarray, n: int, ramp: int, rng) -> 
     return np.concatenate([idle[0], BASE_COUNTS + t, idle[1]])
 
 
-def replay(engine, frames: np.ndarray) -> tuple[int, list[str], int]:
-    """Tracks, gesture kinds and held taps of one stream at 100 Hz."""
+def replay(engine, frames: np.ndarray, footprint: bool = False) -> tuple[int, list[str], int]:
+    """Tracks, gesture kinds and held taps of one stream at 100 Hz (``footprint``: the cue on)."""
     from skinloc.live.core import PipelineConfig, SkinCore
 
-    core = SkinCore(engine, PipelineConfig(max_contacts=3, baseline_frames=50), name="s")
+    cfg = PipelineConfig(max_contacts=3, baseline_frames=50, footprint_gestures=footprint)
+    core = SkinCore(engine, cfg, name="s")
     ids = set()
     for i, f in enumerate(frames):
         for c in core.process_frame(f, 0.01 * i, i):
@@ -66,6 +67,9 @@ def main() -> int:
     ap.add_argument("--tap-frames", type=int, default=12, help="Frames of the touch (100 Hz).")
     ap.add_argument("--ramp", type=int, nargs="+", default=[0, 3])
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument(
+        "--footprint", action="store_true", help="The footprint cue on in the recogniser."
+    )
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()
     for f in [args.train, *args.test]:
@@ -95,7 +99,7 @@ def main() -> int:
             for a in range(d.shape[0]):
                 noise = np.std(np.diff(d[a], axis=0), axis=0) / np.sqrt(2.0) + 1e-3
                 frames = tap_frames(d[a], noise, args.tap_frames, ramp, rng)
-                n_tracks, k, h = replay(engine, frames)
+                n_tracks, k, h = replay(engine, frames, args.footprint)
                 n_two += n_tracks > 1
                 kinds.update(k)
                 held += h

@@ -398,3 +398,62 @@ def test_a_split_second_track_in_a_double_taps_tap_leaves_one_double_tap():
 def test_the_two_point_threshold_is_checked(bad):
     with pytest.raises(ValueError, match="two_point_mm"):
         GestureRecognizer("s", SkinFrame(None, None, up=(0.0, 1.0, 0.0)), two_point_mm=bad)
+
+
+# the footprint cue (``footprint_levels``): the touch's image wider than one finger's
+def _run_footprint(frames, footprint, levels=(3.0, 2.0), two_point_mm=None, change=1.4):
+    """``run`` with the touch's mean footprint score (``FootprintWatch.mean``) every frame."""
+    rec = GestureRecognizer(
+        "s",
+        SkinFrame(None, None, up=(0.0, 1.0, 0.0)),
+        CFG,
+        landing_change=2.5,
+        landing_hold=2.0,
+        two_point_mm=two_point_mm,
+        footprint_levels=levels,
+    )
+    events = []
+    for t, cs in frames:
+        events += rec.update(t, cs, change=change, footprint=footprint) if cs else rec.tick(t)
+    events += rec.flush(frames[-1][0])
+    return events, rec
+
+
+def test_a_tap_whose_footprint_is_two_fingers_is_a_two_finger_tap_of_lower_confidence():
+    ev, _ = _run_footprint(stream([(1, 0, 100, 110, still(P))], 200), footprint=3.5)
+    assert [e["kind"] for e in ev] == ["two_finger_tap"] and ev[0]["track_ids"] == [1]
+    assert ev[0]["confidence"] == pytest.approx(0.7)
+    assert ev[0]["timestamp_s"] == pytest.approx(1.10)  # when the finger lifts
+
+
+def test_a_tap_of_uncertain_footprint_is_held_back_and_a_plain_one_reported():
+    ev, rec = _run_footprint(stream([(1, 0, 100, 110, still(P))], 200), footprint=2.5)
+    assert ev == [] and rec.n_held == 1
+    for foot, levels in ((1.0, (3.0, 2.0)), (None, (3.0, 2.0)), (9.0, None)):
+        ev, rec = _run_footprint(stream([(1, 0, 100, 110, still(P))], 200), foot, levels)
+        assert [e["kind"] for e in ev] == ["tap"] and rec.n_held == 0
+
+
+def test_the_footprint_leaves_long_presses_and_swipes_alone_and_ends_a_double_tap():
+    ev, _ = _run_footprint(stream([(1, 0, 100, 200, still(P))], 260), footprint=9.0)
+    assert [e["kind"] for e in ev] == ["long_press"]
+    swipe = stream([(1, 0, 100, 125, line(P, (0.0, 0.05, 0.0), 100, 125))], 200)
+    assert [e["kind"] for e in _run_footprint(swipe, footprint=9.0)[0]] == ["swipe"]
+    # two taps in a row whose footprint is two fingers': two two-finger taps, no double tap
+    double = stream([(1, 0, 100, 110, still(P)), (2, 0, 125, 135, still((0.005, 0, 0)))], 300)
+    ev, _ = _run_footprint(double, footprint=3.5)
+    assert [e["kind"] for e in ev] == ["two_finger_tap", "two_finger_tap"]
+
+
+def test_close_tracks_whose_footprint_is_two_fingers_are_a_two_finger_tap():
+    ev, rec = _run_footprint(_pair(NEAR), footprint=1.0, two_point_mm=50.0)
+    assert ev == [] and rec.n_held == 1  # as before: one finger's tap of uncertain count
+    ev, _ = _run_footprint(_pair(NEAR), footprint=3.5, two_point_mm=50.0)
+    assert [e["kind"] for e in ev] == ["two_finger_tap"] and ev[0]["track_ids"] == [1, 2]
+    assert ev[0]["confidence"] == pytest.approx(0.9)
+
+
+@pytest.mark.parametrize("bad", [(1.0, 2.0), (math.nan, 1.0), (1.0, math.inf)])
+def test_footprint_levels_are_checked(bad):
+    with pytest.raises(ValueError, match="footprint_levels"):
+        GestureRecognizer("s", SkinFrame(None, None, up=(0.0, 1.0, 0.0)), footprint_levels=bad)

@@ -554,3 +554,53 @@ def test_the_core_hands_its_recogniser_the_skins_two_point_threshold():
     none = {"counted_two_mm": None, "threshold_mm": None, "bins": {}}
     engine.spec = dataclasses.replace(engine.spec, contact_rule={**rule, "two_point": none})
     assert SkinCore(engine, name="s")._recognizer.two_point_mm == math.inf
+
+
+def test_the_core_scores_a_touchs_footprint_for_its_recogniser():
+    import dataclasses
+
+    from skinloc.models.multi_contact.footprint import features_of
+
+    engine = load_engine(model_path("map"))
+    rule = engine.rule
+    assert SkinCore(engine, name="s")._footprint is None  # off unless asked for
+    core = SkinCore(engine, PipelineConfig(baseline_frames=50, footprint_gestures=True), name="s")
+    assert core._recognizer.footprint_levels == (rule.footprint_two, rule.footprint_hold)
+    t = engine.search_tables()
+    i = int(np.argmax(t.Fpos[:, 2]))
+    unit = 1.0 / t.w.astype(float)
+    img = 40.0 * unit * t.Ft[i] / t.Ft[i].max()
+    frames = _landing_frames(img, None, 0, unit, np.random.default_rng(5))
+    scores = []
+    fw = core._footprint
+    step = fw.step
+
+    def scored_step():
+        # the frame's own score, from the search's image and one-contact row
+        st = t.scratch[-1]
+        if st[5] > 0 and t.scratch[0].max() >= rule.z_on:
+            z, u = t.scratch[0].astype(float), t.Ft[int(st[11])].astype(float)
+            f = features_of(z[None], u[None])[0]
+            scores.append((float(f @ rule.footprint_weights), float(f[7])))
+        return step()
+
+    fw.step = scored_step
+    for k, f in enumerate(frames):
+        core.process_frame(f, k * 0.01, k)
+    fw = core._footprint
+    assert fw.n == len(scores) >= 5
+    # the touch's strong frames (the ramps' weak ones left out)
+    s, peak = np.array(scores).T
+    strong = peak >= peak.max() + np.log(0.7)
+    assert 0 < strong.sum() < len(s)
+    assert fw.mean == pytest.approx(s[strong].mean(), rel=1e-4, abs=1e-4)
+    assert fw.mean < rule.footprint_hold  # one finger: surely one
+    # a rule saved before the cue: no watch, no levels
+    old = {k: v for k, v in engine.spec.contact_rule.items() if not k.startswith("footprint")}
+    engine.spec = dataclasses.replace(engine.spec, contact_rule=old)
+    engine.rule = type(rule).from_dict(old)
+    try:
+        core = SkinCore(engine, PipelineConfig(footprint_gestures=True), name="s")
+        assert core._footprint is None and core._recognizer.footprint_levels is None
+    finally:
+        engine.rule = rule

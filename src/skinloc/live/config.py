@@ -75,6 +75,12 @@ class PipelineConfig:
         a frame or two at a time, and such a ghost must not become a finger.
     gestures : bool
         Recognise gestures (``skinloc.live.gestures``) and send them to every sink.
+    footprint_gestures : bool
+        Let the touch's footprint (``live.footprint``: its image wider than one finger's, at
+        the model's calibrated levels) make a one-track tap a two-finger tap or hold it back.
+        Off by default: measured, it found no two-finger tap the other cues missed on the
+        simulated skins and made 2 of 100 real single touches two-finger taps
+        (docs/multitouch.md, "A second finger in the footprint").
     """
 
     baseline_frames: int = 50
@@ -99,6 +105,7 @@ class PipelineConfig:
     track_miss_frames: int = 1
     track_confirm_frames: int = 4
     gestures: bool = True
+    footprint_gestures: bool = False
 
     def __post_init__(self) -> None:
         def need(name: str, ok: bool, allowed: str) -> None:
@@ -142,6 +149,7 @@ class PipelineConfig:
         need("release_fraction", isinstance(rf, int | float) and 0 <= rf < 1, "in [0, 1)")
         need("filter", self.filter in ("one-euro", "none"), "one of one-euro, none")
         need("gestures", isinstance(self.gestures, bool), "true or false")
+        need("footprint_gestures", isinstance(self.footprint_gestures, bool), "true or false")
 
     @classmethod
     def from_dict(cls, d: dict[str, Any], where: str = "pipeline settings") -> PipelineConfig:

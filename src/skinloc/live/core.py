@@ -33,6 +33,7 @@ import numpy as np
 from skinloc.live.baseline import subtract_baseline as _prep
 from skinloc.live.config import PipelineConfig, TouchState
 from skinloc.live.contact import Contact
+from skinloc.live.footprint import FootprintWatch
 from skinloc.live.gestures import GestureConfig, GestureRecognizer, SkinFrame
 from skinloc.live.landing import LandingWatch
 from skinloc.live.one_euro import one_euro as _one_euro
@@ -164,6 +165,7 @@ class SkinCore:
         self.gestures: list[dict[str, Any]] = []  # events due, collected by ``take_gestures``
         self._recognizer: GestureRecognizer | None = None
         self._landing: LandingWatch | None = None  # a second finger in time, for gestures
+        self._footprint: FootprintWatch | None = None  # a second finger in the image's shape
         if cfg.gestures:
             spec = self.engine.spec
             vertices = getattr(spec, "vertices", None)
@@ -171,6 +173,15 @@ class SkinCore:
                 frame = SkinFrame(vertices, getattr(spec, "faces", None), up)
                 rule = getattr(self.engine, "rule", None)
                 change = float(getattr(rule, "landing_change", 0.0))
+                # the footprint (opt-in) is read off the contact search's scratch: K > 1 only
+                tables = getattr(self.engine, "search_tables", None)
+                if (
+                    cfg.footprint_gestures
+                    and self._tracker is not None
+                    and tables is not None
+                    and getattr(rule, "footprint_on", False)
+                ):
+                    self._footprint = FootprintWatch(tables(), rule)
                 # the skin's two-point threshold: tracks closer than it may be one finger
                 two_point_mm, _ = recogniser_mm(two_point_of(getattr(spec, "contact_rule", None)))
                 self._recognizer = GestureRecognizer(
@@ -180,6 +191,9 @@ class SkinCore:
                     landing_change=change,
                     landing_hold=float(getattr(rule, "landing_hold", 0.0)),
                     two_point_mm=two_point_mm,
+                    footprint_levels=None
+                    if self._footprint is None
+                    else (rule.footprint_two, rule.footprint_hold),
                 )
                 if change > 0:
                     self._landing = LandingWatch(self.engine.noise_weights())
@@ -199,6 +213,8 @@ class SkinCore:
             self._tracker.pair.refit.warm_up()
         if self._landing is not None:
             self._landing.warm_up()
+        if self._footprint is not None:
+            self._footprint.warm_up()
 
     # ------------------------------------------------------------------ baseline
     def set_baseline(self, frames: np.ndarray) -> None:
@@ -280,7 +296,13 @@ class SkinCore:
             # fading image's positions are not the finger's
             releasing = self._below > 0 or not self._touching
             change = self._landing.most if self._landing is not None else 0.0
-            g = rec.update(timestamp_s, out, releasing, change) if out else rec.tick(timestamp_s)
+            fw = self._footprint
+            foot = fw.mean if fw is not None and fw.n else None
+            g = (
+                rec.update(timestamp_s, out, releasing, change, foot)
+                if out
+                else rec.tick(timestamp_s)
+            )
             if g:
                 self.gestures += g
         return out
@@ -465,6 +487,11 @@ class SkinCore:
         pos, raw, strength, unc = frame_contacts(
             self.engine, self._delta, self.max_contacts, self._out, mem
         )
+        if self._footprint is not None:
+            # read off this frame's search before anything else searches
+            if state is TouchState.START:
+                self._footprint.start()
+            self._footprint.step()
         events = self._tracker.update(
             ts, pos, raw, strength, unc, state is TouchState.START, self._below == 0
         )

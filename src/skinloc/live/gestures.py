@@ -20,18 +20,23 @@ A tap of one track is not always one finger: two fingers too close for the conta
 land as one track. The touch's image change as it landed and lifted (``live.landing``, against
 the skin's calibrated ``landing_change`` and ``landing_hold``) makes such a tap a two-finger
 tap (``confidence`` below 1) or, when it is uncertain, holds it back: no tap is reported of a
-touch that may have been two fingers. ``confidence`` is 1.0 when every finger was tracked.
+touch that may have been two fingers. So, when the pipeline asks for it
+(``PipelineConfig.footprint_gestures``, off by default), does the image's footprint
+(``live.footprint``: wider and fuller than one finger's at its place, against the skin's
+calibrated ``footprint_two`` and ``footprint_hold``; such a two-finger tap has ``confidence``
+0.7). ``confidence`` is 1.0 when every finger was tracked.
 
 Two tracks are not always two fingers either: below the skin's two-point threshold
 (``two_point_mm``, measured at calibration: ``models.multi_contact.two_point``) the search
 cannot reliably tell two fingers from one, and a finger's image split for a few frames makes a
 second track beside the first. So a tap of several tracks all closer than the threshold is a
 two-finger tap only if the image changed more than one finger's does as they landed and lifted
-(``landing_hold``); otherwise it is one finger's tap whose count is uncertain: held back like
-the taps above, or one tap of a double tap. A two-finger tap closer than the threshold carries
-a ``confidence`` below 1. The threshold is a distance between two fingers: it replaces none of
-the distances of one finger (``still_mm``, ``double_tap_mm``, ``swipe_min_mm``: how far one
-finger moves), and a swipe is one moving finger whatever its length.
+(``landing_hold``) or its footprint is two fingers' (``footprint_two``); otherwise it is
+one finger's tap whose count is uncertain: held back like the taps above, or one tap of a
+double tap. A two-finger tap closer than the threshold carries a ``confidence`` below 1. The
+threshold is a distance between two fingers: it replaces none of the distances of one finger
+(``still_mm``, ``double_tap_mm``, ``swipe_min_mm``: how far one finger moves), and a swipe is
+one moving finger whatever its length.
 
 Directions are in the skin's own frame, the one the simulator's gesture script uses too
 (``geometry.skin_frame``): ``up`` is a direction of the mesh frame (per skin; default: the mesh's
@@ -64,6 +69,9 @@ BRIEF_SLACK_S = 0.05
 #: Longest track, s, that is a piece of a moving finger's image (the search splitting it for
 #: a few frames) rather than a second finger: a second finger touches for 60 ms or more.
 GHOST_S = 0.045
+#: Confidence of a two-finger tap of one track told by its footprint alone (the time cue's is
+#: 0.5-0.9 with how far its change passed the skin's threshold).
+FOOTPRINT_CONFIDENCE = 0.7
 
 
 @dataclass
@@ -195,6 +203,7 @@ class _Episode:
     active: int = 0
     done: bool = False  # reported (a long press) or ruled out: nothing more from it
     change: float = 0.0  # the touch's image change as fingers landed and lifted (noise levels)
+    footprint: float | None = None  # the touch's mean footprint score (None: not measured)
 
 
 class GestureRecognizer:
@@ -221,6 +230,12 @@ class GestureRecognizer:
         tracks closer than it need the change to reach ``landing_hold`` to be two fingers;
         ``math.inf``: no separation is reliably two; None: unknown (two tracks are two
         fingers, the rule is off; so it is with ``landing_hold`` 0).
+    footprint_levels : (float, float) or None
+        The skin's footprint score levels (``CountRule.footprint_two`` and ``footprint_hold``,
+        calibrated on its own touches): from the first a touch seen as one track holds two
+        fingers (a two-finger tap, and tracks closer than the two-point threshold are two);
+        from the second a tap of one track is no longer surely one finger (held back, as with
+        ``landing_hold``). None: the cue is off.
     """
 
     def __init__(
@@ -231,6 +246,7 @@ class GestureRecognizer:
         landing_change: float = 0.0,
         landing_hold: float = 0.0,
         two_point_mm: float | None = None,
+        footprint_levels: tuple[float, float] | None = None,
     ) -> None:
         for name, v in (("landing_change", landing_change), ("landing_hold", landing_hold)):
             if not (math.isfinite(v) and v >= 0):
@@ -238,6 +254,14 @@ class GestureRecognizer:
         if two_point_mm is not None and not (two_point_mm > 0):  # inf: none at any separation
             raise ValueError(f"two_point_mm must be a number > 0 or None, got {two_point_mm!r}")
         self.two_point_mm = None if two_point_mm is None else float(two_point_mm)
+        if footprint_levels is not None:
+            two, hold = (float(v) for v in footprint_levels)
+            if not (math.isfinite(two) and math.isfinite(hold) and hold <= two):
+                raise ValueError(
+                    f"footprint_levels must be two numbers, hold <= two, got {footprint_levels!r}"
+                )
+            footprint_levels = (two, hold)
+        self.footprint_levels = footprint_levels
         self.landing_change = float(landing_change)
         self.landing_hold = float(landing_hold)
         self.n_held = 0  # taps not reported: the count was uncertain
@@ -261,13 +285,15 @@ class GestureRecognizer:
         contacts: Sequence[Contact],
         releasing: bool = False,
         change: float = 0.0,
+        footprint: float | None = None,
     ) -> list[dict[str, Any]]:
         """One frame's contacts (one per track) at stream time ``ts``; returns due events.
 
         ``releasing``: the touch detector is ending the touch (the signal is below its release
         threshold): the positions of such a fading image are not the finger's and are left
         out of the paths (the states still count). ``change``: the touch's largest image change
-        so far (``live.landing.LandingWatch``), noise levels.
+        so far (``live.landing.LandingWatch``), noise levels. ``footprint``: the touch's mean
+        footprint score so far (``live.footprint.FootprintWatch``; None: not measured).
         """
         for c in contacts:
             tid = c.track_id
@@ -306,6 +332,8 @@ class GestureRecognizer:
                     self._episode.active -= 1
         if self._episode is not None and change > self._episode.change:
             self._episode.change = change
+        if self._episode is not None and footprint is not None:
+            self._episode.footprint = footprint
         return self.tick(ts)
 
     def tick(self, ts: float) -> list[dict[str, Any]]:
@@ -389,6 +417,15 @@ class GestureRecognizer:
         """Whether the episode's image changed as a second finger's landing or lifting does."""
         return self.landing_change > 0.0 and ep.change >= self.landing_change
 
+    def _footprint_at(self, ep: _Episode, level: int) -> bool:
+        """Whether the touch's footprint reached level 0 (two fingers) or 1 (not surely one)."""
+        lv = self.footprint_levels
+        return lv is not None and ep.footprint is not None and ep.footprint >= lv[level]
+
+    def _two_by_footprint(self, ep: _Episode) -> bool:
+        """Whether the touch's image is as much wider than one finger's as two fingers' are."""
+        return self._footprint_at(ep, 0)
+
     def _two_from_change(self, ep: _Episode, fs: list[_Finger], ts: float) -> dict[str, Any]:
         """A two-finger tap of one track, its confidence from how far the change passed."""
         conf = min(0.9, 0.5 * ep.change / self.landing_change)
@@ -397,6 +434,10 @@ class GestureRecognizer:
     def _uncertain(self, ep: _Episode) -> bool:
         """Whether the image changed more than the skin's single fingers (but not enough)."""
         return self.landing_hold > 0.0 and ep.change >= self.landing_hold
+
+    def _count_uncertain(self, ep: _Episode) -> bool:
+        """Whether a one-track tap may be two fingers: the change or the footprint says so."""
+        return self._uncertain(ep) or self._footprint_at(ep, 1)
 
     @staticmethod
     def _spread_m(fs: list[_Finger]) -> float:
@@ -421,6 +462,8 @@ class GestureRecognizer:
         tp = self.two_point_mm
         if tp is None or self.landing_hold <= 0.0 or self._uncertain(ep):
             return None
+        if self._two_by_footprint(ep):
+            return None
         return fs[0] if self._spread_m(fs) < tp * 1e-3 else None
 
     def _pair_confidence(self, ep: _Episode, fs: list[_Finger]) -> float:
@@ -434,7 +477,7 @@ class GestureRecognizer:
         sep_mm = self._spread_m(fs) * 1e3
         if tp is None or sep_mm >= tp:
             return 1.0
-        if self._two_in_time(ep):
+        if self._two_in_time(ep) or self._two_by_footprint(ep):
             return 0.9
         return 0.5 + 0.4 * (sep_mm / tp if math.isfinite(tp) else 0.0)
 
@@ -454,7 +497,7 @@ class GestureRecognizer:
         if ep.done or ep.start_s > pend.end_s + cfg.double_tap_gap_s:
             return False
         f = self._one_finger(ep)
-        if f is None or self._two_in_time(ep):
+        if f is None or self._two_in_time(ep) or self._two_by_footprint(ep):
             return False
         if math.dist(f.path[0], pend.path[-1]) > cfg.double_tap_mm * 1e-3:
             return False
@@ -486,8 +529,14 @@ class GestureRecognizer:
                 out += self._resolve_pending(ts)
                 out.append(self._two_from_change(ep, fs, ts))
                 return out
+            if len(fs) == 1 and self._is_tap(f) and self._two_by_footprint(ep):
+                # one track, but its image as much wider than one finger's as two fingers'
+                # are: a two-finger tap, less sure than the time cue's
+                out += self._resolve_pending(ts)
+                out.append(self._event("two_finger_tap", fs, ts, confidence=FOOTPRINT_CONFIDENCE))
+                return out
             if len(fs) == 1 and self._is_tap(f):
-                f.uncertain = self._uncertain(ep)
+                f.uncertain = self._count_uncertain(ep)
                 return out + self._one_tap(ep, f, ts)
             out += self._resolve_pending(ts)
             if len(fs) > 1 and any(g.end_s - g.start_s > GHOST_S for g in fs[1:]):

@@ -9,6 +9,9 @@ The modules, each public to the others (nothing private is imported across them)
 * ``rule_calibration``: the count rule calibrated on the training recording alone;
 * ``landing``: a second finger in time (the image's change of shape as fingers land and lift),
   its threshold calibrated on the training touches too (``CountRule.landing_change``);
+* ``footprint``: a second finger in the image's footprint (wider and fuller than one finger's
+  at its place), its score's weights and levels calibrated in ``rule_calibration``
+  (``CountRule.footprint_two``; measured and stored, used by no count);
 * ``two_point``: the skin's two-point threshold (how far apart two fingers are read as two),
   measured at calibration by ``rule_calibration`` and stored beside the rule.
 

@@ -71,6 +71,15 @@ class CountRule:
     landing_hold : float
         The change above which a touch is no longer surely one finger (the calibration's
         single fingers' 90th percentile): the recogniser reports no tap of it (0: off).
+    footprint_weights : tuple of float
+        The footprint score's weights (``multi_contact.footprint``: how much wider and fuller
+        than one finger's the image is at its place), calibrated in ``fit``; empty (rules
+        saved before it): the cue is off.
+    footprint_two : float
+        The footprint score from which an image seen as one finger holds two (calls at most
+        2 % of the calibration's held-out single touches two).
+    footprint_hold : float
+        The score from which it is no longer surely one finger (5 % of them).
     """
 
     z_on: float = 8.0
@@ -85,10 +94,26 @@ class CountRule:
     z_power: float = 0.0
     landing_change: float = 0.0
     landing_hold: float = 0.0
+    footprint_weights: tuple[float, ...] = ()
+    footprint_two: float = 0.0
+    footprint_hold: float = 0.0
+
+    def __post_init__(self) -> None:
+        # JSON gives a list: kept as a tuple, so that the rule stays hashable
+        object.__setattr__(
+            self, "footprint_weights", tuple(float(v) for v in self.footprint_weights)
+        )
+
+    @property
+    def footprint_on(self) -> bool:
+        """Whether the rule has a calibrated footprint cue."""
+        return len(self.footprint_weights) > 0
 
     def as_dict(self) -> dict[str, Any]:
         """The rule as plain JSON values."""
-        return asdict(self)
+        d = asdict(self)
+        d["footprint_weights"] = list(self.footprint_weights)
+        return d
 
     @classmethod
     def from_dict(cls, d: dict[str, Any] | None) -> CountRule:

@@ -25,6 +25,12 @@ import numpy as np
 
 from skinloc._typing import Points
 from skinloc.models.multi_contact.contacts import N_COLS, CountRule, noise_weights
+from skinloc.models.multi_contact.footprint import (
+    N_FEATURES,
+    PAIR_MM,
+    calibrate_footprint,
+    footprint_features,
+)
 from skinloc.models.multi_contact.landing import calibrate_landing
 from skinloc.models.multi_contact.search import SearchTables, search_into
 from skinloc.models.multi_contact.two_point import placed_both, threshold_from_pairs
@@ -77,18 +83,24 @@ def sensor_noise_from_frames(X: np.ndarray, groups: np.ndarray | None) -> np.nda
 
 
 def search_statistics(
-    tables: SearchTables, images: np.ndarray, max_contacts: int = 3
+    tables: SearchTables,
+    images: np.ndarray,
+    max_contacts: int = 3,
+    footprint: np.ndarray | None = None,
 ) -> np.ndarray:
     """What the search finds in each image ``(n, k)``: ``(n, 7)``.
 
     Columns: the gains ``g1, g2, g3`` of the best 1, 2, 3 contacts (whitened counts^2, 0 where
     none was found), ``z2, z3`` (the weakest of the m contacts' peak signal, noise levels),
-    ``|xw|^2`` and the image's peak signal, noise levels.
+    ``|xw|^2`` and the image's peak signal, noise levels. ``footprint (n, N_FEATURES)``, if
+    given, receives each image's footprint features against the one-contact fit
+    (``multi_contact.footprint``; nan where there are none).
     """
     out = np.zeros((3, N_COLS))
-    st = tables.scratch[-1]
+    st, xw, Ft = tables.scratch[-1], tables.scratch[0], tables.Ft
     res = np.zeros((len(images), 7))
     X = np.ascontiguousarray(images, dtype=np.float32)
+    f = np.zeros(N_FEATURES)
     for i, x in enumerate(X):
         search_into(
             x,
@@ -102,6 +114,10 @@ def search_statistics(
         )
         res[i, :6] = st[:6]
         res[i, 6] = float(np.max(x * tables.w))
+        if footprint is not None:
+            # the one-contact fit's row (``max_contacts`` >= 2: it comes with the pair stage)
+            ok = max_contacts >= 2 and footprint_features(xw, Ft[int(st[11])], f)
+            footprint[i] = f if ok else np.nan
     return res
 
 
@@ -255,6 +271,10 @@ def calibrate_count_rule(
     tp_raw, tp_pos, tp_true = [], [], []
     tp_rng = np.random.default_rng(random_state + 1)  # its own draws: the rule's stay the same
     power = np.linalg.norm(np.maximum(X_means, 0.0), axis=1)
+    # the footprint cue's sets: features of held-out singles, and of pairs the search cannot
+    # separate (PAIR_MM apart), with their own draws
+    fp: dict[str, list[np.ndarray]] = {"mean": [], "frame": [], "pair": []}
+    fp_rng = np.random.default_rng(random_state + 2)
     for test in folds:
         train = np.setdiff1d(np.arange(n), test)
         amp = AmplitudeMap.fit(y[train], X_means[train], length_scale_mm, noise)
@@ -298,10 +318,28 @@ def calibrate_count_rule(
             tp_raw.append(raw_p)
             tp_pos.append(pos_p)
             tp_true.append(np.stack([y[list(p)] for p in pick]))
+        close = [
+            p
+            for p in itertools.combinations(t, 2)
+            if PAIR_MM[0] <= 1e3 * np.linalg.norm(y[p[0]] - y[p[1]]) <= PAIR_MM[1]
+        ]
+        fp_pairs = [X_means[a] + X_means[b] for a, b in close]
+        if frames is not None:
+            for a, b in close:
+                fa, fb = frames[a], frames[b]
+                fp_pairs.append(fa[fp_rng.integers(len(fa))] + fb[fp_rng.integers(len(fb))])
+        if fp_pairs:
+            F = np.full((len(fp_pairs), N_FEATURES), np.nan)
+            r = search_statistics(tables, np.asarray(fp_pairs), 2, F)
+            fp["pair"].append(F[r[:, 6] >= rule.z_on])
         for name, imgs in sets.items():
             if imgs:
                 k_max = 2 if name in ("mean", "frame") else 3  # singles need no third contact
-                stats[name].append(search_statistics(tables, np.asarray(imgs), k_max))
+                F = np.full((len(imgs), N_FEATURES), np.nan) if name in fp else None
+                r = search_statistics(tables, np.asarray(imgs), k_max, F)
+                stats[name].append(r)
+                if F is not None:
+                    fp[name].append(F[r[:, 6] >= rule.z_on])  # detected singles only
     raw = {k: np.concatenate(v) if v else np.zeros((0, 7)) for k, v in stats.items()}
     # the misfit of held-out touch means: what the model leaves of a touch it was not fitted to
     misfit = single_misfit(raw["mean"], rule.z_on) if misfit_floor else 0.0
@@ -334,6 +372,16 @@ def calibrate_count_rule(
         z_power=z_power,
         calibrated=True,
     )
+    weights, fp_two, fp_hold, fp_report = calibrate_footprint(
+        [np.concatenate(fp[k]) for k in ("mean", "frame") if fp[k]],
+        np.concatenate(fp["pair"]) if fp["pair"] else np.zeros((0, N_FEATURES)),
+    )
+    rule_new = replace(
+        rule_new,
+        footprint_weights=tuple(float(v) for v in weights),
+        footprint_two=fp_two,
+        footprint_hold=fp_hold,
+    )
     report = {
         "calibrated": True,
         "folds": len(folds),
@@ -345,6 +393,7 @@ def calibrate_count_rule(
         "pair_counted_two": det2,
         "pair_called_three": false3,
         "triple_counted_three_of_counted_two": det3,
+        "footprint": fp_report,
     }
     if tp_raw:
         report["two_point"] = two_point_threshold(

@@ -6,7 +6,7 @@ from typing import Any
 
 import numba
 
-__all__ = ["jit", "prange"]
+__all__ = ["all_finite", "jit", "prange"]
 
 prange = numba.prange
 
@@ -14,3 +14,17 @@ prange = numba.prange
 def jit(**kw: Any):
     """``numba.njit(cache=True, fastmath=True, nogil=True, **kw)``."""
     return numba.njit(cache=True, fastmath=True, nogil=True, **kw)
+
+
+@numba.njit(cache=True, nogil=True)  # not fastmath: it would assume NaN and inf away
+def all_finite(x: Any) -> bool:  # pragma: no cover - compiled
+    """Whether every value of the 1-D array ``x`` is finite (about 0.15 µs for 64 values).
+
+    The compiled kernels are built with ``fastmath``, which assumes no NaN or infinity: one
+    such value in a frame can make them index out of bounds. Frames are checked here first.
+    """
+    for i in range(x.shape[0]):
+        v = x[i]
+        if not v - v == 0:
+            return False
+    return True

@@ -170,3 +170,38 @@ def test_a_model_the_engine_cannot_run_is_an_error_not_a_silent_fallback():
         load_engine(model)
     with pytest.raises(ValueError, match="activation must be one of relu, tanh, gelu"):
         SkinCore(model, PipelineConfig())
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf])
+def test_a_frame_with_a_nan_is_dropped_and_does_not_poison_the_baseline(bad):
+    """One corrupt frame (a replayed file's NaN) is dropped and counted; the baseline, which
+    drifts with untouched frames, stays finite, so the touches after it are found as before."""
+    frames, script = stream()
+    clean = _run(_core(), frames)
+    frames = frames.astype(np.float64)
+    # untouched frames after the baseline, and one during the first touch
+    hit = [script[0][0] - 5, script[0][0] + 3, script[1][0] - 5]
+    for k in hit:
+        frames[k, 7] = bad
+    core = _core()
+    got = _run(core, frames)
+    assert core.n_nonfinite == len(hit)
+    assert [c.state for c in got if c.state != "move"] == [
+        c.state for c in clean if c.state != "move"
+    ]
+    assert all(np.isfinite(c.position_m).all() for c in got)
+    assert np.isfinite(core._baseline).all()
+
+
+def test_an_engine_refuses_an_image_with_a_nan():
+    from skinloc.models.engine import load_engine
+
+    engine = load_engine(model_path("map"))
+    x = np.zeros(64, np.float32)
+    x[9] = 300.0
+    x[3] = np.nan
+    for call in (lambda: engine.contacts(x, 3), lambda: engine.predict_one(x)):
+        with pytest.raises(ValueError, match="NaN or infinite"):
+            call()
+    with pytest.raises(ValueError, match="NaN or infinite"):
+        engine.predict(np.stack([np.zeros(64), x]))

@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from skinloc._jit import all_finite
 from skinloc.live.baseline import subtract_baseline as _prep
 from skinloc.live.config import PipelineConfig, TouchState
 from skinloc.live.contact import Contact
@@ -138,6 +139,7 @@ class SkinCore:
         self._last_counter: int | None = None
         self._counter_base = 0
         self.n_frames = 0
+        self.n_nonfinite = 0  # frames dropped for a NaN or infinite value
         self.n_touches = 0
         self.n_contacts = 0
         self._alpha = 0.0
@@ -375,6 +377,12 @@ class SkinCore:
                 f"skin {self.name!r}: frame has {values.shape[0]} sensors, the model takes "
                 f"{self.n_sensors}"
             )
+        if not all_finite(values):
+            # a NaN would poison the baseline for good (and the compiled kernels assume none)
+            self.n_nonfinite += 1
+            if self.n_nonfinite == 1:
+                log.warning("skin %r: a frame with a NaN or infinite value, dropped", self.name)
+            return ()
         self.n_frames += 1
         if not self.calibrated:
             self._accumulate(values)

@@ -447,6 +447,7 @@ class Runner:
             d: dict[str, Any] = {
                 "skin": skin.name,
                 "frames": core.n_frames,
+                "nonfinite_frames": core.n_nonfinite,
                 "contacts": core.n_contacts,
                 "touches": core.n_touches,
                 "gestures": core.n_gestures,

@@ -24,7 +24,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from skinloc._jit import jit
+from skinloc._jit import all_finite, jit
 from skinloc._lazy import resolve
 from skinloc._typing import Frames, Points
 from skinloc.geometry.snap import CONSTRAINTS, Surface
@@ -35,6 +35,8 @@ __all__ = ["ContactSet", "Engine", "ModelSpec", "Prediction", "load_engine"]
 
 #: Most contacts per frame ``Engine.contacts`` looks for.
 MAX_CONTACTS = 3
+#: The error of an image with a NaN or infinite value (the compiled kernels assume none).
+NONFINITE = "sensor image has NaN or infinite values; pass finite baseline-subtracted counts"
 
 _NORMS = {"none": 0, "l1": 1, "l2": 2}
 _MODEL_CLASS = "skinloc.models.localizer:ContactLocalizer"
@@ -235,6 +237,8 @@ class Engine:
                 )
         if not 1 <= max_contacts <= MAX_CONTACTS:
             raise ValueError(f"max_contacts must be 1..{MAX_CONTACTS}, got {max_contacts}")
+        if not all_finite(x):
+            raise ValueError(NONFINITE)
         k = self.contacts_into(x, max_contacts, self._rows, memory)
         return ContactSet(self._rows[:k].copy())
 
@@ -247,7 +251,10 @@ class Engine:
             raise ValueError(
                 f"sensor images must have shape (n, {self.n_features}), got {np.shape(X)}"
             )
-        return self._predict_rows(np.ascontiguousarray(X, dtype=np.float32))
+        X = np.ascontiguousarray(X, dtype=np.float32)
+        if not np.isfinite(X).all():
+            raise ValueError(NONFINITE)
+        return self._predict_rows(X)
 
     def predict(self, X: Frames) -> Prediction:
         """``predict_batch`` as a ``Prediction``."""
@@ -261,6 +268,8 @@ class Engine:
             raise ValueError(
                 f"sensor image must have shape ({self.n_features},), got {np.shape(x)}"
             )
+        if not all_finite(xx):
+            raise ValueError(NONFINITE)
         out = np.empty(7)
         self.localise_into(xx, out)
         return out[3:6].copy(), out[:3].copy(), float(out[6])

@@ -207,6 +207,7 @@ class SkinCore:
         scratch, base = np.zeros(n, dtype=np.float32), self._baseline.copy()
         for dtype in (np.float32, np.uint16):
             _prep(np.zeros(n, dtype=dtype), base, self._inv_sigma, scratch, 0.0, 1.0, 0)
+            all_finite(np.zeros(n, dtype=dtype))
         _one_euro(np.zeros(8), 0.0, 0.0, 0.0, 0.0, self._filt_prm, np.zeros(3))
         self.engine.constrain_into(0.0, 0.0, 0.0, np.zeros(3))
         if self._tracker is not None and self._tracker.pair is not None:

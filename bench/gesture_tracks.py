@@ -42,15 +42,27 @@ def replay(
     trace: tuple[float, float] | None = None,
     memory: bool = True,
     pair: bool = True,
+    noise_seed: int | None = None,
 ) -> dict:
     """Perform the soak's script offline; the contacts, gestures and the truth (script time s)."""
     skin, hand = gesture_hand(seed, minutes * 60 - 1.0)
     hand.t0 = 0.0
+    if noise_seed is not None:
+        skin.reseed(noise_seed)  # the same script on other noise
     core = SkinCore(str(model), PipelineConfig(max_contacts=3), name="skin0")
     if not memory:
         core.search_memory = None
     if not pair:
         core._tracker.pair = None
+    elif trace is not None and core._tracker.pair is not None:
+        pp = core._tracker.pair
+        fit_once = pp.refit.fit
+
+        def fit_logged(x, anchor):
+            pp.last_fit = fit_once(x, anchor)
+            return pp.last_fit
+
+        pp.refit.fit = fit_logged
     skin.connect()
     rng = np.random.default_rng(seed + 7)
     dt = 1.0 / rate_hz
@@ -99,7 +111,7 @@ def _mm(p) -> str:
 
 def _trace_frame(t: float, fingers, core: SkinCore, out) -> None:
     tr = core._tracker
-    fs = " ".join(_mm(f.position_m) for f in fingers or [])
+    fs = " ".join(f"{_mm(f.position_m)}p{f.pressure:.2f}" for f in fingers or [])
     pp = tr.pair
     mem = core.search_memory
     memo = "-" if mem is None else f"{mem.state[0]:.0f}/{mem.state[3]:.0f}"
@@ -108,8 +120,15 @@ def _trace_frame(t: float, fingers, core: SkinCore, out) -> None:
     )
     cands = " ".join(f"cand{c.seen}{_mm(c.last_m)}" for c in tr.candidates)
     pstate = f"run={pp.run} fits={pp.fits}" if pp is not None else ""
+    fit = getattr(pp, "last_fit", None)
+    if fit is not None:
+        pstate += (
+            f" fit r={fit.ratio:.2f} z2={fit.z2:.1f} 1st{_mm(fit.first_m)} 2nd{_mm(fit.second_m)}"
+        )
+        pp.last_fit = None
     print(
-        f"t={t:8.3f} z={core._level:6.1f} touching={int(core.touching)} below={core._below} "
+        f"t={t:8.3f} z={out[0].signal_z if out else float('nan'):5.1f} lvl={core._level:5.1f} "
+        f"touching={int(core.touching)} below={core._below} "
         f"fingers[{fs}] tracks[{tracks}] {cands} pair[{pstate}] mem={memo}"
     )
 
@@ -122,6 +141,7 @@ def main() -> int:
     ap.add_argument("--rate", type=float, default=100.0)
     ap.add_argument("--jitter-ms", type=float, default=0.0)
     ap.add_argument("--trace", type=float, nargs=2, default=None, metavar=("T0", "T1"))
+    ap.add_argument("--noise-seed", type=int, default=None, help="The same script on other noise.")
     ap.add_argument("--no-memory", action="store_true", help="Search every frame in full.")
     ap.add_argument("--no-pair", action="store_true", help="Without the pair prior.")
     ap.add_argument("--out", type=Path, default=None)
@@ -135,6 +155,7 @@ def main() -> int:
         args.trace,
         memory=not args.no_memory,
         pair=not args.no_pair,
+        noise_seed=args.noise_seed,
     )
     truth = r["truth"]
     tracks = score_tracks(r["contacts"], truth["strokes"])

@@ -581,6 +581,15 @@ def test_one_wrong_contact_within_the_gate_does_not_cut_a_moving_finger():
     far = A + 3 * step + np.array([0.0, 0.035, 0.0])
     assert _step(tr, 0.04, far) == [(1, 0, "move")]
     assert np.allclose(tr.tracks[0].last_m, A + 3 * step)
+    # answers that moved steadily (no jump): the gate holds from the last one only, and a
+    # contact 29 mm from an earlier answer but 31 mm from the last is a second finger
+    tr = _tracker()
+    _step(tr, 0.00, A, start=True)
+    for k in range(1, 4):
+        _step(tr, 0.01 * k, A + k * step)
+    beside = A + np.array([-0.004, 0.0281, 0.0])
+    assert _step(tr, 0.04, beside) == [(1, 0, "move")]
+    assert np.allclose(tr.tracks[0].last_m, A + 3 * step)
 
 
 def test_pair_prior_starts_no_finger_again_on_the_evidence_that_started_the_last():

@@ -20,10 +20,11 @@ surface, strongest first) and:
    settled track never follows a contact beyond the gate (a finger does not move 30 mm in one
    frame: that is a second finger arriving, the first one lifting beside it, or a slip of a
    weakening image): the track is held, and the contact is a candidate (step 3); if that
-   candidate becomes a track, the held one ends. The gate holds from any of the track's last
-   ``RECENT`` answers, not only the last: one wrong answer within the gate (the localiser's
-   contact slipping back 20-30 mm for a frame or two on a moving finger) moved the last one,
-   and the next right answer, beyond the gate from the slip, cut the finger in two tracks;
+   candidate becomes a track, the held one ends. When the track's recent answers jumped (two
+   consecutive ones over half the gate apart), the gate holds from any of its last ``RECENT``
+   answers, not only the last: one wrong answer within the gate (the localiser's contact
+   slipping back 20-30 mm for a frame or two on a moving finger) moved the last one, and the
+   next right answer, beyond the gate from the slip, cut the finger in two tracks;
 2. a live track with no match keeps its slot and last position for ``miss_frames`` frames (a
    contact the localiser misses for one frame does not end the finger), then ends;
 3. a contact with no match is a candidate finger; it becomes a track (``start``) when seen in
@@ -194,11 +195,20 @@ class Track:
     recent_m: np.ndarray = field(default_factory=lambda: np.zeros((RECENT, 3)))
 
     def near(self, p: np.ndarray, r: float) -> bool:
-        """Whether ``p (3,)`` m is within ``r`` m of any of the track's recent positions."""
+        """Whether ``p (3,)`` m is within the gate ``r`` m of the track.
+
+        Of its last answer; or, when its recent answers jumped (two consecutive ones more
+        than ``r / 2`` apart: the localiser slipping, not a finger moving 1.5 m/s), of any of
+        its last ``RECENT``. A track whose answers moved steadily is gated from the last only,
+        so that a second finger landing just beyond the gate stays a second finger.
+        """
         if _within(self.last_m, p, r):  # the common frame: near the last answer
             return True
+        n = min(self.seen, RECENT)
         rec = self.recent_m
-        return any(_within(rec[i], p, r) for i in range(min(self.seen, RECENT)))
+        newest = [(self.seen - 1 - k) % RECENT for k in range(n)]
+        jumped = any(not _within(rec[a], rec[b], 0.5 * r) for a, b in itertools.pairwise(newest))
+        return jumped and any(_within(rec[i], p, r) for i in newest[1:])
 
 
 class Tracker:

@@ -11,10 +11,13 @@ run is the same every time:
     python bench/gesture_tracks.py --model model.h5 --minutes 30
     python bench/gesture_tracks.py --model model.h5 --minutes 30 --trace 31.2 31.6
 
-``--jitter-ms`` stamps frames with their time plus a random delay (the pty's arrival times),
-``--trace T0 T1`` prints each frame between script times T0 and T1 (s): the fingers, the
-search's contacts, the pair prior's state, the memory's answer and the tracks. The model must
-be trained on the simulated skin with seed 0, as for the soak.
+``--noise-seed N`` performs the same script on other noise (the soak's own frames differ from
+the replay's by their noise and timing: its restarts are other strokes' on one seed, the same
+strokes' over several), ``--no-memory`` and ``--no-pair`` take the search memory or the pair
+prior out, ``--jitter-ms`` stamps frames with their time plus a random delay (the pty's
+arrival times), ``--trace T0 T1`` prints each frame between script times T0 and T1 (s): the
+fingers, the search's contacts, the pair prior's state, the memory's answer and the tracks. The
+model must be trained on the simulated skin with seed 0, as for the soak.
 """
 
 from __future__ import annotations

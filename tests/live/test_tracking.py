@@ -604,3 +604,59 @@ def test_the_core_scores_a_touchs_footprint_for_its_recogniser():
         assert core._footprint is None and core._recognizer.footprint_levels is None
     finally:
         engine.rule = rule
+
+
+def test_one_wrong_contact_within_the_gate_does_not_cut_a_moving_finger():
+    # a finger swiping 3 mm a frame; the localiser's answer slips 28 mm back for one frame
+    # (within the gate: the track follows it); the next right answer is beyond the gate from
+    # the slip but on the finger's path: the same finger moving on, not a second one (the
+    # track was held, then ended and restarted: a swipe delivered as two tracks)
+    tr = _tracker()
+    step = np.array([0.003, 0.0, 0.0])
+    p = [A + k * step for k in range(12)]
+    _step(tr, 0.0, p[0], start=True)
+    for k in range(1, 6):
+        _step(tr, 0.01 * k, p[k])
+    slip = p[5] - np.array([0.028, 0.0, 0.0])
+    assert _step(tr, 0.06, slip) == [(1, 0, "move")]
+    for k in range(7, 12):
+        assert _step(tr, 0.01 * k, p[k]) == [(1, 0, "move")]
+        assert np.allclose(tr.tracks[0].last_m, p[k])
+    assert tr.next_id == 2
+    # a contact beyond the gate of every recent answer is still a second finger: held
+    tr = _tracker()
+    _step(tr, 0.00, A, start=True)
+    for k in range(1, 4):
+        _step(tr, 0.01 * k, A + k * step)
+    far = A + 3 * step + np.array([0.0, 0.035, 0.0])
+    assert _step(tr, 0.04, far) == [(1, 0, "move")]
+    assert np.allclose(tr.tracks[0].last_m, A + 3 * step)
+    # answers that moved steadily (no jump): the gate holds from the last one only, and a
+    # contact 29 mm from an earlier answer but 31 mm from the last is a second finger
+    tr = _tracker()
+    _step(tr, 0.00, A, start=True)
+    for k in range(1, 4):
+        _step(tr, 0.01 * k, A + k * step)
+    beside = A + np.array([-0.004, 0.0281, 0.0])
+    assert _step(tr, 0.04, beside) == [(1, 0, "move")]
+    assert np.allclose(tr.tracks[0].last_m, A + 3 * step)
+
+
+def test_pair_prior_starts_no_finger_again_on_the_evidence_that_started_the_last():
+    # the second finger the prior started ends when its anchored fit falls below the keep
+    # thresholds; the frames that started it are spent: one weaker frame after it does not
+    # start another (a two-finger tap's finger restarted while down, or a ghost after it lifted)
+    good = _Fit(0.5, 12.0, A, B)
+    tr, prior = _pair_tracker([good])
+    _step(tr, 0.00, A, start=True)
+    for k in (1, 2, 3):
+        _step(tr, 0.01 * k, A)
+    assert tr.slots[1] is not None
+    prior.refit.fits = [_Fit(0.01, 1.0, A, B)]
+    _step(tr, 0.04, A)
+    assert _step(tr, 0.05, A) == [(1, 0, "move"), (2, 1, "end")]
+    prior.refit.fits = [_Fit(0.2, 4.0, A, B)]  # alone under the start's means
+    assert _step(tr, 0.06, A) == [(1, 0, "move")]
+    # fresh evidence over start_frames frames starts a finger again
+    prior.refit.fits = [good]
+    assert [len(_step(tr, t, A)) for t in (0.07, 0.08)] == [1, 2]

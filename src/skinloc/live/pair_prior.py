@@ -22,7 +22,8 @@ and the search reports one contact, for the two-contact fit anchored at that con
   (hysteresis: the evidence that started a finger need not be repeated each frame), up to
   ``keep_s`` after the first landing (a tap's length: after it, a finger only the prior saw
   ends, and the recogniser takes such a brief second touch within a long one as a piece of
-  the long one's image).
+  the long one's image). The frames that started a finger are spent once it is kept: if its
+  track ends, another start needs ``start_frames`` new frames.
 
 Only the touch's first moments are searched: that is when the second finger of a two-finger
 tap lands, and it keeps the cost (a fit of about 30-40 us) off long touches. ``max_fits``
@@ -168,6 +169,10 @@ class PairPrior:
             self.run = 0
             return None
         if len(live) == 2:
+            # the evidence that started the second finger is spent: should its track end, a
+            # new one needs start_frames fresh frames (the old ones, still in the window,
+            # restarted it on the next frame however weak that frame was)
+            self.run = 0
             if fit.ratio >= r.keep_ratio and fit.z2 >= r.keep_z:
                 return np.array([fit.first_m, fit.second_m])
             return None

@@ -20,7 +20,11 @@ surface, strongest first) and:
    settled track never follows a contact beyond the gate (a finger does not move 30 mm in one
    frame: that is a second finger arriving, the first one lifting beside it, or a slip of a
    weakening image): the track is held, and the contact is a candidate (step 3); if that
-   candidate becomes a track, the held one ends;
+   candidate becomes a track, the held one ends. When the track's recent answers jumped (two
+   consecutive ones over half the gate apart), the gate holds from any of its last ``RECENT``
+   answers, not only the last: one wrong answer within the gate (the localiser's contact
+   slipping back 20-30 mm for a frame or two on a moving finger) moved the last one, and the
+   next right answer, beyond the gate from the slip, cut the finger in two tracks;
 2. a live track with no match keeps its slot and last position for ``miss_frames`` frames (a
    contact the localiser misses for one frame does not end the finger), then ends;
 3. a contact with no match is a candidate finger; it becomes a track (``start``) when seen in
@@ -47,7 +51,11 @@ if TYPE_CHECKING:
     from skinloc.live.pair_prior import PairPrior
     from skinloc.models.multi_contact.search import SearchMemory
 
-__all__ = ["Track", "Tracker", "assign", "frame_contacts"]
+__all__ = ["RECENT", "Track", "Tracker", "assign", "frame_contacts"]
+
+#: A track's last answers (positions) the gate is measured from: a wrong answer of up to
+#: ``RECENT - 1`` frames does not cut a moving finger's track.
+RECENT = 3
 
 #: ``(positions (k, 3) m on the surface, raw (k, 3) m, strength (k,) counts, uncertainty (k,) mm)``
 FrameContacts = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
@@ -169,6 +177,8 @@ class Track:
         Consecutive frames unmatched.
     start_s : float
         When the track started (its first frame as a candidate), s.
+    recent_m : (RECENT, 3) float
+        Its last ``RECENT`` measured positions, m (a ring; ``last_m`` is the newest).
     """
 
     slot: int = -1
@@ -182,6 +192,23 @@ class Track:
     missed: int = 0
     start_s: float = math.nan
     filt: np.ndarray = field(default_factory=lambda: np.zeros(8))
+    recent_m: np.ndarray = field(default_factory=lambda: np.zeros((RECENT, 3)))
+
+    def near(self, p: np.ndarray, r: float) -> bool:
+        """Whether ``p (3,)`` m is within the gate ``r`` m of the track.
+
+        Of its last answer; or, when its recent answers jumped (two consecutive ones more
+        than ``r / 2`` apart: the localiser slipping, not a finger moving 1.5 m/s), of any of
+        its last ``RECENT``. A track whose answers moved steadily is gated from the last only,
+        so that a second finger landing just beyond the gate stays a second finger.
+        """
+        if _within(self.last_m, p, r):  # the common frame: near the last answer
+            return True
+        n = min(self.seen, RECENT)
+        rec = self.recent_m
+        newest = [(self.seen - 1 - k) % RECENT for k in range(n)]
+        jumped = any(not _within(rec[a], rec[b], 0.5 * r) for a, b in itertools.pairwise(newest))
+        return jumped and any(_within(rec[i], p, r) for i in newest[1:])
 
 
 class Tracker:
@@ -241,6 +268,7 @@ class Tracker:
     ) -> None:
         t.raw_m[:] = raw
         t.last_m[:] = pos
+        t.recent_m[t.seen % RECENT] = pos
         t.strength, t.uncertainty_mm = float(s), float(u)
         if t.seen == 0:
             t.start_s = ts
@@ -293,7 +321,7 @@ class Tracker:
         held: Track | None = None
         if len(live) == 1 and k == 1 and not self.candidates:
             t = live[0]
-            if t.seen < self.settle_frames or _within(t.last_m, positions[0], self.gate_m):
+            if t.seen < self.settle_frames or t.near(positions[0], self.gate_m):
                 # one finger, one contact near it (the common frame), or a landing finger:
                 # the same finger, as in step 1; no assignment to compute
                 self._measure(t, ts, positions[0], raw[0], strength[0], uncertainty_mm[0])
@@ -308,9 +336,10 @@ class Tracker:
             lone_d = [j for j in range(k) if not used[j]]
             if len(lone_t) == 1 and len(lone_d) == 1:
                 i, j = lone_t[0], lone_d[0]
-                if live[i].seen < self.settle_frames:
+                if live[i].seen < self.settle_frames or live[i].near(positions[j], self.gate_m):
                     # a landing finger (its first frames, a weak and changing image) and one
-                    # contact left: the same finger, whose position jumped
+                    # contact left: the same finger, whose position jumped; or a contact
+                    # within the gate of the track's recent path (its last answer was wrong)
                     self._measure(live[i], ts, positions[j], raw[j], strength[j], uncertainty_mm[j])
                     used[j] = True
                     matched.add(i)

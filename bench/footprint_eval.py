@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from skinloc.bench.paper import TEST_DEC, TRAIN_DEC
 from skinloc.data.recording import read_recording
 from skinloc.evaluation.scoring import train_localizer
 from skinloc.live.footprint import FootprintWatch
@@ -180,15 +181,11 @@ def print_table(name: str, res: dict) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=Path("../shared/data/hiro-cone-skin"))
-    ap.add_argument("--train", default="ConeSkinData80Points_RND_80PL_1.mat")
+    ap.add_argument("--train", default=TRAIN_DEC)
     ap.add_argument(
         "--test",
         nargs="+",
-        default=[
-            "ConeSkinData_RND_20PL_1.mat",
-            "ConeSkinData50Points_RND_50PL_1.mat",
-            "ConeSkinData30Points_RND_30PL_1.mat",
-        ],
+        default=list(TEST_DEC),
     )
     ap.add_argument("--skin-seeds", type=int, nargs="*", help="Simulated skins instead")
     ap.add_argument("--sim-seed", type=int, default=5, help="as bench/two_point_sim.py's --seed")

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from skinloc.bench.paper import TEST_DEC, TRAIN_DEC
 from skinloc.data.recording import read_recording
 from skinloc.evaluation.scoring import train_localizer
 from skinloc.models.engine import load_engine
@@ -31,15 +32,11 @@ BINS_MM = (10, 20, 30, 40, 60, 1000)
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=Path("../shared/data/hiro-cone-skin"))
-    ap.add_argument("--train", default="ConeSkinData80Points_RND_80PL_1.mat")
+    ap.add_argument("--train", default=TRAIN_DEC)
     ap.add_argument(
         "--test",
         nargs="+",
-        default=[
-            "ConeSkinData_RND_20PL_1.mat",
-            "ConeSkinData50Points_RND_50PL_1.mat",
-            "ConeSkinData30Points_RND_30PL_1.mat",
-        ],
+        default=list(TEST_DEC),
     )
     ap.add_argument("--draws", type=int, default=4, help="Synthetic touches per real touch.")
     ap.add_argument("--out", type=Path)

@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from skinloc.bench.paper import TEST_DEC, TRAIN_DEC
 from skinloc.data.recording import read_recording
 from skinloc.evaluation.scoring import train_localizer
 from skinloc.models.multi_contact.two_point import (
@@ -242,15 +243,11 @@ class Tally:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=Path("../shared/data/hiro-cone-skin"))
-    ap.add_argument("--train", default="ConeSkinData80Points_RND_80PL_1.mat")
+    ap.add_argument("--train", default=TRAIN_DEC)
     ap.add_argument(
         "--test",
         nargs="+",
-        default=[
-            "ConeSkinData_RND_20PL_1.mat",
-            "ConeSkinData50Points_RND_50PL_1.mat",
-            "ConeSkinData30Points_RND_30PL_1.mat",
-        ],
+        default=list(TEST_DEC),
     )
     ap.add_argument(
         "--cv",

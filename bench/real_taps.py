@@ -21,11 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-TEST = (
-    "ConeSkinData_RND_20PL_1.mat",
-    "ConeSkinData50Points_RND_50PL_1.mat",
-    "ConeSkinData30Points_RND_30PL_1.mat",
-)
+from skinloc.bench.paper import TEST_DEC, TRAIN_DEC
+
 IDLE_FRAMES = 60
 BASE_COUNTS = 1000.0
 
@@ -62,8 +59,8 @@ def replay(engine, frames: np.ndarray, footprint: bool = False) -> tuple[int, li
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, required=True)
-    ap.add_argument("--train", default="ConeSkinData80Points_RND_80PL_1.mat")
-    ap.add_argument("--test", nargs="+", default=list(TEST))
+    ap.add_argument("--train", default=TRAIN_DEC)
+    ap.add_argument("--test", nargs="+", default=list(TEST_DEC))
     ap.add_argument("--tap-frames", type=int, default=12, help="Frames of the touch (100 Hz).")
     ap.add_argument("--ramp", type=int, nargs="+", default=[0, 3])
     ap.add_argument("--seed", type=int, default=0)

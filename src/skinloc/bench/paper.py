@@ -37,6 +37,10 @@ REAL_DEC = (
     "ConeSkinData30Points_RND_30PL_1.mat",
 )
 REAL_MAY = ("ConeSkinData_RND_20PL_2.mat", "ConeSkinData_RND_40PL_1.mat")
+#: The multi-touch figures' split of that session: the default model trained on 80PL_1, tested
+#: on the other three (which choose or tune nothing).
+TRAIN_DEC = "ConeSkinData80Points_RND_80PL_1.mat"
+TEST_DEC = tuple(r for r in REAL_DEC if r != TRAIN_DEC)
 
 
 def _noop(*_: object) -> None:

@@ -15,10 +15,12 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from skinloc.errors import Interrupted
+from skinloc.errors import Interrupted, SkinlocError
 
 __all__ = [
+    "OutputBusyError",
     "atomic_write",
+    "claim_output",
     "cannot_write",
     "os_error_line",
     "os_error_reason",
@@ -158,3 +160,90 @@ def written_through_side(
         side.unlink(missing_ok=True)
         raise
     os.replace(side, path)
+
+
+class OutputBusyError(SkinlocError):
+    """Another process is writing the same output file (its claim is held)."""
+
+
+def _lock_path(path: Path) -> Path:
+    return path.parent / f".{path.name}.lock"
+
+
+class OutputClaim:
+    """An exclusive claim on an output path, held by this process until ``release``.
+
+    The claim is an advisory ``flock`` on a hidden file next to the output
+    (``.NAME.lock``), removed on release. Two skinloc processes asked to write one file can
+    therefore never both run: the second is refused before it reads, checks or writes
+    anything, so neither can delete the other's side file or silently replace its result.
+    Where ``fcntl`` does not exist (Windows) the claim is a no-op.
+    """
+
+    def __init__(self, path: Path, fd: int | None) -> None:
+        self.path = path
+        self._fd = fd
+
+    def release(self) -> None:
+        """Give the claim up (idempotent); the lock file is removed first, then unlocked."""
+        if self._fd is None:
+            return
+        fd, self._fd = self._fd, None
+        try:
+            _lock_path(self.path).unlink(missing_ok=True)
+        except OSError:
+            pass
+        os.close(fd)  # closing the descriptor drops the flock
+
+
+def claim_output(path: str | Path) -> OutputClaim:
+    """Claim ``path`` for writing by this process, or raise ``OutputBusyError``.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file (or folder) a command is about to write. Its folder must exist.
+
+    Returns
+    -------
+    OutputClaim
+        Held until ``release()`` (or the process ends: the kernel drops the lock).
+
+    Raises
+    ------
+    OutputBusyError
+        Another process holds the claim; the message names it and its process id.
+    """
+    path = Path(path)
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX
+        return OutputClaim(path, None)
+    lock = _lock_path(path)
+    while True:
+        try:
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
+        except OSError as exc:
+            raise cannot_write(path, exc) from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            try:
+                holder = os.read(fd, 32).decode(errors="replace").strip() or "unknown"
+            finally:
+                os.close(fd)
+            raise OutputBusyError(
+                f"another process (pid {holder}) is writing {path}: wait for it to end, or "
+                f"choose another output"
+            ) from None
+        # The holder before us may have removed the file between our open and our lock: a
+        # lock on a removed inode guards nothing, so take the one the path names now.
+        try:
+            same = os.path.samestat(os.fstat(fd), os.stat(lock))
+        except FileNotFoundError:
+            same = False
+        if same:
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, str(os.getpid()).encode(), 0)
+            return OutputClaim(path, fd)
+        os.close(fd)

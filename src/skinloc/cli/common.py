@@ -173,7 +173,7 @@ def friendly_errors(fn: F) -> F:
 
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
-        with _signal_handlers():
+        with _signal_handlers(), _claims_released():
             try:
                 return fn(*args, **kwargs)
             except (SkinlocError, ValueError, OSError) as exc:
@@ -210,6 +210,29 @@ def friendly_errors(fn: F) -> F:
 
 
 # ------------------------------------------------------------------------ output paths
+#: Outputs this process has claimed (``skinloc.files.claim_output``), by resolved path.
+_claims: dict[Path, Any] = {}
+
+
+@contextmanager
+def _claims_released() -> Iterator[None]:
+    """Release the output claims a command made when it ends, however it ends."""
+    before = set(_claims)
+    try:
+        yield
+    finally:
+        for key in [k for k in _claims if k not in before]:
+            _claims.pop(key).release()
+
+
+def _claim(path: Path) -> None:
+    from skinloc.files import claim_output
+
+    key = path.resolve()
+    if key not in _claims:
+        _claims[key] = claim_output(path)
+
+
 def _same_file(a: Path, b: Path) -> bool:
     """Whether ``a`` and ``b`` name one file (same resolved path, or hard links of one)."""
     import os
@@ -250,6 +273,8 @@ def check_output(
     ------
     ValueError
         Naming ``path`` and what to do.
+    OutputBusyError
+        Another process is writing ``path`` (claimed until this command ends).
     """
     import tempfile
 
@@ -260,9 +285,15 @@ def check_output(
         if path.exists() and not path.is_dir():
             raise ValueError(f"{option} {path} is a file, not a folder")
         parent = path if path.is_dir() else path.parent
+        if parent.is_dir():
+            _claim(path)
     else:
         if path.is_dir():
             raise ValueError(f"{option} {path} is a folder: give a file name")
+        if path.parent.is_dir():
+            # One output, one writer: claimed before the existence check, so two commands
+            # started together cannot both find it free (OutputBusyError for the second).
+            _claim(path)
         if path.exists() and not force:
             raise ValueError(
                 f"{path} exists: pass --force to replace it, or choose another {option}"
@@ -279,6 +310,21 @@ def check_output(
     except OSError as exc:
         why = (exc.strerror or str(exc)).lower()
         raise ValueError(f"cannot write {path}: folder {parent} is not writable ({why})") from None
+
+
+def check_skin_covers(skin: Any, mesh: Path | None) -> None:
+    """Refuse a mesh whose simulated wires leave much of it unfelt (a closed shell).
+
+    ``skinloc simulate`` draws targets over the whole mesh; where no crossing is near, a touch
+    is never felt and the session waits for it in vain.
+    """
+    share = skin.uncovered_share()
+    if share > 0.2:
+        raise ValueError(
+            f"the simulated wires cover only {100 * (1 - share):.0f} % of {mesh}: they lie on "
+            f"one side of a mesh that is not a cone or cylinder about y, so give the part the "
+            f"skin covers (an open shell such as a hemisphere, or a plate), not a closed one"
+        )
 
 
 # ------------------------------------------------------------------------ progress

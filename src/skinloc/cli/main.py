@@ -31,6 +31,7 @@ from skinloc.cli.common import (
     app,
     check_interrupt,
     check_output,
+    check_skin_covers,
     console,
     err_console,
     friendly_errors,
@@ -202,6 +203,8 @@ def simulate(
     _check_size(points, samples, tx * rx)
     surface = cone_skin() if mesh is None else load_mesh(mesh, units.value)
     skin = SimulatedSkin(surface, n_tx=tx, n_rx=rx, random_state=skin_seed)
+    if mesh is not None:
+        check_skin_covers(skin, mesh)
     skin.reseed(seed)
     cfg = SessionConfig(
         n_points=points,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from skinloc.cli.common import check_output, console, progress_steps
+from skinloc.cli.common import check_output, check_skin_covers, console, progress_steps
 
 #: Largest gesture stream the command line makes, bytes of float32 frames (as ``simulate``).
 MAX_STREAM_BYTES = 4 * 2**30
@@ -41,6 +41,8 @@ def simulate_gestures(
     # The same skin as every `skinloc simulate --skin-seed K`: wiring from the skin seed,
     # noise, drift and touches from --seed.
     skin = SimulatedSkin(surface, n_tx=tx, n_rx=rx, random_state=skin_seed)
+    if mesh is not None:
+        check_skin_covers(skin, mesh)
     skin.reseed(seed)
     script = GestureScript(
         surface,

@@ -38,6 +38,31 @@ def check_compatible(recordings: Sequence[Recording], n_sensors: int | None = No
     return count
 
 
+def check_same_skin(model, recordings: Sequence[Recording]) -> None:
+    """Refuse recordings made on another mesh than the one ``model`` was trained on.
+
+    A model's targets live in its own mesh's frame: scored against another skin's targets it
+    gives a large error that means nothing (121.8 mm for the cone against a sphere).
+    """
+    from skinloc.geometry.mesh import mesh_from_arrays, same_surface
+
+    vertices = getattr(model, "mesh_vertices_", None)
+    faces = getattr(model, "mesh_faces_", None)
+    if vertices is None or faces is None:
+        return  # a model saved without its mesh: nothing to compare
+    mine = mesh_from_arrays(vertices, faces)
+    for k, rec in enumerate(recordings):
+        theirs = rec.mesh
+        if not same_surface(mine, theirs):
+            size = np.ptp(np.asarray(theirs.bounds), axis=0) * 1e3
+            own = np.ptp(np.asarray(mine.bounds), axis=0) * 1e3
+            raise RecordingError(
+                f"recording {k + 1} was made on another mesh than the model's (extent "
+                f"{size[0]:.0f} x {size[1]:.0f} x {size[2]:.0f} mm against {own[0]:.0f} x "
+                f"{own[1]:.0f} x {own[2]:.0f} mm): use recordings of the model's own skin"
+            )
+
+
 def training_arrays(recordings: Sequence[Recording]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Every frame of every point log, baseline-subtracted with its own recording's baseline.
 
@@ -95,6 +120,7 @@ class Evaluation:
 def evaluate(model, recordings: Sequence[Recording], per_frame: bool = False) -> Evaluation:
     """Score ``model`` on recordings: each touch's mean image, or every frame."""
     check_compatible(recordings, getattr(model, "n_features_in_", None))
+    check_same_skin(model, recordings)
     if per_frame:
         X, y, _ = training_arrays(recordings)
     else:
@@ -157,6 +183,7 @@ def recalibrate_localizer(model, recordings: Sequence[Recording], *, progress=No
     is absorbed here; the model then corrects for the moved response.
     """
     check_compatible(recordings, getattr(model, "n_features_in_", None))
+    check_same_skin(model, recordings)
     X, y, groups = training_arrays(recordings)
     new = model.recalibrate(X, y, groups=groups, progress=progress)
     previous = getattr(model, "meta_", {}).get("training") or getattr(model, "training_meta_", {})

@@ -168,6 +168,24 @@ def mesh_from_arrays(vertices: Points, faces: np.ndarray) -> trimesh.Trimesh:
     return trimesh.Trimesh(vertices, faces, process=False)
 
 
+def same_surface(a: trimesh.Trimesh, b: trimesh.Trimesh, tol_m: float = 2e-3) -> bool:
+    """Whether two meshes describe one surface to ``tol_m``: a re-export does, another skin not.
+
+    Their bounding boxes must agree to ``tol_m`` and every vertex of each (at most 2000,
+    evenly picked) must lie within ``tol_m`` of the other's surface, so the same skin saved
+    with another tessellation or vertex order is still the same.
+    """
+    if np.abs(np.asarray(a.bounds) - np.asarray(b.bounds)).max() > tol_m:
+        return False
+    for one, other in ((a, b), (b, a)):
+        pts = np.asarray(one.vertices)
+        pts = pts[np.linspace(0, len(pts) - 1, min(len(pts), 2000)).astype(int)]
+        dist = trimesh.proximity.closest_point(other, pts)[1]
+        if dist.max() > tol_m:
+            return False
+    return True
+
+
 def load_mesh(path: str | Path, units: str = "auto") -> trimesh.Trimesh:
     """Load a skin surface from an OBJ, STL or PLY file.
 

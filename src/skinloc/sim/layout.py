@@ -251,7 +251,8 @@ def _surface_chart(mesh: trimesh.Trimesh, kind: str):
             hits, ray, _ = mesh.ray.intersects_location(
                 origins, np.broadcast_to(-normal, origins.shape), multiple_hits=False
             )
-            out[todo[ray]] = hits
+            # trimesh gives (0,) rather than (0, 3) when no ray hits
+            out[todo[ray]] = np.reshape(hits, (-1, 3))
             todo = np.setdiff1d(todo, todo[ray])
             if todo.size == 0:
                 break

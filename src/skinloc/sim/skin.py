@@ -173,6 +173,33 @@ class SimulatedSkin(FrameSource):
         """Where the wire crossings lie, ``(n_sensors, 3)`` m (unknown to any model)."""
         return self.layout.sensor_positions
 
+    def uncovered_share(self, max_spacings: float = 2.0, n_samples: int = 3000) -> float:
+        """Share of the surface farther than ``max_spacings`` sensor spacings from any crossing.
+
+        A planar chart lays the wires on one side of a mesh, so on a closed shell (a whole
+        sphere) about half the surface has no sensor near it: a touch there is never felt.
+        The spacing is the median distance from a crossing to its nearest neighbour.
+
+        Parameters
+        ----------
+        max_spacings : float, default=2.0
+            How far from the nearest crossing a point may be, in sensor spacings.
+        n_samples : int, default=3000
+            Surface points sampled evenly (fixed seed: the answer is deterministic).
+
+        Returns
+        -------
+        float
+            In [0, 1]: 0.01 on the paper's cone, 0.46 on a whole sphere.
+        """
+        from scipy.spatial import cKDTree
+
+        tree = cKDTree(self.sensor_positions)
+        spacing = float(np.median(tree.query(self.sensor_positions, k=2)[0][:, 1]))
+        points, _ = trimesh.sample.sample_surface_even(self.mesh, n_samples, seed=0)
+        dist, _ = tree.query(points)
+        return float(np.mean(dist > max_spacings * spacing))
+
     @property
     def time_s(self) -> float:
         """The simulated clock, s."""

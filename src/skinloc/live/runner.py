@@ -117,8 +117,8 @@ class Runner:
                 engine,
                 skin.config,
                 name=skin.name,
-                n_tx=skin.n_tx,
-                n_rx=skin.n_rx,
+                n_tx=skin.kept_grid[0],
+                n_rx=skin.kept_grid[1],
                 wire_format=skin.wire_format,
                 up=skin.up,
                 gesture_config=skin.gestures,
@@ -320,8 +320,7 @@ class Runner:
             if not data:
                 feed.lost(self._sel, "end of file")
                 continue
-            feed.n_bytes += len(data)
-            for contacts in feed.core.feed_frames(data, t_in):
+            for contacts in feed.contacts(data, t_in):
                 self._emit(feed.slot, contacts, out)
             self._emit(feed.slot, (), out)  # gestures of frames without contacts
         self._wake_pending = False
@@ -462,7 +461,7 @@ class Runner:
                     disconnects=f.n_disconnects,
                     reconnects=f.n_reconnects,
                     bytes=f.n_bytes,
-                    wire=core.parser_stats,
+                    wire=f.decoder.stats.as_dict(),
                 )
             elif slot in threads:
                 src = threads[slot].source

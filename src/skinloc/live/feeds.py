@@ -1,7 +1,7 @@
 """How frames reach a runner's loop.
 
-Serial ports are read by the loop itself (``_PortFeed``); any other ``FrameSource`` is read on
-a small thread of its own (``_ThreadFeed``). A port missing at start is waited for when its
+Serial ports are read by the loop itself (``PortFeed``); any other ``FrameSource`` is read on
+a small thread of its own (``ThreadFeed``). A port missing at start is waited for when its
 skin asks to (``SkinConfig.wait``): the loop retries it on the unplug recovery's schedule.
 """
 
@@ -45,7 +45,7 @@ class _Loop(Protocol):
     def _wake(self) -> None: ...
 
 
-class _PortFeed:
+class PortFeed:
     """A serial port read by the loop itself (non-blocking file descriptor, no thread).
 
     The port's link and its decoding are the one serial reader of ``hardware.link`` (as in
@@ -92,20 +92,25 @@ class _PortFeed:
 
     @property
     def n_disconnects(self) -> int:
+        """Times the port was lost."""
         return self.link.n_disconnects
 
     @property
     def n_reconnects(self) -> int:
+        """Times the port was reopened after a loss."""
         return self.link.n_reconnects
 
     @property
     def last_error(self) -> str:
+        """Why the port was last lost."""
         return self.link.last_error
 
     def open(self) -> None:
+        """Open the port (``hardware.link.PortLink.open``)."""
         self.link.open()
 
     def close(self) -> None:
+        """Close the port."""
         self.link.close()
 
     def contacts(self, data: bytes, t_in: float) -> Iterator[Sequence[Contact]]:
@@ -151,7 +156,7 @@ class _PortFeed:
                 log.warning("%s (skin %s) is here: reading it", self.port, self.name)
 
 
-def open_port_feed(slot: int, skin: SkinConfig, core: SkinCore) -> _PortFeed | None:
+def open_port_feed(slot: int, skin: SkinConfig, core: SkinCore) -> PortFeed | None:
     """The loop's feed of a serial port, opened; None for a URL without a file descriptor.
 
     A port that does not exist (yet) is waited for when ``skin.wait``: the feed is returned
@@ -165,7 +170,7 @@ def open_port_feed(slot: int, skin: SkinConfig, core: SkinCore) -> _PortFeed | N
     """
     from skinloc.hardware.link import NoFileDescriptor, why_not_open
 
-    feed = _PortFeed(slot, skin, core)
+    feed = PortFeed(slot, skin, core)
     try:
         feed.open()
     except NoFileDescriptor:
@@ -182,7 +187,7 @@ def open_port_feed(slot: int, skin: SkinConfig, core: SkinCore) -> _PortFeed | N
     return feed
 
 
-class _ThreadFeed:
+class ThreadFeed:
     """Any ``FrameSource`` read on a thread of its own; frames are queued for the loop."""
 
     def __init__(
@@ -233,6 +238,7 @@ class _ThreadFeed:
             self.runner._wake()
 
     def close(self) -> None:
+        """Join the thread (bounded) and disconnect the source."""
         if self.thread.is_alive():
             self.thread.join(5.0)
         if self.source.is_connected:

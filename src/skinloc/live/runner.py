@@ -31,7 +31,7 @@ from typing import Any
 from skinloc.errors import SourceNotConnectedError
 from skinloc.live.config import PipelineConfig
 from skinloc.live.core import Contact, SkinCore
-from skinloc.live.feeds import _PortFeed, _ThreadFeed, open_port_feed
+from skinloc.live.feeds import PortFeed, ThreadFeed, open_port_feed
 from skinloc.live.scripted import ScriptedFinger
 from skinloc.live.sinks.base import Sink, SkinInfo, make_sink
 from skinloc.live.skin_config import SkinConfig, skin_info
@@ -137,8 +137,8 @@ class Runner:
         self._thread: threading.Thread | None = None
         self._opened = False
         self._closed = False
-        self._ports: list[_PortFeed] = []
-        self._threads: list[_ThreadFeed] = []
+        self._ports: list[PortFeed] = []
+        self._threads: list[ThreadFeed] = []
         self._sel: selectors.BaseSelector | None = None
         self._next_sweep = -math.inf  # when the loop next looks for lost ports and stale touches
         self._error: BaseException | None = None
@@ -194,7 +194,7 @@ class Runner:
                     f"skin {skin.name!r}: the source {source.name} sends {source.n_sensors} "
                     f"sensors but the model takes {core.n_sensors}"
                 )
-            feed_t = _ThreadFeed(slot, source, self, skin.realtime)
+            feed_t = ThreadFeed(slot, source, self, skin.realtime)
             self._threads.append(feed_t)
         for feed_t in self._threads:
             feed_t.thread.start()

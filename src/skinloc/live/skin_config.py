@@ -196,7 +196,7 @@ def _mount_pose(
     if skin.rotation is not None and skin.rpy is not None:
         raise ValueError("give rotation (quaternion x, y, z, w) or rpy (rad), not both")
     if skin.rpy is not None:
-        from skinloc.live.sinks.ros2.sink import quaternion_from_rpy
+        from skinloc.geometry.skin_frame import quaternion_from_rpy
 
         q = quaternion_from_rpy(*_vector(skin.rpy, 3, "rpy"))
     elif skin.rotation is not None:

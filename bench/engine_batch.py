@@ -30,7 +30,7 @@ from types import ModuleType
 
 import numpy as np
 
-from skinloc.bench.online import _baseline_fn, touch_stream, train_bench_models
+from skinloc.bench.online import baseline_fn, touch_stream, train_bench_models
 from skinloc.models.localizer import ContactLocalizer
 
 
@@ -68,7 +68,7 @@ def main() -> None:
         model = ContactLocalizer.load(path)
         engine = model.engine().warm_up()
         runs = {"engine": engine.predict_batch}
-        plain = _baseline_fn(model)
+        plain = baseline_fn(model)
         runs["numpy"] = lambda X, plain=plain: plain(X.astype(np.float64))
         per_frame = {"engine": engine}
         if old_mod is not None:

@@ -128,10 +128,10 @@ def simulated(n_skins: int = 20, first_seed: int = 5000) -> dict:
     Each skin: 80 touches on random mesh edges, the first n of the first 60 spread evenly,
     the last 20 the test (per touch); the prior applied at every size.
     """
-    from skinloc.calibration.prior_build import _errors_mm, simulate_calibration
     from skinloc.geometry.mesh import cone_skin, farthest_point_sampling, surface_points
     from skinloc.models.map_prior import load_prior
     from skinloc.models.response_map import ResponseMap, shape_features
+    from skinloc.sim.prior_build import errors_mm, simulate_calibration
 
     prior, cands = load_prior(), surface_points(cone_skin(), 4000)
     errs: dict = {"no prior": {}, "prior": {}}
@@ -143,7 +143,7 @@ def simulated(n_skins: int = 20, first_seed: int = 5000) -> dict:
             idx = pool[farthest_point_sampling(targets[pool], n, 0)]
             for how, p in (("no prior", None), ("prior", prior)):
                 rmap = ResponseMap.fit(targets[idx], F[idx], cands, prior=p)
-                errs[how].setdefault(n, []).append(_errors_mm(rmap, F[test], targets[test]).mean())
+                errs[how].setdefault(n, []).append(errors_mm(rmap, F[test], targets[test]).mean())
     out = {how: {n: float(np.mean(v)) for n, v in d.items()} for how, d in errs.items()}
     for how, d in out.items():
         print(f"simulated, {how:8s}", " / ".join(f"{v:.1f}" for v in d.values()), "mm")
@@ -165,10 +165,10 @@ def remount(n_skins: int = 20, first_seed: int = 7000, jitter: float = 0.4) -> d
     """
     import dataclasses
 
-    from skinloc.calibration.prior_build import _draw_params, _errors_mm
     from skinloc.geometry.mesh import cone_skin, sample_targets, surface_points
     from skinloc.models.map_prior import load_prior
-    from skinloc.models.response_map import ResponseMap, _fit_layer, shape_features
+    from skinloc.models.response_map import ResponseMap, fit_layer, shape_features
+    from skinloc.sim.prior_build import draw_params, errors_mm
     from skinloc.sim.skin import SimulatedSkin
 
     prior, mesh = load_prior(), cone_skin()
@@ -205,13 +205,13 @@ def remount(n_skins: int = 20, first_seed: int = 7000, jitter: float = 0.4) -> d
         if how == "offset":
             off = R.sum(axis=0) / (len(R) + prior.mean_pseudo_touches)
         fixed = (None, None) if how == "prior" else (base.length_scale_mm, base.noise)
-        layer = _fit_layer(1e3 * q, R - off, fixed[0], (2.0, 300.0), fixed[1], prior)
+        layer = fit_layer(1e3 * q, R - off, fixed[0], (2.0, 300.0), fixed[1], prior)
         return ResponseMap(rmap.mean + off, [*rmap.layers, layer], rmap.candidates)
 
     errs: dict = {}
     for seed in range(first_seed, first_seed + n_skins):
         rng = np.random.default_rng([seed, 77])
-        p1 = _draw_params(rng, 8, 8)
+        p1 = draw_params(rng, 8, 8)
         t1, F1 = session(p1, seed, rng, 80)
         old = ResponseMap.fit(t1, F1, cands)
         t2, F2 = session(jittered(p1, rng), seed, rng, 40)
@@ -226,7 +226,7 @@ def remount(n_skins: int = 20, first_seed: int = 7000, jitter: float = 0.4) -> d
                 "alone, prior": ResponseMap.fit(q, F, cands, prior=prior),
             }
             for how, m in maps.items():
-                e = _errors_mm(m, F2[20:], t2[20:]).mean()
+                e = errors_mm(m, F2[20:], t2[20:]).mean()
                 errs.setdefault(f"k={k}", {}).setdefault(how, []).append(float(e))
     out = {k: {h: float(np.mean(v)) for h, v in d.items()} for k, d in errs.items()}
     for k, d in out.items():

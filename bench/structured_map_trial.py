@@ -20,7 +20,7 @@ import numpy as np
 
 from skinloc.data.recording import read_recording
 from skinloc.evaluation.scoring import evaluate, train_localizer, training_arrays
-from skinloc.models.response_map import _fit_layer, shape_features
+from skinloc.models.response_map import fit_layer, shape_features
 
 
 def structured_table(model, recs, mode: str) -> None:
@@ -34,7 +34,7 @@ def structured_table(model, recs, mode: str) -> None:
     sign = np.where(a.sum(axis=1, keepdims=True) < 0, -1.0, 1.0)
     ab = np.hstack([a * sign, b * sign])
     mean = ab.mean(axis=0)
-    layer = _fit_layer(1e3 * y, ab - mean, None, (2.0, 300.0), None)
+    layer = fit_layer(1e3 * y, ab - mean, None, (2.0, 300.0), None)
     rmap = model.map_
     q = 1e3 * rmap.candidates
     P = np.vstack([layer(q[i : i + 4096]) for i in range(0, len(q), 4096)]) + mean

@@ -1,5 +1,9 @@
 """The package's import graph has no circle: each module depends only on modules below it.
 
+The subpackages keep the rows of docs/architecture.md (a package imports only packages on the
+rows below its own: never one above, never one beside), and no module imports another's
+private name (``from skinloc.x import _y``), in ``src`` and in ``bench/``.
+
 Every import counts, including those inside functions and under ``TYPE_CHECKING``: a lazy
 import hides a circle from Python but not from a reader. The one harmless circle, a package
 ``__init__`` re-exporting its own children (which never import it back), is ignored.
@@ -138,6 +142,112 @@ def test_subpackages_import_only_the_ones_below_them():
     rooms = {r: Path(r) for r in set(pg) | {b for bs in pg.values() for b in bs}}
     full = {r: pg.get(r, set()) for r in rooms}
     assert circles(full, {r: Path(f"{r}.py") for r in rooms}) == []
+
+
+#: The layer table's place in docs/architecture.md: the code block after this sentence.
+_LAYERS_SENTENCE = "Each package imports only packages on the rows below its own"
+DOCS = ROOT.parents[1] / "docs" / "architecture.md"
+
+
+def layer_rows(text: str) -> dict[str, int]:
+    """Package (or top-level module) -> its row in the layer table of ``architecture.md``, 0 on top.
+
+    ``live (live/sinks, live/sinks/ros2)`` puts ``live`` on its row (a subpackage is part of
+    its package).
+    """
+    after = text[text.index(_LAYERS_SENTENCE) :]
+    block = after.split("```", 2)[1]
+    rows: dict[str, int] = {}
+    for k, line in enumerate(ln for ln in block.splitlines() if ln.strip()):
+        for word in line.replace("(", " ").replace(")", " ").replace(",", " ").split():
+            rows.setdefault(word.split("/")[0], k)
+    return rows
+
+
+def layer_violations(pg: dict[str, set[str]], rows: dict[str, int]) -> list[str]:
+    """Every edge of the package graph ``pg`` that does not go down a row, and every package
+    the table does not place.
+
+    The package itself (its ``__init__``, which resolves the public names lazily) and
+    ``__main__`` (the entry point) stand above every row.
+    """
+    out = []
+    for a, targets in sorted(pg.items()):
+        for b in sorted(targets):
+            if a in ("skinloc", "__main__"):
+                continue
+            if a not in rows or b not in rows:
+                out.append(f"{a} -> {b}: {a if a not in rows else b} has no row in the table")
+            elif rows[b] <= rows[a]:
+                where = "beside" if rows[b] == rows[a] else "above"
+                out.append(f"{a} -> {b}: {b} is {where} {a}")
+    return out
+
+
+def test_packages_import_only_the_rows_below_them():
+    """The layer table of docs/architecture.md holds: no import up a row or beside."""
+    if not DOCS.is_file():
+        pytest.skip("docs/architecture.md is not beside the package (an installed copy)")
+    graph, _ = import_graph(ROOT)
+    assert layer_violations(package_graph(graph), layer_rows(DOCS.read_text())) == []
+
+
+def test_the_layer_check_finds_imports_up_and_beside():
+    table = (
+        "x\n" + _LAYERS_SENTENCE + ":\n\n```\n cli\n live  (live/sinks)\n sim  calibration\n```\n"
+    )
+    rows = layer_rows(table)
+    assert rows == {"cli": 0, "live": 1, "sim": 2, "calibration": 2}
+    pg = {"cli": {"live"}, "live": {"sim", "cli"}, "calibration": {"sim"}, "sim": {"new"}}
+    assert layer_violations(pg, rows) == [
+        "calibration -> sim: sim is beside calibration",
+        "live -> cli: cli is above live",
+        "sim -> new: new has no row in the table",
+    ]
+
+
+def private_imports(root: Path, package: str = "skinloc") -> list[str]:
+    """``from <package>.x import _y`` in the ``.py`` files under ``root``: one line each.
+
+    A name imported under a private alias (``import subtract as _prep``) is public; dunders
+    are not private names.
+    """
+    out = []
+    for path in sorted(root.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if not isinstance(node, ast.ImportFrom):
+                continue
+            module = node.module or ""
+            if node.level == 0 and not (module == package or module.startswith(package + ".")):
+                continue
+            for alias in node.names:
+                if alias.name.startswith("_") and not alias.name.startswith("__"):
+                    where = f"{path.relative_to(root)}:{node.lineno}"
+                    out.append(f"{where}: from {'.' * node.level}{module} import {alias.name}")
+    return out
+
+
+def test_no_module_imports_another_modules_private_name():
+    """Every name used across modules is public where it belongs (src and bench/)."""
+    bench = ROOT.parents[1] / "bench"
+    found = private_imports(ROOT) + (private_imports(bench) if bench.is_dir() else [])
+    assert found == []
+
+
+def test_the_private_import_check_finds_them(tmp_path):
+    pkg = _write(
+        tmp_path,
+        {
+            "__init__.py": "",
+            "a.py": "from skinloc.x import _hidden, shown\nfrom skinloc.y import z as _alias\n",
+            "b.py": "from .a import _other\nfrom numpy import _private_elsewhere\n",
+            "c.py": "from skinloc import __version__\n",
+        },
+    )
+    assert private_imports(pkg) == [
+        "a.py:1: from skinloc.x import _hidden",
+        "b.py:1: from .a import _other",
+    ]
 
 
 def _write(root: Path, files: dict[str, str]) -> Path:

@@ -79,7 +79,7 @@ def test_the_build_command_defaults_are_the_library_defaults():
 
     from typer.main import get_command
 
-    from skinloc.calibration.prior_build import build_prior
+    from skinloc.sim.prior_build import build_prior
 
     cmd = get_command(app).commands["prior"].commands["build"]
     cli = {p.name: p.default for p in cmd.params}

@@ -90,3 +90,47 @@ def test_doctor(fw_build, kwargs, code, expect):
     assert res.exit_code == code, res.output
     for text in expect:
         assert text in flat(res.output), res.output
+
+
+def test_run_applies_a_skins_file_line_mask_on_the_board(fw_build, tmp_path):
+    """The board sends 9 x 8 lines (the ninth TX line has no wire: it reads 0); a skins file's
+    ``tx_mask`` keeps the 8 x 8 the model was trained on, in ``skinloc run``'s own loop.
+
+    Before the one serial reader the loop never applied the masks: the run stopped at start.
+    """
+    import signal
+    import subprocess
+
+    from tests._helpers import start_skinloc, stop_and_wait, wait_until
+    from tests._live import model_path
+
+    out, err = tmp_path / "out.jsonl", tmp_path / "err.txt"
+    with EmulatedBoard(fw_build, SimulatedSkin(random_state=0)) as board:
+        res = run("monitor", "--port", board.path, "--seconds", "0.2",
+                  "--lines", "111111111,11111111")  # fmt: skip
+        assert res.exit_code == 0 and "grid 9x8" in flat(res.output), res.output
+        cfg = tmp_path / "skins.toml"
+        cfg.write_text(
+            f'[[skin]]\nname = "arm"\nmodel = "{model_path("map")}"\nsource = "{board.path}"\n'
+            'wire_format = "binary"\nbaud = 1000000\ntx_mask = "111111110"\n'
+            "pipeline = { emit_idle = true }\n"
+        )
+        with err.open("w") as err_fh:
+            proc = start_skinloc("run", "--config", cfg, "--sink", f"jsonl:{out}",
+                                 stdout=subprocess.DEVNULL, stderr=err_fh)  # fmt: skip
+            try:
+                wait_until(
+                    lambda: out.is_file() and out.read_text().count("\n") >= 20,
+                    lambda: f"20 records from the board; run said: {err.read_text()[-2000:]}",
+                    180.0,
+                    proc=proc,
+                )
+                stop_and_wait(proc, signal.SIGINT, "skinloc run")
+            finally:
+                if proc.poll() is None:
+                    proc.kill()
+                    proc.wait()
+    text = err.read_text()
+    assert proc.returncode == 0 and "Traceback" not in text, text[-2000:]
+    records = [json.loads(line) for line in out.read_text().splitlines()]
+    assert {r["skin"] for r in records} == {"arm"} and {r["state"] for r in records} == {"idle"}

@@ -23,42 +23,18 @@ import numpy as np
 from skinloc.data.recording import read_recording, utc_now
 from skinloc.errors import RecordingError, SkinlocError
 from skinloc.files import atomic_write
+from skinloc.h5layout import HISTORY, HISTORY_FILE, read_history, write_history
 
 log = logging.getLogger(__name__)
 
 __all__ = ["HISTORY_FORMAT", "SessionBusyError", "SessionFolder", "SessionStore", "read_history"]
 
-#: The ``format`` attribute of a session's ``history.h5``.
-HISTORY_FORMAT = "skinloc-history"
+#: The ``format`` attribute of a session's ``history.h5`` (``skinloc.h5layout``).
+HISTORY_FORMAT = HISTORY
 
 
 class SessionBusyError(SkinlocError):
     """The session is open elsewhere (another app process)."""
-
-
-def read_history(path: Path) -> list[tuple[str, dict[str, np.ndarray], dict[str, Any]]] | None:
-    """A session's ``history.h5`` in the order kept: ``(name, arrays, attrs)`` per entry.
-
-    Names are ``{kind}_{n}`` (``touch``: a touch taken back, ``baseline``: a replaced one);
-    attrs carry ``time`` and what the app knew (target, reason). None when ``path`` is an HDF5
-    file of another kind; raises ``RecordingError`` when it cannot be read.
-    """
-    import h5py
-
-    try:
-        with h5py.File(path, "r") as f:
-            if f.attrs.get("format") != HISTORY_FORMAT:
-                return None
-            return [
-                (
-                    name,
-                    {k: f[name][k][()] for k in f[name]},
-                    {k: json.loads(v) for k, v in f[name].attrs.items()},
-                )
-                for name in sorted(f, key=lambda s: int(s.split("_")[-1]))
-            ]
-    except (OSError, ValueError, KeyError) as exc:
-        raise RecordingError(f"cannot read {path}: {exc}") from exc
 
 
 def _slug(text: str) -> str:
@@ -104,7 +80,7 @@ class SessionFolder:
     @property
     def history(self) -> Path:
         """Touches taken back and baselines replaced."""
-        return self.path / "history.h5"
+        return self.path / HISTORY_FILE
 
     # ------------------------------------------------------------------ metadata
     def read_info(self) -> dict[str, Any]:
@@ -156,25 +132,13 @@ class SessionFolder:
 
         The file is rewritten atomically with the new entry added, so a crash keeps the old one.
         """
-        import h5py
-
         old = read_history(self.history) if self.history.is_file() else []
         if old is None:  # never written over: whatever it holds stays
             raise RecordingError(f"{self.history} is not a session history; move it away first")
         entry = f"{kind}_{len(old)}"
         old.append((entry, arrays, {**attrs, "time": utc_now()}))
 
-        def write(tmp: Path) -> None:
-            with h5py.File(tmp, "w") as f:
-                f.attrs["format"] = HISTORY_FORMAT
-                for name, arrs, meta in old:
-                    g = f.create_group(name)
-                    for k, v in arrs.items():
-                        g[k] = v
-                    for k, v in meta.items():
-                        g.attrs[k] = json.dumps(v)
-
-        atomic_write(self.history, write)
+        atomic_write(self.history, lambda tmp: write_history(tmp, old))
 
     def history_count(self) -> int:
         """Entries in ``history.h5``."""

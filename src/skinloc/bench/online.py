@@ -124,7 +124,7 @@ def train_bench_models(folder: Path, archs: tuple[str, ...], step: Step = _noop)
     return paths
 
 
-def _baseline_fn(model: Any) -> Callable[[np.ndarray], np.ndarray]:
+def baseline_fn(model: Any) -> Callable[[np.ndarray], np.ndarray]:
     """The plain NumPy implementation the engine is compared with: rows ``(n, 64)`` to points.
 
     For a response map, the coarse-to-fine match in NumPy (the library's own prediction
@@ -210,7 +210,7 @@ def single_stream(model_path: Path, n_frames: int = 20000, random_state: int = 0
         if out:
             lat_touch.append(dt)
     # the plain baseline on the touched frames' deltas, interleaved in the same run
-    plain = _baseline_fn(model)
+    plain = baseline_fn(model)
     deltas = frames[100:].astype(np.float64) - frames[:100].mean(axis=0)
     touched = deltas[np.max(deltas, axis=1) > 60][:5000]
     lat_plain = []

@@ -36,8 +36,9 @@ def diagnose(
     Stops at a failure that makes the next checks meaningless.
     """
     from skinloc.errors import FrameTimeoutError
-    from skinloc.hardware.board import BoardError, detect, line_health
+    from skinloc.hardware.board import BoardError, detect
     from skinloc.hardware.ports import check_source
+    from skinloc.sensors.health import line_health
     from skinloc.sources.base import SourceOptions, make_source
 
     steps: list[dict[str, Any]] = []

@@ -31,10 +31,10 @@ from skinloc.cli.hardware import (
     SourceOpt,
     TxMaskOpt,
     TxOpt,
-    _first_frame,
-    _load_surface,
-    _stats_line,
+    first_frame,
+    load_surface,
     open_cli_source,
+    stats_line,
 )
 
 log = logging.getLogger(__name__)
@@ -144,7 +144,7 @@ def register(app: typer.Typer) -> None:
             )
         # Resuming appends to --out on purpose; anything else must not clobber a file.
         check_output(out, option="--out", inputs=[mesh], force=resume or force)
-        surface = None if resume else _load_surface(mesh, units)
+        surface = None if resume else load_surface(mesh, units)
         if resume and mesh is not None:
             raise ValueError(
                 f"{out} exists and is resumed with its own mesh: drop --mesh or "
@@ -158,7 +158,7 @@ def register(app: typer.Typer) -> None:
         else:
             src = open_cli_source(locals())
         with src:
-            _first_frame(src, 1.0)
+            first_frame(src, 1.0)
             if resume:
                 session = CalibrationSession.resume(src, out)
                 if session.finished:
@@ -207,7 +207,7 @@ def register(app: typer.Typer) -> None:
                     f"{session.n_done}/{n_targets} point logs are saved in {out}; rerun the "
                     "same command to resume"
                 ) from None
-            summary = _stats_line(src)
+            summary = stats_line(src)
         done = session.n_done
         state = "complete" if done >= n_targets else "saved; rerun the same command to resume"
         console.print(f"Wrote {out}: {done}/{n_targets} point logs ({state})")

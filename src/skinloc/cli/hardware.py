@@ -174,18 +174,20 @@ FIRST_FRAME_S = 5.0
 _STREAM_CHUNK = 64
 
 
-def _first_frame(src, timeout_s: float):
+def first_frame(src, timeout_s: float):
     """The first frame after connecting, waited for at least ``FIRST_FRAME_S``."""
     return src.read(max(timeout_s, FIRST_FRAME_S))
 
 
-def _load_surface(mesh: Path | None, units: Units):
+def load_surface(mesh: Path | None, units: Units):
+    """The skin's mesh from ``--mesh`` (in ``units``), the paper's cone without it."""
     from skinloc.geometry.mesh import cone_skin, load_mesh
 
     return cone_skin() if mesh is None else load_mesh(mesh, units.value)
 
 
-def _stats_line(src) -> str:
+def stats_line(src) -> str:
+    """One line of a source's link counters after a session (the simulator: no faults)."""
     stats = getattr(src, "stats", None)
     if stats is None:
         return f"{src.name}: simulated, no link faults"
@@ -242,7 +244,7 @@ def register(app: typer.Typer) -> None:
                 "TX\\RX",
                 *[str(j) for j in range(src.n_rx)],
                 title=f"{src.name}: frame {n}, {what}",
-                caption=_stats_line(src),
+                caption=stats_line(src),
             )
             scale = max(float(np.abs(grid).max()), 1.0) if not raw else 1.0
             for i in range(src.n_tx):
@@ -255,7 +257,7 @@ def register(app: typer.Typer) -> None:
             return table
 
         with src:
-            first = _first_frame(src, timeout)
+            first = first_frame(src, timeout)
             warm = [first.values]
             baseline = None
             start = time.monotonic()
@@ -328,13 +330,13 @@ def register(app: typer.Typer) -> None:
         if out.suffix.lower() not in (".h5", ".hdf5"):
             raise ValueError(f"--out must be an .h5 file, got {out}")
         check_output(out, option="--out", inputs=[mesh], force=force)
-        surface = _load_surface(mesh, units)
+        surface = load_surface(mesh, units)
         src = open_cli_source(locals(), mesh=surface if source is SourceChoice.sim else None)
         side = side_path(out, "partial")
         buf: list[tuple[np.ndarray, float, int]] = []  # frames not yet on disk
         t_end = 0.0  # stream time of the last frame on disk, s
         with src, progress_steps() as step:
-            _first_frame(src, timeout)
+            first_frame(src, timeout)
             base, _ = src.read_many(baseline_frames, timeout)
             step("baseline", baseline_frames, baseline_frames)
             try:
@@ -395,7 +397,7 @@ def register(app: typer.Typer) -> None:
                     writer.close()
                 except OSError as exc:
                     refused = refused or exc
-            summary = _stats_line(src)
+            summary = stats_line(src)
         os.replace(side, out)
         n_kept = writer.n_frames
         held = f"{out} holds the first {n_kept} stream frames ({t_end:.1f} s of {seconds:g} s)"

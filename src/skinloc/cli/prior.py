@@ -59,7 +59,7 @@ def register(app: typer.Typer) -> None:
         """
         from joblib import parallel_config
 
-        from skinloc.calibration.prior_build import build_prior
+        from skinloc.sim.prior_build import build_prior
 
         check_output(out, option="--out", inputs=[], force=force)
         client = None

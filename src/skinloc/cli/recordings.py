@@ -28,6 +28,8 @@ def _truth_layout(rec) -> dict[str, Any]:
 
 def _history_info(path: Path, history: list, as_json: bool) -> None:
     """``info`` of an app session's ``history.h5``: each touch taken back or baseline replaced."""
+    from skinloc.h5layout import HISTORY
+
     entries = []
     for name, arrays, attrs in history:
         e: dict[str, Any] = {"entry": name, "kind": name.rsplit("_", 1)[0], **attrs}
@@ -37,7 +39,7 @@ def _history_info(path: Path, history: list, as_json: bool) -> None:
             e["n_frames"] = int(len(arrays["frames"]))
         entries.append(e)
     if as_json:
-        print_json({"file": str(path), "format": "skinloc-history", "entries": entries})
+        print_json({"file": str(path), "format": HISTORY, "entries": entries})
         return
     table = Table(title=f"{path}: an app session's history (kept, never used for training)")
     for col in ("entry", "time", "reason", "recording", "index", "target (mm)", "frames"):
@@ -122,7 +124,7 @@ def register(app: typer.Typer) -> None:
         from skinloc.sources.replay import stream_summary
 
         if data.suffix.lower() in (".h5", ".hdf5") and data.is_file():
-            from skinloc.app.store import read_history
+            from skinloc.h5layout import read_history
 
             history = read_history(data)
             if history is not None:  # an app session's history.h5: what was taken back

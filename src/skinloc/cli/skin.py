@@ -25,19 +25,11 @@ def load_skin_input(paths: list[Path]) -> tuple[str, Any]:
     ValueError
         For a model given with other files.
     """
-    import h5py
-
     from skinloc.cli.common import read_recordings
+    from skinloc.h5layout import MODEL, is_kind
     from skinloc.models.localizer import ContactLocalizer
 
-    def is_model(p: Path) -> bool:
-        try:
-            with h5py.File(p, "r") as f:
-                return f.attrs.get("format") == "skinloc-model"
-        except OSError:
-            return False
-
-    models = [p for p in paths if p.is_file() and is_model(p)]
+    models = [p for p in paths if p.is_file() and is_kind(p, MODEL)]
     if models:
         if len(paths) > 1:
             raise ValueError("give one model file, or one or more recordings, not both")

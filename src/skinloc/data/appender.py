@@ -19,6 +19,7 @@ from skinloc._typing import Points
 from skinloc.data.recording import Recording, utc_now, write_h5
 from skinloc.errors import RecordingError
 from skinloc.files import cannot_write
+from skinloc.h5layout import create_stream
 
 __all__ = ["DISK_RESERVE", "RecordingAppender", "StreamAppender"]
 
@@ -207,25 +208,7 @@ class StreamAppender:
                 header,
                 {"created": utc_now(), **header.meta, "skinloc_version": __version__},
             )
-            g = self.file.create_group("stream")
-            g.attrs["units"] = "frames in raw counts, times in s since the first frame"
-            self._data = {
-                "frames": g.create_dataset(
-                    "frames",
-                    (0, k),
-                    np.float32,
-                    maxshape=(None, k),
-                    chunks=(chunk, k),
-                    compression="gzip",
-                    compression_opts=4,
-                ),
-                "times_s": g.create_dataset(
-                    "times_s", (0,), np.float64, maxshape=(None,), chunks=(chunk,)
-                ),
-                "index": g.create_dataset(
-                    "index", (0,), np.int64, maxshape=(None,), chunks=(chunk,)
-                ),
-            }
+            self._data = create_stream(self.file, k, chunk)
             for name, (shape, dtype) in (columns or {}).items():
                 self._data[name] = self.file.create_dataset(
                     name, (0, *shape), dtype, maxshape=(None, *shape), chunks=(chunk, *shape)

@@ -19,6 +19,7 @@ import numpy as np
 from skinloc._typing import Points
 from skinloc.errors import RecordingError
 from skinloc.files import atomic_write
+from skinloc.h5layout import RECORDING, check_kind, set_kind
 
 log = logging.getLogger(__name__)
 
@@ -254,14 +255,7 @@ def _read_h5(path: Path) -> Recording:
 
     try:
         with h5py.File(path, "r") as f:
-            kind = f.attrs.get("format")
-            if kind == "skinloc-model":
-                raise RecordingError(
-                    f"{path} is a model, not a recording: give a recording ('skinloc record', "
-                    "'collect' or 'simulate')"
-                )
-            if kind != "skinloc-recording":
-                raise RecordingError(f"{path} is an HDF5 file but not a skinloc recording")
+            check_kind(f, path, RECORDING, RecordingError)
             version = int(f.attrs.get("format_version", -1))
             if version > FORMAT_VERSION:
                 raise RecordingError(
@@ -345,7 +339,7 @@ def write_h5(f, rec: Recording, meta: dict[str, Any], appendable: bool = False) 
     point log at a time), so ``RecordingAppender`` can add point logs without a rewrite;
     readers see the same shapes and dtypes either way.
     """
-    f.attrs["format"] = "skinloc-recording"
+    set_kind(f, RECORDING)
     f.attrs["format_version"] = FORMAT_VERSION
     f.attrs["n_tx"], f.attrs["n_rx"] = rec.n_tx, rec.n_rx
     f.attrs["meta"] = json.dumps(meta)

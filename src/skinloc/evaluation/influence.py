@@ -23,7 +23,7 @@ import numpy as np
 
 from skinloc.data.recording import Recording
 from skinloc.evaluation.scoring import evaluate
-from skinloc.models.response_map import _rbf, fit_gp, shape_features
+from skinloc.models.response_map import fit_gp, rbf, shape_features
 
 __all__ = [
     "TouchInfluence",
@@ -210,13 +210,13 @@ def leave_one_out_residuals(
     kern = fit_gp(q[use], F[use] - mu, None, (2.0, 300.0), None, prior).kernel_
     amp, ls = float(kern.k1.k1.constant_value), float(kern.k1.k2.length_scale)
     noise = float(kern.k2.noise_level)
-    K_inv = np.linalg.inv(amp * _rbf(q[use], q[use], ls) + noise * np.eye(len(use)))
+    K_inv = np.linalg.inv(amp * rbf(q[use], q[use], ls) + noise * np.eye(len(use)))
     alpha = K_inv @ (F[use] - mu)
     out = np.empty(n)
     diag = np.diag(K_inv)
     out[use] = ((alpha / diag[:, None]) ** 2).mean(axis=1) * diag
     if skip.any():
-        kx = amp * _rbf(q[skip], q[use], ls)
+        kx = amp * rbf(q[skip], q[use], ls)
         resid = F[skip] - mu - kx @ alpha
         var = amp + noise - np.einsum("ij,jk,ik->i", kx, K_inv, kx)
         out[skip] = (resid**2).mean(axis=1) / var

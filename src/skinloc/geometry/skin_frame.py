@@ -6,11 +6,13 @@ script of the simulator and the live gesture recogniser use the same definitions
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from skinloc._typing import Points
 
-__all__ = ["skin_frame", "skin_up_axis"]
+__all__ = ["quaternion_from_rpy", "skin_frame", "skin_up_axis"]
 
 
 def skin_up_axis(vertices: Points) -> np.ndarray:
@@ -92,3 +94,16 @@ def skin_frame(
     normal /= np.linalg.norm(normal)
     right = np.cross(up, normal)
     return up, right / np.linalg.norm(right), normal
+
+
+def quaternion_from_rpy(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
+    """Quaternion ``(x, y, z, w)`` of fixed-axis roll, pitch, yaw (rad), as ROS's ``tf2``."""
+    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
+    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
+    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
+    return (
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+        cr * cp * cy + sr * sp * sy,
+    )

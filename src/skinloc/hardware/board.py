@@ -20,18 +20,14 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-
 from skinloc.hardware.protocol import MAX_RX, MAX_TX
 
 __all__ = [
     "BAUDS",
     "BoardError",
     "BoardInfo",
-    "LineHealth",
     "configure",
     "detect",
-    "line_health",
     "parse_lines",
     "probe",
 ]
@@ -326,70 +322,3 @@ def configure(
         if not new.virtual:  # the virtual skin acknowledges lines but keeps its grid
             raise BoardError(f"the board on {info.port} did not take --lines: {new.describe()}")
     return new
-
-
-#: A line whose sensors read less than this fraction of the median baseline is dead (a broken
-#: or unconnected wire reads next to nothing).
-DEAD_LEVEL = 0.05
-
-
-@dataclass(frozen=True)
-class LineHealth:
-    """Dead and noisy lines found in a short no-touch baseline.
-
-    Attributes
-    ----------
-    dead_tx, dead_rx : list of int
-        Lines (0-based, in the order the board sends them) whose sensors read next to nothing,
-        or never change (stuck).
-    noisy_tx, noisy_rx : list of int
-        Lines most of whose sensors are noisy (``skinloc.sensors.health``: over
-        ``NOISY_FACTOR`` times the median sensor's noise).
-    median_counts : float
-        Median baseline level, counts.
-    median_noise : float
-        Median no-touch noise std of a sensor, counts.
-    """
-
-    dead_tx: list[int]
-    dead_rx: list[int]
-    noisy_tx: list[int]
-    noisy_rx: list[int]
-    median_counts: float
-    median_noise: float
-
-    @property
-    def healthy(self) -> bool:
-        """No dead or noisy line."""
-        return not (self.dead_tx or self.dead_rx or self.noisy_tx or self.noisy_rx)
-
-
-def line_health(frames: np.ndarray, n_tx: int, n_rx: int) -> LineHealth:
-    """Dead and noisy lines of a no-touch baseline.
-
-    Parameters
-    ----------
-    frames : (n_frames, n_tx * n_rx) float
-        Raw counts, TX-major, nothing touching the skin; at least 10 frames.
-    n_tx, n_rx : int
-        Grid.
-    """
-    from skinloc.sensors.health import classify_sensors
-
-    frames = np.asarray(frames, dtype=np.float64)
-    if frames.ndim != 2 or frames.shape[1] != n_tx * n_rx or len(frames) < 10:
-        raise ValueError(f"need (>= 10, {n_tx * n_rx}) frames, got {frames.shape}")
-    level = np.median(frames, axis=0)
-    noise = frames.std(axis=0)
-    med_level = float(np.median(level))
-    med_noise = float(np.median(noise))
-    # A wire that reads next to nothing is at the ADC's lower rail: stuck, like one that never
-    # changes or sits at the upper rail. The one rule (sensors.health) decides the lines.
-    stuck = (level < DEAD_LEVEL * med_level) | (noise == 0) | (level >= 65535)
-    health = classify_sensors(n_tx, n_rx, noise=noise, stuck=stuck)
-    tx, rx = health.lines["tx"], health.lines["rx"]
-    dead_tx = [i for i, s in enumerate(tx) if s == "dead"]
-    dead_rx = [j for j, s in enumerate(rx) if s == "dead"]
-    noisy_tx = [i for i, s in enumerate(tx) if s == "noisy"]
-    noisy_rx = [j for j, s in enumerate(rx) if s == "noisy"]
-    return LineHealth(dead_tx, dead_rx, noisy_tx, noisy_rx, med_level, med_noise)

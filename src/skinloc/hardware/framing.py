@@ -23,10 +23,10 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from skinloc.hardware.protocol import (
-    _COUNT_MAX,
-    _CRC_SIZE,
-    _HEADER,
-    _HEADER_SIZE,
+    COUNT_MAX,
+    CRC_SIZE,
+    HEADER,
+    HEADER_SIZE,
     MAX_LINE_BYTES,
     MAX_RX,
     MAX_TX,
@@ -34,7 +34,7 @@ from skinloc.hardware.protocol import (
     WIRE_VERSION,
     RawFrame,
     WireFormat,
-    _check_grid,
+    check_grid,
 )
 
 log = logging.getLogger(__name__)
@@ -119,7 +119,7 @@ class TextParser:
     format = WireFormat.TEXT
 
     def __init__(self, n_tx: int = 8, n_rx: int = 8, *, synced: bool = False) -> None:
-        _check_grid(n_tx, n_rx)
+        check_grid(n_tx, n_rx)
         self.n_tx, self.n_rx = int(n_tx), int(n_rx)
         self.n_values = self.n_tx * self.n_rx
         self.stats = ParserStats()
@@ -179,7 +179,7 @@ class TextParser:
             # Every line is validated above, so numpy's text reader sees digits and commas only.
             values = np.fromstring(b",".join(good), dtype=np.int64, sep=",")
             values = values.reshape(len(good), n)
-            ok = (values <= _COUNT_MAX).all(axis=1)
+            ok = (values <= COUNT_MAX).all(axis=1)
             for row, fine, line in zip(values, ok, good, strict=True):
                 if fine:
                     frames.append(RawFrame(row.astype(np.uint16), self.n_tx, self.n_rx, None))
@@ -235,7 +235,7 @@ class BinaryParser:
         if (n_tx is None) != (n_rx is None):
             raise ValueError("give both n_tx and n_rx, or neither")
         if n_tx is not None:
-            _check_grid(n_tx, n_rx)
+            check_grid(n_tx, n_rx)
         self.n_tx, self.n_rx = n_tx, n_rx
         self.stats = ParserStats()
         self._buf = bytearray()
@@ -268,20 +268,20 @@ class BinaryParser:
                 break
             stats.n_bytes_skipped += start - pos
             pos = start
-            if size - start < _HEADER_SIZE:
+            if size - start < HEADER_SIZE:
                 break
-            _, version, n_tx, n_rx, counter = _HEADER.unpack_from(buf, start)
+            _, version, n_tx, n_rx, counter = HEADER.unpack_from(buf, start)
             if version != WIRE_VERSION or not (1 <= n_tx <= MAX_TX and 1 <= n_rx <= MAX_RX):
                 stats.n_dropped += 1
                 stats.n_bytes_skipped += 1
                 pos = start + 1
                 continue
             n = n_tx * n_rx
-            end = start + _HEADER_SIZE + 2 * n + _CRC_SIZE
+            end = start + HEADER_SIZE + 2 * n + CRC_SIZE
             if end > size:
                 break  # wait for the rest
-            body = memoryview(buf)[start + 2 : end - _CRC_SIZE]
-            (crc,) = struct.unpack_from("<I", buf, end - _CRC_SIZE)
+            body = memoryview(buf)[start + 2 : end - CRC_SIZE]
+            (crc,) = struct.unpack_from("<I", buf, end - CRC_SIZE)
             ok = zlib.crc32(body) == crc
             body.release()
             if not ok:
@@ -306,7 +306,7 @@ class BinaryParser:
             if self._last_counter is not None:
                 stats.n_lost += (counter - self._last_counter - 1) & 0xFFFF
             self._last_counter = counter
-            values = np.frombuffer(buf, "<u2", n, start + _HEADER_SIZE).astype(np.uint16)
+            values = np.frombuffer(buf, "<u2", n, start + HEADER_SIZE).astype(np.uint16)
             frames.append(RawFrame(values, n_tx, n_rx, counter))
         if pos:
             del buf[:pos]
@@ -331,7 +331,7 @@ class AutoParser:
     """
 
     def __init__(self, n_tx: int = 8, n_rx: int = 8, *, relock_bytes: int = 16384) -> None:
-        _check_grid(n_tx, n_rx)
+        check_grid(n_tx, n_rx)
         self.n_tx, self.n_rx = int(n_tx), int(n_rx)
         self.relock_bytes = int(relock_bytes)
         self._past = ParserStats()

@@ -37,10 +37,10 @@ MAX_TX, MAX_RX = 21, 12
 SYNC = b"\xa5\x5a"
 #: Version byte of the binary layout this module reads and writes.
 WIRE_VERSION = 1
-_HEADER = struct.Struct("<2sBBBH")  # sync, version, n_tx, n_rx, counter
-_HEADER_SIZE = _HEADER.size  # 7
-_CRC_SIZE = 4
-_COUNT_MAX = 65535
+HEADER = struct.Struct("<2sBBBH")  # sync, version, n_tx, n_rx, counter
+HEADER_SIZE = HEADER.size  # 7
+CRC_SIZE = 4
+COUNT_MAX = 65535
 #: Longest text line kept while waiting for its end: 21 x 12 five-digit values and commas.
 MAX_LINE_BYTES = MAX_TX * MAX_RX * 6 + 16
 
@@ -78,7 +78,7 @@ class RawFrame:
     counter: int | None = None
 
 
-def _check_grid(n_tx: int, n_rx: int) -> None:
+def check_grid(n_tx: int, n_rx: int) -> None:
     if not (isinstance(n_tx, int | np.integer) and 1 <= n_tx <= MAX_TX):
         raise ValueError(f"n_tx must be an int in 1-{MAX_TX} (the Muca board limit), got {n_tx!r}")
     if not (isinstance(n_rx, int | np.integer) and 1 <= n_rx <= MAX_RX):
@@ -93,7 +93,7 @@ def _as_counts(values: np.ndarray | list[int], n: int) -> np.ndarray:
         not np.all(np.isfinite(arr))
         or np.any(arr != np.round(arr))
         or arr.min() < 0
-        or arr.max() > _COUNT_MAX
+        or arr.max() > COUNT_MAX
     ):
         raise ValueError("values must be whole counts in 0-65535")
     return arr.astype(np.uint16)
@@ -111,7 +111,7 @@ def binary_frame_size(n_tx: int, n_rx: int) -> int:
     >>> binary_frame_size(8, 8), binary_frame_size(21, 12)
     (139, 515)
     """
-    return _HEADER_SIZE + 2 * n_tx * n_rx + _CRC_SIZE
+    return HEADER_SIZE + 2 * n_tx * n_rx + CRC_SIZE
 
 
 def encode_binary(values: np.ndarray | list[int], n_tx: int, n_rx: int, counter: int) -> bytes:
@@ -137,8 +137,8 @@ def encode_binary(values: np.ndarray | list[int], n_tx: int, n_rx: int, counter:
     >>> encode_binary([1, 2], 1, 2, counter=3).hex(" ")
     'a5 5a 01 01 02 03 00 01 00 02 00 13 66 59 a6'
     """
-    _check_grid(n_tx, n_rx)
-    body = _HEADER.pack(SYNC, WIRE_VERSION, n_tx, n_rx, counter & 0xFFFF)[2:]
+    check_grid(n_tx, n_rx)
+    body = HEADER.pack(SYNC, WIRE_VERSION, n_tx, n_rx, counter & 0xFFFF)[2:]
     body += _as_counts(values, n_tx * n_rx).astype("<u2").tobytes()
     return SYNC + body + struct.pack("<I", zlib.crc32(body))
 

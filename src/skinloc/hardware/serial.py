@@ -3,26 +3,25 @@
 The port is anything pyserial opens: a device (``/dev/ttyACM0``, ``COM3``) or a URL such as
 ``loop://`` (tests) or ``socket://host:port``. Ports a person or a page names go through
 ``check_source`` first, which lets only ``sim`` and serial devices through (URLs on opt-in). A
-reader thread feeds the bytes to a pure parser
-from ``hardware.framing`` (text, binary or auto-detected), keeps the frames in a bounded buffer
-and reopens the port by itself when the device goes away and comes back.
+reader thread feeds the bytes to the one serial reader of ``hardware.link`` (the parser, the
+line masks, the counter unwrapped, frames stamped by the device counter), keeps the frames in a
+bounded buffer and reopens the port by itself when the device goes away and comes back.
 """
 
 from __future__ import annotations
 
 import collections
-import errno
 import logging
 import threading
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from skinloc.errors import FrameTimeoutError, SourceNotConnectedError
-from skinloc.hardware.framing import ParserStats, make_parser
+from skinloc.hardware.link import PortLink, WireDecoder, parse_line_mask, why_not_open
 from skinloc.hardware.ports import PortInfo, check_source, list_ports  # re-exported
 from skinloc.hardware.protocol import MAX_RX, MAX_TX, WireFormat
 from skinloc.sources.base import Frame, FrameSource, SourceOptions
@@ -39,43 +38,6 @@ __all__ = [
     "SourceStats",
     "why_not_open",
 ]
-
-
-def parse_line_mask(mask: str | Sequence[bool] | Sequence[int] | None, n: int, what: str):
-    """A line mask as a boolean array of length ``n``.
-
-    Parameters
-    ----------
-    mask : str, sequence or None
-        ``"11110000"`` (the firmware's notation), a sequence of bools or 0/1, or ``None`` for
-        all lines.
-    n : int
-        Lines the device sends.
-    what : str
-        ``"tx_mask"`` or ``"rx_mask"`` for messages.
-
-    Examples
-    --------
-    >>> parse_line_mask("1101", 4, "rx_mask").tolist()
-    [True, True, False, True]
-    """
-    if mask is None:
-        return np.ones(n, dtype=bool)
-    if isinstance(mask, str):
-        text = mask.strip()
-        if not text or set(text) - {"0", "1"}:
-            raise ValueError(f"{what} must be a string of 0 and 1 like '11110000', got {mask!r}")
-        arr = np.array([c == "1" for c in text])
-    else:
-        arr = np.asarray(mask)
-        if arr.ndim != 1 or not np.isin(arr, (0, 1)).all():
-            raise ValueError(f"{what} must be a sequence of 0/1 or bools, got {mask!r}")
-        arr = arr.astype(bool)
-    if arr.size != n:
-        raise ValueError(f"{what} must have {n} entries (one per line), got {arr.size}: {mask!r}")
-    if not arr.any():
-        raise ValueError(f"{what} selects no line: {mask!r}")
-    return arr
 
 
 @dataclass
@@ -187,8 +149,10 @@ class SerialSource(FrameSource):
     -----
     ``read`` returns frames in order from the buffer (the frame stream); ``latest`` returns the
     newest frame if it is recent enough, for online use. Frame timestamps are host
-    ``time.monotonic()`` seconds at arrival; ``Frame.index`` is the device's frame counter
-    unwrapped (binary) or the count of frames parsed (text).
+    ``time.monotonic()`` seconds: the last frame of a read at the read's time, the earlier ones
+    back by the device counter times the measured frame period (``hardware.link.FrameStamper``);
+    ``Frame.index`` is the device's frame counter unwrapped (binary) or the count of frames
+    parsed (text).
 
     Examples
     --------
@@ -203,27 +167,18 @@ class SerialSource(FrameSource):
         self.config = config
         self.n_tx = int(config._tx_keep.sum())
         self.n_rx = int(config._rx_keep.sum())
-        self._keep = np.flatnonzero(np.outer(config._tx_keep, config._rx_keep).ravel())
         self._connected = False
-        self._serial = None
+        self._link = PortLink(config.port, config.baud)
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
         self._cond = threading.Condition()
         self._buffer: collections.deque[Frame] = collections.deque()
         self._latest: Frame | None = None
         self._arrivals: collections.deque[float] = collections.deque(maxlen=100)
-        self._parser = make_parser(config.format, config.n_tx, config.n_rx)
-        self._prior = ParserStats()
+        self._decoder = WireDecoder(
+            config.format, config.n_tx, config.n_rx, config.tx_mask, config.rx_mask
+        )
         self._n_overflow = 0
-        self._n_disconnects = 0
-        self._n_reconnects = 0
-        self._link_up = False
-        self._last_error = ""
-        self._index_base = 0
-        self._next_epoch = 0
-        self._last_counter: int | None = None
-        self._n_text = 0
-        self._write_lock = threading.Lock()
 
     @classmethod
     def from_options(cls, options: SourceOptions, mesh: Any = None) -> SerialSource:
@@ -256,23 +211,13 @@ class SerialSource(FrameSource):
         """Serial devices present, likely Arduinos first (see ``list_ports`` for details)."""
         return [p.device for p in list_ports()]
 
-    def _open(self):
-        import serial
-
-        return serial.serial_for_url(
-            self.config.port, baudrate=self.config.baud, timeout=0.05, write_timeout=1.0
-        )
-
     def _connect(self) -> None:
-        import serial
-
         try:
-            self._serial = self._open()
-        except (serial.SerialException, OSError, ValueError) as exc:
+            self._link.open()
+        except (OSError, ValueError) as exc:  # serial.SerialException is an OSError
             raise SourceNotConnectedError(
                 f"cannot open serial port {self.config.port}: {why_not_open(exc)}"
             ) from None
-        self._link_up = True
         self._stop.clear()
         self._connected = True
         self._thread = threading.Thread(
@@ -286,7 +231,7 @@ class SerialSource(FrameSource):
         if self._thread is not None:
             self._thread.join(timeout=2.0)
         self._thread = None
-        self._close_port()
+        self._link.close()
         self._connected = False
         with self._cond:
             self._cond.notify_all()
@@ -302,7 +247,8 @@ class SerialSource(FrameSource):
             return self._buffer.popleft()
 
     def _timeout_message(self, timeout_s: float) -> str:
-        state = "" if self._link_up else f"; the link is down ({self._last_error}), reconnecting"
+        link = self._link
+        state = "" if link.up else f"; the link is down ({link.last_error}), reconnecting"
         stats = self.stats()
         hint = ""
         if stats.n_received == 0 and stats.n_bytes == 0:
@@ -361,8 +307,8 @@ class SerialSource(FrameSource):
             raise SourceNotConnectedError(f"{self.name} is not connected: call connect() first")
         import serial
 
-        with self._write_lock:
-            ser = self._serial
+        with self._link.lock:
+            ser = self._link.ser
             if ser is None:
                 raise SourceNotConnectedError(f"{self.name}: the link is down, reconnecting")
             try:
@@ -374,16 +320,15 @@ class SerialSource(FrameSource):
     def stats(self) -> SourceStats:
         """Counters since ``connect`` and the measured frame rate."""
         with self._cond:
-            p = ParserStats(**self._prior.as_dict())
-            p += self._parser.stats
+            p = self._decoder.stats
             arrivals = list(self._arrivals)
         rate = 0.0
         if len(arrivals) >= 2 and arrivals[-1] > arrivals[0]:
             rate = (len(arrivals) - 1) / (arrivals[-1] - arrivals[0])
-        fmt = getattr(self._parser, "format", WireFormat.AUTO)
+        link = self._link
         return SourceStats(
             port=self.config.port,
-            format=str(fmt),
+            format=str(self._decoder.format),
             n_received=p.n_frames,
             n_dropped=p.n_dropped,
             n_corrupted=p.n_corrupted,
@@ -392,27 +337,19 @@ class SerialSource(FrameSource):
             n_overflow=self._n_overflow,
             n_chatter=p.n_chatter,
             n_bytes=p.n_bytes,
-            n_disconnects=self._n_disconnects,
-            n_reconnects=self._n_reconnects,
-            link_up=self._link_up,
+            n_disconnects=link.n_disconnects,
+            n_reconnects=link.n_reconnects,
+            link_up=link.up,
             rate_hz=rate,
         )
 
     # -- the reader thread ---------------------------------------------------------------------
-    def _close_port(self) -> None:
-        with self._write_lock:
-            ser, self._serial = self._serial, None
-        if ser is not None:
-            try:
-                ser.close()
-            except Exception:  # noqa: BLE001 - closing a dead port may fail in many ways
-                pass
-
     def _run(self) -> None:
         import serial
 
+        link = self._link
         while not self._stop.is_set():
-            ser = self._serial
+            ser = link.ser
             if ser is None:
                 if not self._reopen():
                     return
@@ -423,63 +360,29 @@ class SerialSource(FrameSource):
                 # pyserial raises TypeError/AttributeError when the port is closed under it.
                 if self._stop.is_set():
                     return
-                self._link_lost(exc)
+                link.lost(exc)
+                with self._cond:
+                    self._decoder.reset()
                 continue
             if data:
-                self._deliver(self._parser.feed(data))
-
-    def _link_lost(self, exc: BaseException) -> None:
-        self._last_error = str(exc) or type(exc).__name__
-        log.warning("lost %s: %s", self.config.port, self._last_error)
-        self._link_up = False
-        self._n_disconnects += 1
-        self._close_port()
-        with self._cond:
-            self._parser.reset()
-            self._last_counter = None  # the device may have restarted its counter
+                self._deliver(self._decoder.feed(data, time.monotonic()))
 
     def _reopen(self) -> bool:
         """Try to reopen the port until it works; False when asked to stop."""
-        import serial
-
         if not self.config.reconnect:
             self._stop.wait()
             return False
         while not self._stop.wait(self.config.reconnect_interval_s):
-            try:
-                ser = self._open()
-            except (serial.SerialException, OSError, ValueError):
-                continue
-            with self._write_lock:
-                self._serial = ser
-            self._link_up = True
-            self._n_reconnects += 1
-            log.warning("reconnected to %s", self.config.port)
-            return True
+            if self._link.reopen():
+                return True
         return False
 
-    def _deliver(self, raws: list) -> None:
-        if not raws:
+    def _deliver(self, frames: list[Frame]) -> None:
+        if not frames:
             return
         now = time.monotonic()
-        keep = self._keep
-        full = keep.size == self.config.n_tx * self.config.n_rx and keep.size == self.n_sensors
         with self._cond:
-            for raw in raws:
-                if raw.counter is None:
-                    index = self._n_text
-                    self._n_text += 1
-                else:
-                    # Unwrap the 16-bit counter; after a reconnect start a fresh epoch.
-                    if self._last_counter is None:
-                        self._index_base = self._next_epoch
-                    elif raw.counter < self._last_counter:
-                        self._index_base += 1 << 16
-                    self._last_counter = raw.counter
-                    index = self._index_base + raw.counter
-                    self._next_epoch = (index >> 16) + 1 << 16
-                values = raw.values.astype(np.float32)
-                frame = Frame(values=values if full else values[keep], timestamp_s=now, index=index)
+            for frame in frames:
                 if len(self._buffer) >= self.config.buffer_frames:
                     self._buffer.popleft()
                     self._n_overflow += 1
@@ -487,20 +390,3 @@ class SerialSource(FrameSource):
                 self._latest = frame
                 self._arrivals.append(now)
             self._cond.notify_all()
-
-
-def why_not_open(exc: BaseException) -> str:
-    """What to tell a person whose port did not open."""
-    code = getattr(exc, "errno", None)
-    if code == errno.ENOENT:
-        return "no such device (is the board plugged in? `skinloc ports` lists the ports)"
-    if code == errno.EACCES:
-        return (
-            "permission denied (on Linux, add yourself to the 'dialout' group: "
-            "`sudo usermod -aG dialout $USER`, then log in again)"
-        )
-    if code == errno.EBUSY:
-        return "the port is busy (close other programs using it, e.g. a serial monitor)"
-    if code in (errno.ENOTTY, errno.EISDIR) or "Inappropriate ioctl" in str(exc):
-        return "not a serial port (`skinloc ports` lists the ports)"
-    return f"{exc} (is the board plugged in? `skinloc ports` lists the ports)"

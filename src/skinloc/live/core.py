@@ -65,7 +65,8 @@ class SkinCore:
     name : str, default="skin"
         Name carried by every ``Contact``.
     n_tx, n_rx : int, optional
-        Grid, for ``feed`` (bytes); by default 8 x 8 when it matches the model.
+        Grid, for ``feed`` (bytes); by default 8 x 8 when it matches the model (one of
+        them given: the other from the model's sensors).
     wire_format : {"auto", "binary", "text"}, default="auto"
         Wire format for ``feed``.
     up : (3,) float, optional
@@ -103,8 +104,10 @@ class SkinCore:
         self.name = name
         n = self.engine.n_features
         self.n_sensors = n
-        if n_tx is None or n_rx is None:
+        if n_tx is None and n_rx is None:
             n_tx, n_rx = (8, 8) if n == 64 else (n, 1)
+        elif n_tx is None or n_rx is None:  # half a grid: the other half from the sensors
+            n_tx, n_rx = (n // n_rx, n_rx) if n_tx is None else (n_tx, n // n_tx)
         if n_tx * n_rx != n:
             raise ValueError(
                 f"skin {name!r}: a {n_tx} x {n_rx} grid has {n_tx * n_rx} sensors but the model "
@@ -112,7 +115,7 @@ class SkinCore:
             )
         self.n_tx, self.n_rx = int(n_tx), int(n_rx)
         self.wire_format = wire_format
-        self._parser: Any = None  # built on the first ``feed``
+        self._decoder: Any = None  # the wire decoder, built on the first ``feed``
         #: Sinks that record raw frames (``emit_frame``), handed every frame before processing.
         self.frame_sinks: list[Any] = []
         self._baseline = np.zeros(n, dtype=np.float64)
@@ -136,8 +139,6 @@ class SkinCore:
         self._touch_id = 0
         self._last_contact: Contact | None = None
         self._last_t_in = -math.inf
-        self._last_counter: int | None = None
-        self._counter_base = 0
         self.n_frames = 0
         self.n_nonfinite = 0  # frames dropped for a NaN or infinite value
         self.n_touches = 0
@@ -319,8 +320,10 @@ class SkinCore:
     def feed(self, data: bytes, t_in: float | None = None) -> list[Contact]:
         """Parse wire bytes (``skinloc.hardware.framing``) and process every complete frame in them.
 
-        Returns every contact of those frames. Frame timestamps are ``t_in`` (arrival,
-        ``time.monotonic()``); indices are the device's counter, unwrapped (binary) or a
+        Returns every contact of those frames. The bytes are decoded by the one serial reader
+        (``skinloc.hardware.link.WireDecoder``): the last frame of ``data`` is stamped ``t_in``
+        (arrival, ``time.monotonic()``), earlier ones back by the device counter times the
+        measured frame period; indices are the device's counter, unwrapped (binary) or a
         running count (text).
         """
         out: list[Contact] = []
@@ -332,36 +335,26 @@ class SkinCore:
         """As ``feed``, the contacts frame by frame (only frames that have some)."""
         if t_in is None:
             t_in = time.monotonic()
-        if self._parser is None:
-            from skinloc.hardware.framing import make_parser
+        if self._decoder is None:
+            from skinloc.hardware.link import WireDecoder
 
-            self._parser = make_parser(self.wire_format, self.n_tx, self.n_rx)
+            self._decoder = WireDecoder(self.wire_format, self.n_tx, self.n_rx)
         out: list[Sequence[Contact]] = []
-        for raw in self._parser.feed(data):
-            counter = raw.counter
-            if counter is None:
-                index = self.n_frames
-            else:
-                if self._last_counter is not None and counter < self._last_counter:
-                    self._counter_base += 1 << 16
-                self._last_counter = counter
-                index = self._counter_base + counter
-            contacts = self.process_frame(raw.values, t_in, index, t_in)
+        for frame in self._decoder.feed(data, t_in):
+            contacts = self.process_frame(frame.values, frame.timestamp_s, frame.index, t_in)
             if contacts:
                 out.append(contacts)
         return out
 
     def reset_link(self) -> None:
         """Forget partial wire input after a reconnect (the touch state is kept)."""
-        if self._parser is not None:
-            self._parser.reset()
-        self._last_counter = None
-        self._counter_base = (self._counter_base >> 16) + 1 << 16
+        if self._decoder is not None:
+            self._decoder.reset()
 
     @property
     def parser_stats(self) -> dict[str, int]:
         """Counters of the wire parser (empty before ``feed``)."""
-        return {} if self._parser is None else self._parser.stats.as_dict()
+        return {} if self._decoder is None else self._decoder.stats.as_dict()
 
     def take_gestures(self) -> list[dict[str, Any]]:
         """The gesture events due so far (JSON-ready dicts), oldest first; clears them."""

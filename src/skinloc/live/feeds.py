@@ -1,19 +1,19 @@
 """How frames reach a runner's loop.
 
-Serial ports are read by the loop itself (``_PortFeed``); any other ``FrameSource`` is read on
-a small thread of its own (``_ThreadFeed``). A port missing at start is waited for when its
+Serial ports are read by the loop itself (``PortFeed``); any other ``FrameSource`` is read on
+a small thread of its own (``ThreadFeed``). A port missing at start is waited for when its
 skin asks to (``SkinConfig.wait``): the loop retries it on the unplug recovery's schedule.
 """
 
 from __future__ import annotations
 
 import errno
-import io
 import logging
 import os
 import selectors
 import threading
 import time
+from collections.abc import Iterator, Sequence
 from typing import TYPE_CHECKING, Any, Protocol
 
 from skinloc.errors import FrameTimeoutError, SkinlocError, SourceNotConnectedError
@@ -22,6 +22,7 @@ from skinloc.sources.base import FrameSource
 if TYPE_CHECKING:
     import collections
 
+    from skinloc.live.contact import Contact
     from skinloc.live.core import SkinCore
     from skinloc.live.skin_config import SkinConfig
 
@@ -44,89 +45,107 @@ class _Loop(Protocol):
     def _wake(self) -> None: ...
 
 
-class _NoFileDescriptor(Exception):
-    """The port (a pyserial URL such as ``loop://``) has no file descriptor to wait on."""
+class PortFeed:
+    """A serial port read by the loop itself (non-blocking file descriptor, no thread).
 
-
-class _PortFeed:
-    """A serial port read by the loop itself (non-blocking file descriptor, no thread)."""
+    The port's link and its decoding are the one serial reader of ``hardware.link`` (as in
+    ``SerialSource``): reconnects, the line masks, the counter unwrapped, frames stamped by the
+    device counter.
+    """
 
     def __init__(self, slot: int, skin: SkinConfig, core: SkinCore) -> None:
-        from skinloc.hardware.serial import SerialSourceConfig
+        from skinloc.hardware.link import PortLink, WireDecoder
 
         self.slot = slot
         self.core = core
-        self.cfg = SerialSourceConfig(
-            str(skin.source),
-            baud=skin.baud,
-            n_tx=skin.n_tx or core.n_tx,
-            n_rx=skin.n_rx or core.n_rx,
-            tx_mask=skin.tx_mask,
-            rx_mask=skin.rx_mask,
-            format=skin.wire_format,
+        self.port = str(skin.source)
+        self.link = PortLink(self.port, skin.baud, nonblocking=True)
+        self.decoder = WireDecoder(
+            skin.wire_format,
+            skin.n_tx or core.n_tx,
+            skin.n_rx or core.n_rx,
+            skin.tx_mask,
+            skin.rx_mask,
         )
-        self.port = self.cfg.port
-        self.ser: Any = None
-        self.fd = -1
-        self.n_disconnects = 0
-        self.n_reconnects = 0
+        if self.decoder.n_sensors != core.n_sensors:
+            raise ValueError(
+                f"skin {skin.name!r}: the port {self.port} keeps {self.decoder.n_sensors} "
+                f"sensors ({self.decoder.n_tx} x {self.decoder.n_rx}) but the model takes "
+                f"{core.n_sensors}"
+            )
         self.n_bytes = 0
         self.retry_at = 0.0
-        self.last_error = ""
         #: Missing at start and waited for (no reconnect is counted when it appears).
         self.waiting = False
         self._told_denied = False
         self.name = skin.name
 
-    def open(self) -> None:
-        import serial
+    @property
+    def ser(self) -> Any:
+        """The open port, None while the link is down."""
+        return self.link.ser
 
-        self.ser = serial.serial_for_url(self.port, baudrate=self.cfg.baud, timeout=0)
-        try:
-            fd = self.ser.fileno()
-            if not isinstance(fd, int):
-                raise AttributeError("fileno")
-            self.fd = fd
-        except (AttributeError, io.UnsupportedOperation):
-            self.ser.close()
-            self.ser = None
-            raise _NoFileDescriptor(self.port) from None
-        os.set_blocking(self.fd, False)
+    @property
+    def fd(self) -> int:
+        """The port's file descriptor, -1 while the link is down."""
+        return self.link.fd
+
+    @property
+    def n_disconnects(self) -> int:
+        """Times the port was lost."""
+        return self.link.n_disconnects
+
+    @property
+    def n_reconnects(self) -> int:
+        """Times the port was reopened after a loss."""
+        return self.link.n_reconnects
+
+    @property
+    def last_error(self) -> str:
+        """Why the port was last lost."""
+        return self.link.last_error
+
+    def open(self) -> None:
+        """Open the port (``hardware.link.PortLink.open``)."""
+        self.link.open()
 
     def close(self) -> None:
-        if self.ser is not None:
-            try:
-                self.ser.close()
-            except Exception:  # noqa: BLE001 - closing a dead port may fail in many ways
-                pass
-        self.ser = None
-        self.fd = -1
+        """Close the port."""
+        self.link.close()
+
+    def contacts(self, data: bytes, t_in: float) -> Iterator[Sequence[Contact]]:
+        """Bytes read at ``t_in`` through the skin's core: the contacts of each frame that has any.
+
+        Frames are stamped by the device counter; ``t_in`` (the read) is kept for the latency.
+        """
+        self.n_bytes += len(data)
+        core = self.core
+        for frame in self.decoder.feed(data, t_in):
+            contacts = core.process_frame(frame.values, frame.timestamp_s, frame.index, t_in)
+            if contacts:
+                yield contacts
 
     def lost(self, sel: selectors.BaseSelector | None, exc: BaseException | str) -> None:
         """The port failed: stop waiting on it, close it, retry in 0.1 s."""
-        self.last_error = str(exc) or type(exc).__name__
-        log.warning("lost %s: %s", self.port, self.last_error)
         if sel is not None and self.fd >= 0:
             try:
                 sel.unregister(self.fd)
             except (KeyError, ValueError):
                 pass
-        self.close()
-        self.core.reset_link()
-        self.n_disconnects += 1
+        self.link.lost(exc)
+        self.decoder.reset()
         self.retry_at = time.monotonic() + _RETRY_S
 
     def retry(self, sel: selectors.BaseSelector, now: float) -> None:
         """Reopen a lost or awaited port when its retry time has come (still absent: later)."""
         if self.ser is None and now >= self.retry_at:
-            try:
-                self.open()
-            except Exception as exc:  # noqa: BLE001 - still unplugged: try again later
+            if not self.link.reopen(count=not self.waiting):
                 self.retry_at = now + _RETRY_S
                 # A node that appeared but stays unreadable is told once (udev may fix the
                 # group a moment after the node appears, so this is no reason to stop).
+                exc = self.link.open_error
                 if getattr(exc, "errno", None) == errno.EACCES and not self._told_denied:
-                    from skinloc.hardware.serial import why_not_open
+                    from skinloc.hardware.link import why_not_open
 
                     self._told_denied = True
                     log.warning("%s (skin %s): %s", self.port, self.name, why_not_open(exc))
@@ -135,12 +154,9 @@ class _PortFeed:
             if self.waiting:
                 self.waiting = False
                 log.warning("%s (skin %s) is here: reading it", self.port, self.name)
-            else:
-                self.n_reconnects += 1
-                log.warning("reconnected to %s", self.port)
 
 
-def open_port_feed(slot: int, skin: SkinConfig, core: SkinCore) -> _PortFeed | None:
+def open_port_feed(slot: int, skin: SkinConfig, core: SkinCore) -> PortFeed | None:
     """The loop's feed of a serial port, opened; None for a URL without a file descriptor.
 
     A port that does not exist (yet) is waited for when ``skin.wait``: the feed is returned
@@ -152,18 +168,18 @@ def open_port_feed(slot: int, skin: SkinConfig, core: SkinCore) -> _PortFeed | N
         For a port that cannot be opened and is not waited for, in one line saying why
         (missing, permission denied: the dialout group, busy, not a serial port).
     """
-    from skinloc.hardware.serial import why_not_open
+    from skinloc.hardware.link import NoFileDescriptor, why_not_open
 
-    feed = _PortFeed(slot, skin, core)
+    feed = PortFeed(slot, skin, core)
     try:
         feed.open()
-    except _NoFileDescriptor:
+    except NoFileDescriptor:
         return None  # a URL without a file descriptor (loop://): read on a thread
     except (OSError, ValueError) as exc:  # serial.SerialException is an OSError
         code = getattr(exc, "errno", None)
         if skin.wait and (code in _MISSING or (code is None and not os.path.exists(feed.port))):
             feed.waiting = True
-            feed.last_error = "not present"
+            feed.link.last_error = "not present"
             return feed
         raise SourceNotConnectedError(
             f"cannot open serial port {skin.source}: {why_not_open(exc)}"
@@ -171,7 +187,7 @@ def open_port_feed(slot: int, skin: SkinConfig, core: SkinCore) -> _PortFeed | N
     return feed
 
 
-class _ThreadFeed:
+class ThreadFeed:
     """Any ``FrameSource`` read on a thread of its own; frames are queued for the loop."""
 
     def __init__(
@@ -222,6 +238,7 @@ class _ThreadFeed:
             self.runner._wake()
 
     def close(self) -> None:
+        """Join the thread (bounded) and disconnect the source."""
         if self.thread.is_alive():
             self.thread.join(5.0)
         if self.source.is_connected:

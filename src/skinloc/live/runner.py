@@ -31,7 +31,7 @@ from typing import Any
 from skinloc.errors import SourceNotConnectedError
 from skinloc.live.config import PipelineConfig
 from skinloc.live.core import Contact, SkinCore
-from skinloc.live.feeds import _PortFeed, _ThreadFeed, open_port_feed
+from skinloc.live.feeds import PortFeed, ThreadFeed, open_port_feed
 from skinloc.live.scripted import ScriptedFinger
 from skinloc.live.sinks.base import Sink, SkinInfo, make_sink
 from skinloc.live.skin_config import SkinConfig, skin_info
@@ -117,8 +117,8 @@ class Runner:
                 engine,
                 skin.config,
                 name=skin.name,
-                n_tx=skin.n_tx,
-                n_rx=skin.n_rx,
+                n_tx=skin.kept_grid[0],
+                n_rx=skin.kept_grid[1],
                 wire_format=skin.wire_format,
                 up=skin.up,
                 gesture_config=skin.gestures,
@@ -137,8 +137,8 @@ class Runner:
         self._thread: threading.Thread | None = None
         self._opened = False
         self._closed = False
-        self._ports: list[_PortFeed] = []
-        self._threads: list[_ThreadFeed] = []
+        self._ports: list[PortFeed] = []
+        self._threads: list[ThreadFeed] = []
         self._sel: selectors.BaseSelector | None = None
         self._next_sweep = -math.inf  # when the loop next looks for lost ports and stale touches
         self._error: BaseException | None = None
@@ -194,7 +194,7 @@ class Runner:
                     f"skin {skin.name!r}: the source {source.name} sends {source.n_sensors} "
                     f"sensors but the model takes {core.n_sensors}"
                 )
-            feed_t = _ThreadFeed(slot, source, self, skin.realtime)
+            feed_t = ThreadFeed(slot, source, self, skin.realtime)
             self._threads.append(feed_t)
         for feed_t in self._threads:
             feed_t.thread.start()
@@ -320,8 +320,7 @@ class Runner:
             if not data:
                 feed.lost(self._sel, "end of file")
                 continue
-            feed.n_bytes += len(data)
-            for contacts in feed.core.feed_frames(data, t_in):
+            for contacts in feed.contacts(data, t_in):
                 self._emit(feed.slot, contacts, out)
             self._emit(feed.slot, (), out)  # gestures of frames without contacts
         self._wake_pending = False
@@ -462,7 +461,7 @@ class Runner:
                     disconnects=f.n_disconnects,
                     reconnects=f.n_reconnects,
                     bytes=f.n_bytes,
-                    wire=core.parser_stats,
+                    wire=f.decoder.stats.as_dict(),
                 )
             elif slot in threads:
                 src = threads[slot].source

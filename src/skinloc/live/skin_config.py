@@ -45,9 +45,11 @@ class SkinConfig:
     wire_format : {"auto", "binary", "text"}
         Wire format of a serial port.
     n_tx, n_rx : int or None
-        Grid the device sends (default: 8 x 8 for a 64-input model).
+        Grid the device sends (default: the length of a mask given, else 8 x 8 for a
+        64-input model).
     tx_mask, rx_mask : str or None
-        Lines to keep, as for ``SerialSourceConfig``.
+        Lines to keep, as for ``SerialSourceConfig``: the model takes the kept lines
+        (``kept_grid``).
     realtime : bool
         Replay a recording at its recorded rate (``False``: as fast as possible); run the
         simulated skin in real time.
@@ -109,6 +111,7 @@ class SkinConfig:
             self.gestures = settings_from_dict(GestureConfig, self.gestures, "gestures")
         elif self.gestures is not None and not isinstance(self.gestures, GestureConfig):
             raise ValueError(f"gestures must be a table of thresholds, not {self.gestures!r}")
+        self._kept = _kept_grid(self)
         if self.up is not None:
             u = _vector(self.up, 3, "up")
             if not any(u):
@@ -119,6 +122,14 @@ class SkinConfig:
     def mount(self) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
         """The skin frame's pose in ``parent_frame``: translation (m), quaternion ``xyzw``."""
         return self._mount
+
+    @property
+    def kept_grid(self) -> tuple[int | None, int | None]:
+        """The grid the model sees: the lines the masks keep of ``n_tx x n_rx``.
+
+        ``None`` where no grid is given: ``SkinCore`` completes it from the model's sensors.
+        """
+        return self._kept
 
     def source_options(self, core: SkinCore) -> SourceOptions:
         """The options of this skin's frame source (``source`` a name, not a ``FrameSource``).
@@ -146,6 +157,23 @@ class SkinConfig:
         )
 
 
+def _kept_grid(skin: SkinConfig) -> tuple[int | None, int | None]:
+    """The device's grid completed from the masks' lengths, checked; returns the kept grid."""
+    from skinloc.hardware.link import parse_line_mask
+
+    kept: list[int | None] = []
+    for axis in ("tx", "rx"):
+        mask, n = getattr(skin, f"{axis}_mask"), getattr(skin, f"n_{axis}")
+        if mask is None:
+            kept.append(n)
+            continue
+        if n is None:
+            n = len(mask.strip()) if isinstance(mask, str) else len(mask)
+            setattr(skin, f"n_{axis}", n)
+        kept.append(int(parse_line_mask(mask, n, f"{axis}_mask").sum()))
+    return kept[0], kept[1]
+
+
 def _vector(value: Any, n: int, what: str) -> tuple[float, ...]:
     try:
         out = tuple(float(v) for v in value)
@@ -168,7 +196,7 @@ def _mount_pose(
     if skin.rotation is not None and skin.rpy is not None:
         raise ValueError("give rotation (quaternion x, y, z, w) or rpy (rad), not both")
     if skin.rpy is not None:
-        from skinloc.live.sinks.ros2.sink import quaternion_from_rpy
+        from skinloc.geometry.skin_frame import quaternion_from_rpy
 
         q = quaternion_from_rpy(*_vector(skin.rpy, 3, "rpy"))
     elif skin.rotation is not None:

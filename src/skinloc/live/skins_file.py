@@ -44,7 +44,7 @@ from typing import Any
 from skinloc.live.core import PipelineConfig
 from skinloc.live.runner import Runner, SkinConfig
 
-__all__ = ["load_skins", "runner_from_config"]
+__all__ = ["load_skins", "read_skins_toml", "runner_from_config", "skin_table"]
 
 _PATH_KEYS = ("model", "baseline")
 
@@ -54,6 +54,32 @@ def _resolve(value: Any, base: Path) -> Any:
         candidate = base / value
         return str(candidate)
     return value
+
+
+def read_skins_toml(path: Path, label: str | None = None) -> dict[str, Any]:
+    """The TOML of the skins file ``path`` as a dict; ``ValueError`` in one line when broken.
+
+    ``label`` names the file in the message (default: ``skins file PATH``).
+    """
+    try:
+        return tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise ValueError(f"cannot read {label or f'skins file {path}'}: {exc}") from None
+
+
+def skin_table(raw: dict[str, Any], k: int, table: str) -> dict[str, Any]:
+    """Skin ``k``'s table ``table`` (``pipeline``, ``gestures``) over ``[defaults.TABLE]``.
+
+    ``raw`` is a skins file's TOML (``read_skins_toml``); a skin ``k`` it lacks has the
+    defaults'. Raises ``ValueError`` when either is not a table.
+    """
+    skins = raw.get("skin") or [{}]
+    entry = skins[k] if k < len(skins) else {}
+    parts = (raw.get("defaults", {}).get(table, {}), entry.get(table, {}))
+    if not all(isinstance(p, dict) for p in parts):
+        name = str({**raw.get("defaults", {}), **entry}.get("name", f"skin{k}"))
+        raise ValueError(f"skin {name!r}: {table} must be a table of settings")
+    return {**parts[0], **parts[1]}
 
 
 def load_skins(path: str | Path) -> tuple[list[SkinConfig], list[str]]:
@@ -67,10 +93,7 @@ def load_skins(path: str | Path) -> tuple[list[SkinConfig], list[str]]:
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"skins file not found: {path}")
-    try:
-        raw = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"cannot read skins file {path}: {exc}") from None
+    raw = read_skins_toml(path)
     unknown = sorted(set(raw) - {"sinks", "defaults", "skin"})
     if unknown:
         raise ValueError(
@@ -87,10 +110,10 @@ def load_skins(path: str | Path) -> tuple[list[SkinConfig], list[str]]:
         merged = {**defaults, **entry}
         name = str(merged.get("name", f"skin{k}"))
         for table in ("pipeline", "gestures"):
-            parts = (defaults.get(table, {}), entry.get(table, {}))
-            if not all(isinstance(p, dict) for p in parts):
-                raise ValueError(f"{path}: skin {name!r}: {table} must be a table of settings")
-            merged[table] = {**parts[0], **parts[1]}
+            try:
+                merged[table] = skin_table(raw, k, table)
+            except ValueError as exc:
+                raise ValueError(f"{path}: {exc}") from None
         merged["name"] = name
         bad = sorted(set(merged) - known)
         if bad:

@@ -18,12 +18,12 @@ from skinloc._jit import jit
 from skinloc._typing import Points
 from skinloc.models.engine import Engine, ModelSpec
 from skinloc.models.map_match import (
-    _ROWS,
-    _coarse_groups,
-    _match_many,
-    _match_one,
-    _match_rows,
-    _new_scratch,
+    ROWS,
+    coarse_groups,
+    match_many,
+    match_one,
+    match_rows,
+    new_scratch,
 )
 from skinloc.models.multi_contact.search import (
     SearchMemory,
@@ -98,8 +98,8 @@ def _contact_one(
     z_on: float,
     out: np.ndarray,
 ) -> int:  # pragma: no cover - compiled
-    """``_match_one`` and the detection rule in one call: the single contact (0 or 1)."""
-    _match_one(x, clip, groups, fine, scratch, out7)
+    """``match_one`` and the detection rule in one call: the single contact (0 or 1)."""
+    match_one(x, clip, groups, fine, scratch, out7)
     return single_into(x, w, z_on, out7, out)
 
 
@@ -134,7 +134,7 @@ def _peel(
                 if o != i:
                     v -= out[o, 3] * Ft[int(rows[o]), j] / w[j]
             z[j] = v
-        _match_one(z, clip, groups, fine, scratch, out7)
+        match_one(z, clip, groups, fine, scratch, out7)
         ok = True
         for o in range(n):
             d = 0.0
@@ -176,7 +176,7 @@ class MapEngine(Engine):
         # small products: BLAS's threads would cost more to wake than the work (30 ms a
         # product on a loaded machine)
         with _BLAS_LOCK, _blas_controller().limit(limits=1, user_api="blas"):
-            self._groups = _coarse_groups(table[coarse], sq[coarse])
+            self._groups = coarse_groups(table[coarse], sq[coarse])
         self._mu_t = np.ascontiguousarray(self._groups[0].T)
         n_best = min(int(spec.n_cells), len(coarse))
         self._fine = (
@@ -190,7 +190,7 @@ class MapEngine(Engine):
         )
         widest = np.sort(np.diff(off))[::-1][:n_best].sum()  # the most fine candidates a row has
         self._sizes = (self.n_features, len(self._groups[0]), n_best, int(widest))
-        self._scratch = _new_scratch(*self._sizes)
+        self._scratch = new_scratch(*self._sizes)
         self._tables: SearchTables | None = None
         self._z_on = float(self.rule.z_on)
         self._z = np.zeros(self.n_features, dtype=np.float32)
@@ -198,7 +198,7 @@ class MapEngine(Engine):
 
     def localise_into(self, x: np.ndarray, out: np.ndarray) -> None:
         """One image ``x (n_features,)`` float32 counts into ``out (7,)`` (see ``Engine``)."""
-        _match_one(x, self._clip, self._groups, self._fine, self._scratch, out)
+        match_one(x, self._clip, self._groups, self._fine, self._scratch, out)
 
     def warm_up(self) -> MapEngine:
         """As ``Engine.warm_up``, with the multi-contact stage (``_peel``) and its memory.
@@ -291,14 +291,14 @@ class MapEngine(Engine):
         out = np.empty((len(X), 7))
         # a few frames (the app's, per frame) on the caller's thread; callers may be threads,
         # so every call has its own scratch
-        if len(X) < _ROWS:
-            _match_rows(X, self._clip, self._groups, self._fine, self._sizes, out)
+        if len(X) < ROWS:
+            match_rows(X, self._clip, self._groups, self._fine, self._sizes, out)
         else:
             # BLAS's own threads would fight numba's for the cores (and spin after each
             # product): each task's product runs on the thread that handles the task.
             # The limit is process-wide: one batch at a time sets and restores it.
             with _BLAS_LOCK, _blas_controller().limit(limits=1, user_api="blas"):
-                _match_many(X, self._clip, self._groups, self._mu_t, self._fine, self._sizes, out)
+                match_many(X, self._clip, self._groups, self._mu_t, self._fine, self._sizes, out)
         return out[:, 3:6].copy(), out[:, :3].copy(), out[:, 6].copy()
 
 

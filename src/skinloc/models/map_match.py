@@ -39,7 +39,7 @@ from skinloc.models.engine import clip_and_norm
 #: at most unit norm, so the float32 rounding of a distance or a bound is about 1e-6 of it.
 _EPS = 1e-4
 #: Rows per parallel task of a batch (each task allocates its scratch once).
-_ROWS = 256
+ROWS = 256
 #: Lloyd iterations that group the coarse points (the grouping only sets the speed).
 _KMEANS_ITER = 10
 
@@ -222,7 +222,7 @@ def _fine(
 
 
 @jit()
-def _new_scratch(k: int, n_groups: int, n_best: int, n_fine: int) -> tuple:  # pragma: no cover
+def new_scratch(k: int, n_groups: int, n_best: int, n_fine: int) -> tuple:  # pragma: no cover
     """Scratch of one row at a time: (f, fmu, lb, best_v, best_c, d)."""
     return (
         np.zeros(k, dtype=np.float32),
@@ -235,7 +235,7 @@ def _new_scratch(k: int, n_groups: int, n_best: int, n_fine: int) -> tuple:  # p
 
 
 @jit()
-def _match_one(
+def match_one(
     x: np.ndarray, clip: int, groups: tuple, fine: tuple, scratch: tuple, out: np.ndarray
 ) -> None:  # pragma: no cover - compiled
     """One image ``x (k,)`` into ``out (7,)``: features, nearest cells, fine search."""
@@ -249,17 +249,17 @@ def _match_one(
 
 
 @jit()
-def _match_rows(
+def match_rows(
     X: np.ndarray, clip: int, groups: tuple, fine: tuple, sizes: tuple, out: np.ndarray
 ) -> None:  # pragma: no cover - compiled
-    """``_match_one`` over the rows of ``X (n, k)`` into ``out (n, 7)``, on this thread."""
-    scratch = _new_scratch(sizes[0], sizes[1], sizes[2], sizes[3])
+    """``match_one`` over the rows of ``X (n, k)`` into ``out (n, 7)``, on this thread."""
+    scratch = new_scratch(sizes[0], sizes[1], sizes[2], sizes[3])
     for r in range(X.shape[0]):
-        _match_one(X[r], clip, groups, fine, scratch, out[r])
+        match_one(X[r], clip, groups, fine, scratch, out[r])
 
 
 @jit(parallel=True)
-def _match_many(
+def match_many(
     X: np.ndarray,
     clip: int,
     groups: tuple,
@@ -268,16 +268,16 @@ def _match_many(
     sizes: tuple,
     out: np.ndarray,
 ) -> None:  # pragma: no cover - compiled
-    """``_match_one`` over the rows of ``X (n, k)`` into ``out (n, 7)``, in parallel tasks.
+    """``match_one`` over the rows of ``X (n, k)`` into ``out (n, 7)``, in parallel tasks.
 
     Each task's products with the group centres are one float32 matrix product (BLAS, one
     thread per task: see ``MapEngine._predict_rows``); ``mu_t (k, G)`` is ``mu`` transposed.
     """
     n = X.shape[0]
-    for task in prange((n + _ROWS - 1) // _ROWS):
-        r0 = task * _ROWS
-        rows = min(n, r0 + _ROWS) - r0
-        scratch = _new_scratch(sizes[0], sizes[1], sizes[2], sizes[3])
+    for task in prange((n + ROWS - 1) // ROWS):
+        r0 = task * ROWS
+        rows = min(n, r0 + ROWS) - r0
+        scratch = new_scratch(sizes[0], sizes[1], sizes[2], sizes[3])
         F = np.empty((rows, X.shape[1]), dtype=np.float32)
         ff = np.empty(rows)
         for r in range(rows):
@@ -310,7 +310,7 @@ def _group_coarse(ct: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return label, centres.astype(np.float32)
 
 
-def _coarse_groups(ct: np.ndarray, csq: np.ndarray) -> tuple:
+def coarse_groups(ct: np.ndarray, csq: np.ndarray) -> tuple:
     """The coarse points as ``_nearest_cells`` takes them: grouped, with the bounds' radii.
 
     ``ct (C, k)`` float32 are the coarse points' features and ``csq (C,)`` their ``|t|^2``.

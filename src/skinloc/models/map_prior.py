@@ -4,7 +4,7 @@ A skin's layout (where its crossings lie) differs from skin to skin, but how a c
 responds does not: the width of its footprint on the surface (the GP's length scale), the size
 of the shape features' variation (the GP's amplitude) and the touch-to-touch scatter (its
 noise), and what a feature is worth where no touch has been made (a sensor's share of an image
-it took no part in). ``skinloc prior build`` (``skinloc.calibration.prior_build``) measures
+it took no part in). ``skinloc prior build`` (``skinloc.sim.prior_build``) measures
 these on many simulated skins and writes them to a small JSON file shipped in the package
 (``map_prior.json``). A response map fitted with the prior then
 

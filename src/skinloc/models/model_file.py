@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from skinloc.errors import ModelFileError
+from skinloc.h5layout import MODEL, check_kind, set_kind
 
 __all__ = ["MODEL_FORMAT_VERSION", "read_model", "write_model"]
 
@@ -46,7 +47,7 @@ def write_model(model: Any, path: Path, extra_meta: dict[str, Any] | None = None
 
     def write(tmp: Path) -> None:
         with h5py.File(tmp, "w") as f:
-            f.attrs["format"] = "skinloc-model"
+            set_kind(f, MODEL)
             f.attrs["format_version"] = MODEL_FORMAT_VERSION
             f.attrs["config"] = json.dumps(model.config_)
             f.attrs["meta"] = json.dumps(meta, default=str)
@@ -165,16 +166,7 @@ def read_model(cls: type, path: Path) -> Any:
         raise ModelFileError(f"model not found: {path}")
     try:
         with h5py.File(path, "r") as f:
-            kind = f.attrs.get("format")
-            if kind == "skinloc-recording":
-                raise ModelFileError(
-                    f"{path} is a recording, not a model: give a model file ('skinloc train')"
-                )
-            if kind != "skinloc-model":
-                raise ModelFileError(
-                    f"{path} is an HDF5 file but not a skinloc model: give a model file "
-                    "('skinloc train')"
-                )
+            check_kind(f, path, MODEL, ModelFileError)
             version = int(f.attrs["format_version"])
             if version > MODEL_FORMAT_VERSION:
                 raise ModelFileError(

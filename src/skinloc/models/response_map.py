@@ -59,7 +59,7 @@ def unit_images(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return Z / a[:, None], a
 
 
-def _rbf(A_mm: np.ndarray, B_mm: np.ndarray, length_scale_mm: float) -> np.ndarray:
+def rbf(A_mm: np.ndarray, B_mm: np.ndarray, length_scale_mm: float) -> np.ndarray:
     """Squared-exponential kernel matrix without amplitude, ``(len(A), len(B))``."""
     d2 = (A_mm**2).sum(1)[:, None] + (B_mm**2).sum(1)[None, :] - 2.0 * A_mm @ B_mm.T
     return np.exp(-0.5 * np.maximum(d2, 0.0) / length_scale_mm**2)
@@ -88,7 +88,7 @@ class MapLayer:
 
     def __call__(self, q_mm: np.ndarray) -> np.ndarray:
         """Layer value at query points ``q_mm (m, 3)`` mm -> ``(m, k)``."""
-        return _rbf(q_mm, self.points_mm, self.length_scale_mm) @ self.alpha
+        return rbf(q_mm, self.points_mm, self.length_scale_mm) @ self.alpha
 
 
 def fit_gp(
@@ -130,7 +130,7 @@ def fit_gp(
     return gp
 
 
-def _fit_layer(
+def fit_layer(
     points_mm: np.ndarray,
     R: np.ndarray,
     length_scale_mm: float | None,
@@ -199,7 +199,7 @@ class AmplitudeMap:
         T = np.concatenate([U, np.log(a)[:, None]], axis=1)
         mean = T.mean(axis=0)
         q = 1e3 * np.asarray(positions, dtype=np.float64)
-        layer = _fit_layer(q, T - mean, length_scale_mm, (2.0, 300.0), max(noise, 1e-6))
+        layer = fit_layer(q, T - mean, length_scale_mm, (2.0, 300.0), max(noise, 1e-6))
         return cls(mean, layer)
 
     def evaluate(self, points: Points) -> tuple[np.ndarray, np.ndarray]:
@@ -253,7 +253,7 @@ class ResponseMap:
         the touches' and the hyperparameters maximise the marginal likelihood.
         """
         mean = F.mean(axis=0) if prior is None else prior.mean(F)
-        layer = _fit_layer(1e3 * positions, F - mean, length_scale_mm, bounds_mm, None, prior)
+        layer = fit_layer(1e3 * positions, F - mean, length_scale_mm, bounds_mm, None, prior)
         return cls(mean, [layer], np.asarray(candidates, dtype=np.float64))
 
     def with_amplitude(self, positions: Points, X: np.ndarray) -> ResponseMap:
@@ -276,7 +276,7 @@ class ResponseMap:
         q = 1e3 * np.asarray(positions, dtype=np.float64)
         R = F - self.evaluate_mm(q)
         base = self.layers[0]
-        layer = _fit_layer(q, R, base.length_scale_mm, (2.0, 300.0), base.noise)
+        layer = fit_layer(q, R, base.length_scale_mm, (2.0, 300.0), base.noise)
         # the amplitude map keeps the first session's response: the count rule needs its scale
         return ResponseMap(
             self.mean.copy(), [*self.layers, layer], self.candidates.copy(), self.amplitude

@@ -27,6 +27,13 @@ import numpy as np
 from skinloc.data.appender import StreamAppender
 from skinloc.errors import RecordingError
 from skinloc.files import cannot_write, side_path, written_through_side
+from skinloc.h5layout import (
+    TRUTH,
+    TRUTH_FINGERS,
+    TRUTH_PRESSURE,
+    read_truth_json,
+    write_truth_json,
+)
 from skinloc.sim.gestures import MAX_FINGERS, GestureScript, ScriptItem, Stroke
 from skinloc.sim.signal import sensor_image
 
@@ -51,17 +58,14 @@ def make_felt(skin, stroke: Stroke) -> None:
 
 #: The truth, per frame, beside the stream: dataset -> (shape of one frame's value, dtype).
 _TRUTH_COLUMNS = {
-    "truth/fingers_m": ((MAX_FINGERS, 3), np.float32),
-    "truth/pressure": ((MAX_FINGERS,), np.float32),
+    TRUTH_FINGERS: ((MAX_FINGERS, 3), np.float32),
+    TRUTH_PRESSURE: ((MAX_FINGERS,), np.float32),
 }
 
 
 def _write_truth(f, truth: dict[str, Any]) -> None:
     """Store the gestures' and touches' truth (JSON) in the open recording ``f``."""
-    t = f["truth"]
-    if "gestures_json" in t:
-        del t["gestures_json"]
-    t["gestures_json"] = json.dumps(truth)
+    write_truth_json(f, json.dumps(truth))
     f.flush()
 
 
@@ -127,7 +131,7 @@ def record_gestures(
             chunk=chunk_frames,
             columns=_TRUTH_COLUMNS,
         )
-        writer.file["truth"].attrs["units"] = (
+        writer.file[TRUTH].attrs["units"] = (
             "finger positions in m (NaN: no finger in that slot), pressure relative"
         )
     except BaseException as exc:
@@ -152,8 +156,8 @@ def record_gestures(
                 np.asarray(buf["times"]),
                 np.asarray(buf["index"]),
                 **{
-                    "truth/fingers_m": np.asarray(buf["fingers"]),
-                    "truth/pressure": np.asarray(buf["pressure"]),
+                    TRUTH_FINGERS: np.asarray(buf["fingers"]),
+                    TRUTH_PRESSURE: np.asarray(buf["pressure"]),
                 },
             )
             for v in buf.values():
@@ -226,18 +230,14 @@ def read_gesture_truth(path: str | Path) -> dict[str, Any] | None:
     stream's time, s), ``n_fingers``, ``position_m`` (the first landing); swipes and drags add
     ``speed_m_s``, ``length_m`` and ``path_m`` (start and end), double taps ``gap_s``.
     """
-    import h5py
-
     if Path(path).suffix.lower() not in (".h5", ".hdf5"):
         return None
     try:
-        with h5py.File(path, "r") as f:
-            if "truth" not in f or "gestures_json" not in f["truth"]:
-                return None
-            raw = f["truth/gestures_json"][()]
+        text = read_truth_json(path)
     except OSError as exc:
         raise RecordingError(f"cannot read the gesture truth of {path}: {exc}") from exc
-    text = raw.decode() if isinstance(raw, bytes) else str(raw)
+    if text is None:
+        return None
     try:
         truth = json.loads(text)
     except json.JSONDecodeError as exc:

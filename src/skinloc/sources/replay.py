@@ -14,8 +14,9 @@ from typing import Any
 
 import numpy as np
 
-from skinloc.errors import FrameTimeoutError, RecordingError
+from skinloc.errors import FrameTimeoutError
 from skinloc.files import atomic_write
+from skinloc.h5layout import read_stream, stream_summary  # re-exported: the stream's readers
 from skinloc.sources.base import Frame, FrameSource, SourceOptions
 
 log = logging.getLogger(__name__)
@@ -82,50 +83,6 @@ def write_stream_recording(
             out.append(frames, times_s, index)
 
     atomic_write(path, write)
-
-
-def read_stream(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """The raw stream of a recording as ``(frames, times_s, index)``, or None if it has none."""
-    import h5py
-
-    try:
-        with h5py.File(path, "r") as f:
-            if "stream" not in f:
-                return None
-            g = f["stream"]
-            return g["frames"][()], g["times_s"][()], g["index"][()]
-    except (OSError, KeyError) as exc:  # KeyError: a stream group without its datasets
-        raise RecordingError(f"cannot read the stream of {path}: {exc}") from exc
-
-
-def stream_summary(path: str | Path) -> dict[str, Any] | None:
-    """Frame count, length (s), rate (Hz) and lost frames of a recording's raw stream.
-
-    Reads the stream's times and counters only, not its frames. None if there is no stream
-    (a calibration recording, or a MATLAB file).
-    """
-    import h5py
-
-    if Path(path).suffix.lower() not in (".h5", ".hdf5"):
-        return None
-    try:
-        with h5py.File(path, "r") as f:
-            if "stream" not in f:
-                return None
-            g = f["stream"]
-            n = int(g["frames"].shape[0])
-            times = g["times_s"][()]
-            index = g["index"][()]
-    except (OSError, KeyError) as exc:  # KeyError: a stream group without its datasets
-        raise RecordingError(f"cannot read the stream of {path}: {exc}") from exc
-    seconds = float(times[-1] - times[0]) if n > 1 else 0.0
-    return {
-        "stream_frames": n,
-        "stream_seconds": seconds,
-        "stream_rate_hz": (n - 1) / seconds if seconds > 0 else None,
-        # gaps in the device's counter are frames that never arrived
-        "stream_lost_frames": int(index[-1] - index[0] + 1 - n) if n else 0,
-    }
 
 
 class ArrayReplaySource(FrameSource):

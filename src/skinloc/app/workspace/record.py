@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from skinloc.h5layout import create_live_events, read_live_events  # re-exported: its reader
 from skinloc.live.sinks.base import Sink, SkinInfo, gesture_json
 from skinloc.sources.base import Frame
 
@@ -90,8 +91,6 @@ class LiveRecorder(Sink):
             self.writer.open([skin])
             self.side = None
         elif fmt == "h5":
-            import h5py
-
             from skinloc.data.appender import StreamAppender
 
             self.side = side_path(self.path, "partial")
@@ -104,13 +103,7 @@ class LiveRecorder(Sink):
                 meta=meta,
                 chunk=CHUNK,
             )
-            live = self.writer.file.create_group("live")
-            live.attrs["units"] = "one JSON line each, as the jsonl sink writes them"
-            text = h5py.string_dtype()
-            self._events = {
-                name: live.create_dataset(name, (0,), text, maxshape=(None,), chunks=(CHUNK,))
-                for name in ("contacts", "gestures")
-            }
+            self._events = create_live_events(self.writer.file, CHUNK)
         else:
             raise ValueError(f"record to {' or '.join(FORMATS)}, not {fmt[:20]!r}")
 
@@ -251,20 +244,6 @@ class RecordTee(Sink):
         target = self.target
         if target is not None:
             target.emit_gesture(skin, timestamp_s, event)
-
-
-def read_live_events(path: str | Path) -> dict[str, list[dict[str, Any]]]:
-    """The contacts and gestures of an HDF5 live recording, as dicts (``{}`` lists if none)."""
-    import json
-
-    import h5py
-
-    with h5py.File(path, "r") as f:
-        g = f.get("live")
-        return {
-            name: [] if g is None or name not in g else [json.loads(s) for s in g[name].asstr()[()]]
-            for name in ("contacts", "gestures")
-        }
 
 
 class LiveRecording:

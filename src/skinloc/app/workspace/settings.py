@@ -13,12 +13,12 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import tomllib
 from pathlib import Path
 from typing import Any
 
 from skinloc.files import atomic_write
 from skinloc.live.config import PipelineConfig
+from skinloc.live.skins_file import read_skins_toml, skin_table
 
 __all__ = ["EDITABLE", "LiveSettings", "toml_text"]
 
@@ -99,19 +99,15 @@ class LiveSettings:
         """The session's skins file as a dict (none: ``{}``); a broken one is a one-line error."""
         if not path.is_file():
             return {}
-        try:
-            return tomllib.loads(path.read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-            raise ValueError(f"cannot read {path.name}: {exc}") from None
+        return read_skins_toml(path, path.name)
 
     def _live_config(self) -> PipelineConfig:
         """The pipeline settings of the open session: its skins file's, else the defaults."""
         with self._lock:
             path = self._skins_path()
             raw = self._read_skins(path)
-        skins = raw.get("skin") or [{}]
-        table = {**raw.get("defaults", {}).get("pipeline", {}), **skins[0].get("pipeline", {})}
         try:
+            table = skin_table(raw, 0, "pipeline")
             return PipelineConfig.from_dict(table, f"{path.name} pipeline")
         except (TypeError, ValueError) as exc:
             raise ValueError(f"{path.name}: {exc}") from None

@@ -27,7 +27,7 @@ import numpy as np
 
 from skinloc.live.sinks.base import SkinInfo
 from skinloc.live.sinks.ros2.records import FRAME, GESTURE, MATCHED, SKINS, SYNC, RecordReader
-from skinloc.live.sinks.ros2.topics import Ros2Topics, _require_msgs, rclpy_available
+from skinloc.live.sinks.ros2.topics import Ros2Topics, rclpy_available, require_msgs
 
 log = logging.getLogger(__name__)
 
@@ -167,7 +167,7 @@ class Ros2Publisher(Ros2Topics):
                 self._publish_tf_static()
             return
         use_rclpy = self.backend == "rclpy" or (self.backend == "auto" and rclpy_available())
-        _require_msgs()
+        require_msgs()
         if use_rclpy:
             if not rclpy_available():
                 raise ImportError("backend 'rclpy' needs a sourced ROS 2 installation")

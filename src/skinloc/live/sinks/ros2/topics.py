@@ -36,6 +36,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from skinloc._lazy import extra_installed, require_extra
+from skinloc.geometry.skin_frame import quaternion_from_rpy  # re-exported: the pose's maths
 from skinloc.live.contact import track_colour
 from skinloc.live.sinks.base import Sink, SkinInfo
 from skinloc.ros2.names import ros_name, topic_base
@@ -101,25 +102,12 @@ def ros2_available() -> bool:
     return rclpy_available() or dds_available()
 
 
-def _require_msgs() -> Any:
+def require_msgs() -> Any:
     """``skinloc.ros2.msgs`` (needs cyclonedds), or one clear ``MissingExtraError``."""
     require_extra("cyclonedds.idl", "the ROS 2 sink")
     import skinloc.ros2.msgs as ros2_msgs
 
     return ros2_msgs
-
-
-def quaternion_from_rpy(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
-    """Quaternion ``(x, y, z, w)`` of fixed-axis roll, pitch, yaw (rad), as ROS's ``tf2``."""
-    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
-    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
-    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
-    return (
-        sr * cp * cy - cr * sp * sy,
-        cr * sp * cy + sr * cp * sy,
-        cr * cp * sy - sr * sp * cy,
-        cr * cp * cy + sr * sp * sy,
-    )
 
 
 class Ros2Topics(Sink):
@@ -156,7 +144,7 @@ class Ros2Topics(Sink):
 
     # ------------------------------------------------------------------ layout
     def _open_topics(self, skins: Sequence[SkinInfo]) -> None:
-        self._msgs = _require_msgs()
+        self._msgs = require_msgs()
         from skinloc.ros2.cdr import check_encoders
 
         if not getattr(Ros2Topics, "_checked", False):

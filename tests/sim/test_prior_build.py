@@ -1,11 +1,11 @@
-"""Building the map prior from simulated skins (skinloc.calibration.prior_build)."""
+"""Building the map prior from simulated skins (skinloc.sim.prior_build)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from skinloc.calibration.prior_build import build_prior, simulate_calibration
+from skinloc.sim.prior_build import build_prior, simulate_calibration
 
 
 def test_a_skin_follows_its_seed_alone():

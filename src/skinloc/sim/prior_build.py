@@ -30,7 +30,14 @@ import numpy as np
 
 from skinloc.models.map_prior import PRIOR_FORMAT_VERSION, MapPrior
 
-__all__ = ["BuildReport", "build_prior", "simulate_calibration", "skin_hyperparameters"]
+__all__ = [
+    "BuildReport",
+    "build_prior",
+    "draw_params",
+    "errors_mm",
+    "simulate_calibration",
+    "skin_hyperparameters",
+]
 
 #: Candidate weights of the common level in the map's mean, in touches.
 PSEUDO_TOUCH_GRID = (0.0, 2.0, 5.0, 10.0)
@@ -44,7 +51,7 @@ _N_CANDIDATES = 4000
 _MIN_LOG_STD = 0.1
 
 
-def _draw_params(rng: np.random.Generator, n_rx: int, n_tx: int) -> Any:
+def draw_params(rng: np.random.Generator, n_rx: int, n_tx: int) -> Any:
     """The simulator's defaults with the physics jittered and the faults moved."""
     from skinloc.sim.params import SkinParams
 
@@ -79,7 +86,7 @@ def simulate_calibration(
     rng = np.random.default_rng([seed, 25])
     mesh = cone_skin()
     skin = SimulatedSkin(
-        mesh, n_tx=n_tx, n_rx=n_rx, params=_draw_params(rng, n_rx, n_tx), random_state=seed
+        mesh, n_tx=n_tx, n_rx=n_rx, params=draw_params(rng, n_rx, n_tx), random_state=seed
     )
     targets = sample_targets(mesh, n_touches, "edge", rng)
     means = np.empty((n_touches, n_tx * n_rx))
@@ -107,7 +114,7 @@ def skin_hyperparameters(seed: int, n_touches: int) -> tuple[np.ndarray, float]:
     return np.asarray(gp.kernel_.theta, dtype=np.float64), float(F.mean())
 
 
-def _errors_mm(rmap: Any, F_test: np.ndarray, y_test: np.ndarray) -> np.ndarray:
+def errors_mm(rmap: Any, F_test: np.ndarray, y_test: np.ndarray) -> np.ndarray:
     """Touch errors, mm, of matching ``F_test (m, k)`` against ``rmap``'s table."""
     table = rmap.table.astype(np.float64)
     d = (table**2).sum(1)[None, :] - 2.0 * F_test @ table.T
@@ -146,10 +153,10 @@ def skin_curve(seed: int, n_touches: int, base: MapPrior) -> dict[str, Any]:
             continue
         idx = pool[farthest_point_sampling(targets[pool], n, 0)]
         fit = ResponseMap.fit(targets[idx], F[idx], cands)
-        out["none"][n] = float(_errors_mm(fit, F[test], targets[test]).mean())
+        out["none"][n] = float(errors_mm(fit, F[test], targets[test]).mean())
         for key, p in priors.items():
             fit = ResponseMap.fit(targets[idx], F[idx], cands, prior=p)
-            out["prior"][key][n] = float(_errors_mm(fit, F[test], targets[test]).mean())
+            out["prior"][key][n] = float(errors_mm(fit, F[test], targets[test]).mean())
     return out
 
 

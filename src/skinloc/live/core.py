@@ -170,29 +170,23 @@ class SkinCore:
         self._landing: LandingWatch | None = None  # a second finger in time, for gestures
         self._footprint: FootprintWatch | None = None  # a second finger in the image's shape
         if cfg.gestures:
-            spec = self.engine.spec
-            vertices = getattr(spec, "vertices", None)
-            if vertices is not None or up is not None:
-                frame = SkinFrame(vertices, getattr(spec, "faces", None), up)
-                rule = getattr(self.engine, "rule", None)
-                change = float(getattr(rule, "landing_change", 0.0))
+            spec, rule = self.engine.spec, self.engine.rule  # what every engine declares
+            if spec.vertices is not None or up is not None:
+                frame = SkinFrame(spec.vertices, spec.faces, up)
+                change = float(rule.landing_change)
                 # the footprint (opt-in) is read off the contact search's scratch: K > 1 only
-                tables = getattr(self.engine, "search_tables", None)
-                if (
-                    cfg.footprint_gestures
-                    and self._tracker is not None
-                    and tables is not None
-                    and getattr(rule, "footprint_on", False)
-                ):
-                    self._footprint = FootprintWatch(tables(), rule)
+                if cfg.footprint_gestures and self._tracker is not None and rule.footprint_on:
+                    tables = self.engine.search_tables()
+                    if tables is not None:
+                        self._footprint = FootprintWatch(tables, rule)
                 # the skin's two-point threshold: tracks closer than it may be one finger
-                two_point_mm, _ = recogniser_mm(two_point_of(getattr(spec, "contact_rule", None)))
+                two_point_mm, _ = recogniser_mm(two_point_of(spec.contact_rule))
                 self._recognizer = GestureRecognizer(
                     name,
                     frame,
                     gesture_config,
                     landing_change=change,
-                    landing_hold=float(getattr(rule, "landing_hold", 0.0)),
+                    landing_hold=float(rule.landing_hold),
                     two_point_mm=two_point_mm,
                     footprint_levels=None
                     if self._footprint is None

@@ -8,9 +8,10 @@ the app all call it, and the exports (``models.export``) are generated from the 
 tested against it.
 
 Kinds: ``network`` (``skinloc.models.network_engine``: an ensemble of fully connected networks) and
-``map`` (``skinloc.models.map_engine``: a response map matched coarse to fine). A new kind is a spec
-subclass with an ``engine`` method and an ``Engine`` subclass with ``localise_into`` (one frame,
-allocation-free) and ``_predict_rows`` (a batch); everything else here serves every kind.
+``map`` (``skinloc.models.map_engine``: a response map matched coarse to fine), registered in
+``models.kinds``. A kind's spec subclass has an ``engine`` method and its ``Engine`` subclass
+``localise_into`` (one frame, allocation-free) and ``_predict_rows`` (a batch); optionally
+``contacts_into`` (several contacts) and ``search_tables``; everything else here serves every kind.
 
 Units: input images are baseline-subtracted counts, points metres, spread millimetres.
 """
@@ -29,7 +30,7 @@ from skinloc._lazy import resolve
 from skinloc._typing import Frames, Points
 from skinloc.geometry.snap import CONSTRAINTS, Surface
 from skinloc.models.multi_contact.contacts import N_COLS, ContactSet, CountRule, noise_weights
-from skinloc.models.multi_contact.search import SearchMemory, single_into
+from skinloc.models.multi_contact.search import SearchMemory, SearchTables, single_into
 
 __all__ = ["ContactSet", "Engine", "ModelSpec", "Prediction", "load_engine"]
 
@@ -139,6 +140,10 @@ class Engine:
     """
 
     kind: ClassVar[str] = ""
+    #: The model's spec (its ``vertices``, ``faces`` and ``contact_rule`` for the pipeline).
+    spec: ModelSpec
+    #: The count rule of ``contacts`` (the spec's, else the defaults).
+    rule: CountRule
 
     def __init__(self, spec: ModelSpec, constraint: str | None = None) -> None:
         self.spec = spec
@@ -161,6 +166,13 @@ class Engine:
     def noise_weights(self) -> np.ndarray:
         """``(n_features,)`` float32: 1 / each sensor's noise (counts to noise levels)."""
         return self._w
+
+    def search_tables(self) -> SearchTables | None:
+        """The multi-contact search's arrays (what the live footprint watch reads).
+
+        ``None``: this kind has no multi-contact search (a network); a map builds them once.
+        """
+        return None
 
     @property
     def n_members(self) -> int:

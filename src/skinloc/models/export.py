@@ -23,10 +23,19 @@ import numpy as np
 
 from skinloc._lazy import require_extra
 from skinloc.models.engine import ModelSpec
+from skinloc.models.kinds import model_kind
 
 log = logging.getLogger(__name__)
 
-__all__ = ["c_header_source", "export_c_header", "export_onnx", "onnx_model"]
+__all__ = [
+    "c_header_source",
+    "export_c_header",
+    "export_onnx",
+    "map_onnx",
+    "network_c_header",
+    "network_onnx",
+    "onnx_model",
+]
 
 
 def _spec(model: Any) -> ModelSpec:
@@ -55,11 +64,14 @@ def onnx_model(model: Any, *, include_surface: bool = True, opset: int = 17) -> 
         ONNX opset.
     """
     require_extra("onnx", "ONNX export")
+    s = _spec(model)
+    return model_kind(s.kind).onnx(s, include_surface, opset)
+
+
+def network_onnx(s: Any, include_surface: bool, opset: int) -> Any:
+    """A network ensemble's spec as ONNX (the ``network`` kind's export, ``onnx_model``)."""
     from onnx import helper, numpy_helper
 
-    s = _spec(model)
-    if s.kind == "map":
-        return _onnx_map(s, opset)
     f32 = np.float32
     inits: list[Any] = []
     nodes: list[Any] = []
@@ -177,8 +189,8 @@ def _finish_onnx(
     return m
 
 
-def _onnx_map(s: Any, opset: int) -> Any:
-    """A response-map model as ONNX: the same coarse-to-fine search as ``ResponseMap.match``."""
+def map_onnx(s: Any, opset: int) -> Any:
+    """A response map's spec as ONNX: the coarse-to-fine search of ``ResponseMap.match``."""
     from onnx import helper, numpy_helper
 
     table = np.asarray(s.table, dtype=np.float32)
@@ -296,19 +308,17 @@ def _c_array(name: str, arr: np.ndarray, per_line: int = 8) -> str:
 
 
 def c_header_source(model: Any, *, include_surface: bool = True, prefix: str = "skinloc") -> str:
-    """The C header text for ``model`` (see ``export_c_header``)."""
-    from skinloc import __version__
-
-    s = _spec(model)
-    if s.kind == "map":
-        size_mb = np.asarray(s.table).nbytes / 2**20
-        raise ValueError(
-            f"a response-map model carries a {size_mb:.1f} MB table of the skin: too big for a "
-            "microcontroller; export it with --onnx, or train a network for the board "
-            "(skinloc train --arch paper or --arch mlp)"
-        )
+    """The C header text for ``model`` (see ``export_c_header``); its kind's, or a ValueError."""
     if not prefix.isidentifier():
         raise ValueError(f"the C prefix must be an identifier, got {prefix!r}")
+    s = _spec(model)
+    return model_kind(s.kind).c_header(s, include_surface, prefix)
+
+
+def network_c_header(s: Any, include_surface: bool, prefix: str) -> str:
+    """A network ensemble's spec as a C99 header (the ``network`` kind's export)."""
+    from skinloc import __version__
+
     P = prefix
     U = prefix.upper()
     E = s.n_members

@@ -3,7 +3,7 @@
 ``ContactLocalizer`` follows the scikit-learn conventions: ``__init__`` stores
 hyperparameters, ``fit`` learns (attributes with a trailing ``_``) and returns ``self``.
 
-Two kinds of model share the class:
+Every kind of model shares the class (each kind registered once, ``models.kinds``):
 
 - ``kind="map"`` (the default): a response map of the skin (``skinloc.models.response_map``), fitted
   by Gaussian-process regression on the surface in well under a second; prediction matches
@@ -29,12 +29,9 @@ import numpy as np
 from skinloc._typing import Frames, Points
 from skinloc.errors import NotFittedError
 from skinloc.models.engine import Engine, ModelSpec, Prediction
+from skinloc.models.kinds import ModelKind, model_kind
 from skinloc.models.model_file import MODEL_FORMAT_VERSION
-from skinloc.models.multi_contact.rule_calibration import (
-    fit_contact_model,
-    sensor_noise_from_frames,
-)
-from skinloc.models.network_training import fit_network
+from skinloc.models.multi_contact.rule_calibration import sensor_noise_from_frames
 
 log = logging.getLogger(__name__)
 
@@ -83,7 +80,6 @@ ARCHITECTURES: dict[str, dict[str, Any]] = {
     ),
 }
 
-_ACTIVATIONS = ("relu", "tanh", "gelu")
 #: Hyperparameters a user may override (each an ``__init__`` argument).
 _TUNABLE = (
     "length_scale_mm",
@@ -224,28 +220,13 @@ class ContactLocalizer:
             raise bad("train_on", "one of frames, means")
         if cfg["constraint"] not in ("snap", "project", "none"):
             raise bad("constraint", "one of snap, project, none")
-        if cfg["kind"] == "map":
-            if not cfg["length_scale_mm"] > 0:
-                raise bad("length_scale_mm", "a float > 0")
-            if not isinstance(cfg.get("prior", "none"), str):
-                raise bad("prior", "'package', 'none' or a prior file's path")
-            if cfg["normalise"] != "l2" or cfg["train_on"] != "means":
-                raise ValueError("a response map matches L2-normalised touch means")
-            return
-        if not cfg["hidden"] or any(h < 1 for h in cfg["hidden"]):
-            raise bad("hidden", "a non-empty tuple of positive ints")
-        if cfg["activation"] not in _ACTIVATIONS:
-            raise bad("activation", f"one of {', '.join(_ACTIVATIONS)}")
-        if not (isinstance(cfg["n_members"], int) and cfg["n_members"] >= 1):
-            raise bad("n_members", "an int >= 1")
-        if not (isinstance(cfg["epochs"], int) and cfg["epochs"] >= 1):
-            raise bad("epochs", "an int >= 1")
-        if not cfg["lr"] > 0:
-            raise bad("lr", "a float > 0")
-        if not cfg["weight_decay"] >= 0:
-            raise bad("weight_decay", "a float >= 0")
-        if not cfg["noise_std"] >= 0:
-            raise bad("noise_std", "a float >= 0")
+        model_kind(cfg["kind"]).config_type.from_config(cfg)  # the kind's own parameters
+
+    @property
+    def kind(self) -> ModelKind:
+        """The model's kind (``models.kinds``), which fits, saves and exports it."""
+        cfg = getattr(self, "config_", None) or self.get_config()
+        return model_kind(cfg["kind"])
 
     # ---------------------------------------------------------------- preprocessing
     def _features(self, X: np.ndarray, cfg: dict[str, Any]) -> np.ndarray:
@@ -317,49 +298,17 @@ class ContactLocalizer:
         if cfg["train_on"] == "means" and groups is not None:
             X, y = group_means(X, y, groups)
         t0 = time.perf_counter()
-        for attr in ("coefs_", "intercepts_", "map_", "contact_rule_"):  # a new fit: afresh
+        kind = model_kind(cfg["kind"])
+        for attr in (*kind.fitted_attrs, "contact_rule_"):  # a new fit: afresh
             self.__dict__.pop(attr, None)
         self.n_features_in_ = X.shape[1]
         self.config_ = cfg
         self._set_surface(mesh, surface_points)
         self.sensor_noise_ = sensor_noise_from_frames(*frames)
-        if cfg["kind"] == "map":
-            self._fit_map(X, y, *frames)
-        else:
-            F = self._features(X, cfg)
-            self.feature_mean_ = F.mean(axis=0)
-            self.feature_scale_ = np.maximum(F.std(axis=0), 1e-6 * max(F.std(), 1e-12))
-            self.target_mean_ = y.mean(axis=0)
-            self.target_scale_ = float(np.maximum(y.std(axis=0).max(), 1e-6))
-            fit_network(self, X, y, cfg["epochs"], cfg["lr"], progress)
+        kind.fit(self, X, y, frames, groups, progress)
         self.fit_time_s_ = time.perf_counter() - t0
         log.info("trained %s in %.2f s", cfg["arch"], self.fit_time_s_)
         return self
-
-    def _fit_map(self, X: np.ndarray, y: Points, frames: Any, groups: Any) -> None:
-        from skinloc.models.response_map import ResponseMap, shape_features
-
-        if self.surface_points_ is None:
-            raise ValueError(
-                "a response-map model chooses among surface points: give the skin mesh or "
-                "surface_points to fit()"
-            )
-        F = shape_features(X, self.config_["clip_negative"])
-        prior = self.map_prior()
-        if prior is not None and not prior.applies(len(F)):
-            prior = None
-        self.prior_used_ = prior is not None
-        self.map_, self.contact_rule_ = fit_contact_model(
-            ResponseMap.fit(
-                y, F, self.surface_points_, self.config_["length_scale_mm"], prior=prior
-            ),
-            X,
-            y,
-            frames if groups is not None else None,
-            groups,
-            self.sensor_noise_,
-            self.random_state,
-        )
 
     def map_prior(self):  # -> MapPrior | None
         """The response map's prior this configuration names (``None``: no prior).
@@ -400,18 +349,7 @@ class ContactLocalizer:
         new = copy.deepcopy(self)
         new._engine = None
         t0 = time.perf_counter()
-        if self.config_["kind"] == "map":
-            from skinloc.models.response_map import shape_features
-
-            if groups is not None:
-                X, y = group_means(X, y, groups)
-            F = shape_features(X, self.config_["clip_negative"])
-            new.map_ = self.map_.refined(y, F)
-        else:
-            if self.config_["train_on"] == "means" and groups is not None:
-                X, y = group_means(X, y, groups)
-            epochs = max(50, self.config_["epochs"] // 4)
-            fit_network(new, X, y, epochs, self.config_["lr"] / 10, progress)
+        self.kind.recalibrate(self, new, X, y, groups, progress)
         new.fit_time_s_ = time.perf_counter() - t0
         return new
 
@@ -420,7 +358,7 @@ class ContactLocalizer:
         self.mesh_vertices_ = None if mesh is None else np.asarray(mesh.vertices, dtype=np.float64)
         self.mesh_faces_ = None if mesh is None else np.asarray(mesh.faces, dtype=np.int64)
         self.surface_points_ = surface_points
-        needs_points = self.constraint == "snap" or self.config_["kind"] == "map"
+        needs_points = self.constraint == "snap" or self.kind.needs_surface_points
         if mesh is not None and surface_points is None and needs_points:
             from skinloc.geometry.mesh import surface_points as make_points
 
@@ -439,7 +377,8 @@ class ContactLocalizer:
 
     # ---------------------------------------------------------------- prediction
     def _check_fitted(self) -> None:
-        if not (hasattr(self, "coefs_") or hasattr(self, "map_")):
+        cfg = getattr(self, "config_", None)
+        if cfg is None or not all(hasattr(self, a) for a in model_kind(cfg["kind"]).fitted_attrs):
             raise NotFittedError(
                 "this ContactLocalizer is not fitted yet: call fit() or load a trained model"
             )
@@ -457,23 +396,7 @@ class ContactLocalizer:
             sensor_noise=getattr(self, "sensor_noise_", None),
             contact_rule=getattr(self, "contact_rule_", None),
         )
-        if cfg["kind"] == "map":
-            return self.map_.spec(**common)
-        from skinloc.models.network_engine import NetworkSpec
-
-        return NetworkSpec(
-            **common,
-            constraint=cfg["constraint"],
-            surface_points=self.surface_points_,
-            normalise=cfg["normalise"],
-            activation=cfg["activation"],
-            feature_mean=np.asarray(self.feature_mean_, dtype=np.float64),
-            feature_scale=np.asarray(self.feature_scale_, dtype=np.float64),
-            weights=[np.asarray(W, dtype=np.float64) for W in self.coefs_],
-            biases=[np.asarray(b, dtype=np.float64) for b in self.intercepts_],
-            target_mean=np.asarray(self.target_mean_, dtype=np.float64).reshape(3),
-            target_scale=float(self.target_scale_),
-        )
+        return model_kind(cfg["kind"]).spec(self, common)
 
     def engine(self) -> Engine:
         """The engine that predicts for this model (built once per fit or load)."""

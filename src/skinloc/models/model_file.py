@@ -1,7 +1,8 @@
 """The model file: one self-describing HDF5 file per trained ``ContactLocalizer``.
 
 Format version 2 (written since response maps): attributes ``format`` ("skinloc-model"),
-``format_version``, ``config`` and ``meta`` (JSON), ``n_features_in``, ``description``; a
+``format_version``, ``config`` and ``meta`` (JSON), ``n_features_in``, ``description``; the
+groups of the model's kind, which its ``ModelKind`` writes and reads (``models.kinds``): a
 ``map`` group (the response map's mean, candidates and GP layers) or ``preprocessing`` and
 ``network`` groups (the ensemble's arrays); a ``surface`` group (mesh and snap points).
 Version 1 files (networks only) still load. Since multi-contact localisation, optional: a
@@ -21,6 +22,7 @@ import numpy as np
 
 from skinloc.errors import ModelFileError
 from skinloc.h5layout import MODEL, check_kind, set_kind
+from skinloc.models.kinds import model_kind
 
 __all__ = ["MODEL_FORMAT_VERSION", "read_model", "write_model"]
 
@@ -52,10 +54,7 @@ def write_model(model: Any, path: Path, extra_meta: dict[str, Any] | None = None
             f.attrs["config"] = json.dumps(model.config_)
             f.attrs["meta"] = json.dumps(meta, default=str)
             f.attrs["n_features_in"] = model.n_features_in_
-            if model.config_["kind"] == "map":
-                _write_map(model, f)
-            else:
-                _write_network(model, f)
+            model_kind(model.config_["kind"]).write(model, f)
             if model.mesh_vertices_ is not None:
                 f["surface/vertices"], f["surface/faces"] = (
                     model.mesh_vertices_,
@@ -66,26 +65,6 @@ def write_model(model: Any, path: Path, extra_meta: dict[str, Any] | None = None
             _write_contacts(model, f)
 
     atomic_write(path, write)
-
-
-def _write_map(model: Any, f: Any) -> None:
-    f.attrs["description"] = (
-        "x: baseline-subtracted counts (n_features_in,). features: clip negatives, divide by "
-        "max(L2 norm, 1). map(q) = mean + sum over layers of exp(-|q - points_mm|^2 / "
-        "(2 length_scale_mm^2)) @ alpha, q in mm. prediction: the row of map/candidates "
-        "(metres) whose map value is nearest the features."
-    )
-    g = f.create_group("map")
-    g["mean"], g["candidates"] = model.map_.mean, model.map_.candidates
-    for i, layer in enumerate(model.map_.layers):
-        lg = g.create_group(f"layer{i}")
-        lg["points_mm"], lg["alpha"] = layer.points_mm, layer.alpha
-        lg.attrs["length_scale_mm"], lg.attrs["noise"] = layer.length_scale_mm, layer.noise
-    amp = model.map_.amplitude
-    if amp is not None:
-        ag = g.create_group("amplitude")
-        ag["mean"], ag["points_mm"], ag["alpha"] = amp.mean, amp.layer.points_mm, amp.layer.alpha
-        ag.attrs["length_scale_mm"], ag.attrs["noise"] = amp.layer.length_scale_mm, amp.layer.noise
 
 
 def _write_contacts(model: Any, f: Any) -> None:
@@ -103,59 +82,6 @@ def _read_contacts(model: Any, f: Any) -> None:
     g = f.get("contacts")
     model.sensor_noise_ = g["sensor_noise"][()] if g is not None and "sensor_noise" in g else None
     model.contact_rule_ = json.loads(g.attrs.get("rule", "null")) if g is not None else None
-
-
-def _write_network(model: Any, f: Any) -> None:
-    f.attrs["description"] = (
-        "x: baseline-subtracted counts (n_features_in,). features: clip/normalise per "
-        "config, then (x - feature_mean) / feature_scale. layers: h = act(h @ W + b) "
-        "per member; output * target_scale + target_mean is metres; ensemble mean."
-    )
-    p = f.create_group("preprocessing")
-    p["feature_mean"], p["feature_scale"] = model.feature_mean_, model.feature_scale_
-    p["target_mean"] = model.target_mean_
-    p.attrs["target_scale"] = model.target_scale_
-    net = f.create_group("network")
-    for i, (W, b) in enumerate(zip(model.coefs_, model.intercepts_, strict=True)):
-        net[f"layer{i}/weight"], net[f"layer{i}/bias"] = W, b
-
-
-def _read_map(model: Any, g: Any) -> None:
-    from skinloc.models.response_map import AmplitudeMap, MapLayer, ResponseMap
-
-    layers = [
-        MapLayer(
-            g[f"layer{i}/points_mm"][()],
-            g[f"layer{i}/alpha"][()],
-            float(g[f"layer{i}"].attrs["length_scale_mm"]),
-            float(g[f"layer{i}"].attrs["noise"]),
-        )
-        for i in range(sum(1 for k in g if k.startswith("layer")))
-    ]
-    amp = None
-    if "amplitude" in g:
-        a = g["amplitude"]
-        amp = AmplitudeMap(
-            a["mean"][()],
-            MapLayer(
-                a["points_mm"][()],
-                a["alpha"][()],
-                float(a.attrs["length_scale_mm"]),
-                float(a.attrs["noise"]),
-            ),
-        )
-    model.map_ = ResponseMap(g["mean"][()], layers, g["candidates"][()], amp)
-
-
-def _read_network(model: Any, f: Any) -> None:
-    p = f["preprocessing"]
-    model.feature_mean_ = p["feature_mean"][()]
-    model.feature_scale_ = p["feature_scale"][()]
-    model.target_mean_ = p["target_mean"][()]
-    model.target_scale_ = float(p.attrs["target_scale"])
-    net = f["network"]
-    model.coefs_ = [net[f"layer{i}/weight"][()] for i in range(len(net))]
-    model.intercepts_ = [net[f"layer{i}/bias"][()] for i in range(len(net))]
 
 
 def read_model(cls: type, path: Path) -> Any:
@@ -185,10 +111,8 @@ def read_model(cls: type, path: Path) -> Any:
             model.config_ = cfg
             model.meta_ = json.loads(f.attrs.get("meta", "{}"))
             model.n_features_in_ = int(f.attrs["n_features_in"])
-            if cfg["kind"] == "map":
-                _read_map(model, f["map"])
-            else:
-                _read_network(model, f)
+            kind = model_kind(cfg["kind"])  # a kind not registered here: one clear line
+            kind.read(model, f)
             surf = f.get("surface")
             model.mesh_vertices_ = surf["vertices"][()] if surf and "vertices" in surf else None
             model.mesh_faces_ = surf["faces"][()] if surf and "faces" in surf else None

@@ -1,4 +1,11 @@
-"""The sink interface and ``make_sink``, which builds one from a short text spec."""
+"""The sink interface and the sink registry: ``make_sink`` builds one from a short text spec.
+
+A sink is registered once, by one ``SinkType`` entry in ``_BUILTIN`` (built-ins, named as
+``"package.module:Class.from_spec"`` so that no backend is imported before a spec asks for it),
+by ``register_sink`` (a decorator, for code outside the package), or by an installed package's
+entry point in the ``skinloc.sinks`` group. The sink's ``from_spec`` reads its settings from the
+parsed spec (``SinkSpec``), which refuses a spec the sink cannot mean with one line.
+"""
 
 from __future__ import annotations
 
@@ -25,22 +32,16 @@ __all__ = [
     "CallbackSink",
     "ListSink",
     "Sink",
+    "SinkSpec",
+    "SinkType",
     "SkinInfo",
     "gesture_json",
     "make_sink",
+    "register_sink",
+    "sink_forms",
+    "sink_types",
+    "unregister_sink",
 ]
-
-#: The spec forms ``make_sink`` understands, for help texts and error messages.
-SINK_SPECS = (
-    "jsonl (stdout) | jsonl:FILE",
-    "ws://HOST:PORT (WebSocket server; port 0: any free port)",
-    "udp://HOST:PORT (one JSON datagram per contact)",
-    "foxglove://HOST:PORT[?mcap=FILE] (Foxglove live 3D scene, port 0: any free port; MCAP)",
-    "mcap:FILE (Foxglove MCAP recording only)",
-    "lsl[:NAME] (Lab Streaming Layer outlet)",
-    "ros2[:NODE] (ROS 2 topics over DDS, or through rclpy when present)",
-    "mcap-ros2:FILE (the ROS 2 topics and raw frames as a ROS 2 bag, MCAP)",
-)
 
 
 @dataclass(frozen=True)
@@ -107,6 +108,12 @@ class Sink(abc.ABC):
     """
 
     name: str = "sink"
+
+    @classmethod
+    def from_spec(cls, spec: SinkSpec) -> Sink:
+        """The sink ``spec`` describes (``make_sink``); this default takes no argument."""
+        spec.no_argument()
+        return cls()
 
     def open(self, skins: list[SkinInfo]) -> None:  # noqa: B027 - optional hook
         """Prepare for the given skins (start servers, advertise channels)."""
@@ -180,37 +187,322 @@ class ListSink(Sink):
         self.gestures.append(event)
 
 
-def _host_port(spec: str, default_port: int) -> tuple[str, int]:
-    """Host and port of ``scheme://host:port``; a missing port is ``default_port``.
+def _port_error(spec: str, port: str) -> ValueError:
+    return ValueError(f"bad port {port!r} in sink {spec!r} (ports are whole numbers 0-65535)")
 
-    ``:0`` stays 0 (servers then bind any free port), so no truthiness test on the port.
+
+@dataclass(frozen=True)
+class SinkSpec:
+    """A sink spec, parsed: ``scheme[:argument]``, as ``--sink`` and skins files give it.
+
+    Each sink's ``from_spec`` reads the argument through one of the methods here, which
+    refuse what the sink cannot mean with a one-line ``ValueError`` naming the spec.
+
+    Attributes
+    ----------
+    text : str
+        The spec as given (stripped), for messages.
+    scheme : str
+        The part before the first ``:``, lower case (``udp``).
+    argument : str or None
+        The part after the first ``:`` (``//host:9870``), ``None`` when there is no ``:``.
+
+    Examples
+    --------
+    >>> SinkSpec.parse("udp://10.0.0.2:9000").address(9870)
+    ('10.0.0.2', 9000)
+    >>> SinkSpec.parse("udp:10.0.0.2").address(9870)
+    ('10.0.0.2', 9870)
     """
-    parts = urlsplit(spec)
-    host = parts.hostname or "127.0.0.1"
-    try:
-        port = parts.port
-    except ValueError:
-        raise ValueError(f"bad port in sink {spec!r} (ports are 0-65535)") from None
-    return host, default_port if port is None else port
+
+    text: str
+    scheme: str
+    argument: str | None = None
+
+    @classmethod
+    def parse(cls, text: str) -> SinkSpec:
+        """Split ``text`` into scheme and argument (no checks of the argument yet)."""
+        text = str(text).strip()
+        scheme, colon, rest = text.partition(":")
+        if not scheme:
+            raise ValueError(f"sink {text!r} names no kind; use one of: {'; '.join(sink_forms())}")
+        return cls(text, scheme.lower(), rest if colon else None)
+
+    def error(self, why: str) -> ValueError:
+        """A ``ValueError`` ``sink '<text>': <why>``, to raise."""
+        return ValueError(f"sink {self.text!r}: {why}")
+
+    def _split(self) -> tuple[str, str]:
+        """``(netloc-and-path, query)`` of an address argument (``//`` optional)."""
+        rest = (self.argument or "").removeprefix("//")
+        where, _, query = rest.partition("?")
+        return where, query
+
+    def address(self, default_port: int) -> tuple[str, int]:
+        """``(host, port)`` of ``scheme[://][HOST][:PORT][?QUERY]``.
+
+        A missing host is 127.0.0.1 and a missing port ``default_port``; ``:0`` stays 0 (a
+        server then binds any free port; a sender refuses it). A port that is not a whole
+        number 0-65535, or a path after the address, is refused.
+        """
+        where, _ = self._split()
+        netloc, slash, path = where.partition("/")
+        if slash and path:
+            raise self.error(f"unexpected path {'/' + path!r} after the address")
+        try:
+            parts = urlsplit("//" + netloc)
+            port = parts.port
+        except ValueError:
+            raise _port_error(self.text, netloc.rpartition(":")[2]) from None
+        if netloc.endswith(":"):  # 'udp://host:' names no port: a slip, not the default
+            raise _port_error(self.text, "")
+        return parts.hostname or "127.0.0.1", default_port if port is None else port
+
+    def query(self, *allowed: str) -> dict[str, str]:
+        """The ``?key=value&...`` options of an address spec; keys not in ``allowed`` refused."""
+        _, query = self._split()
+        try:
+            pairs = parse_qs(query, keep_blank_values=True, strict_parsing=bool(query))
+        except ValueError:
+            raise self.error(f"cannot read the options {query!r} (key=value&...)") from None
+        unknown = sorted(set(pairs) - set(allowed))
+        if unknown:
+            known = ", ".join(allowed) or "none"
+            raise self.error(f"unknown option(s) {', '.join(unknown)} (known: {known})")
+        return {k: v[-1] for k, v in pairs.items()}
+
+    def file(self) -> str:
+        """The file of ``scheme:FILE``; refused when there is none."""
+        if not self.argument:
+            raise ValueError(f"sink '{self.scheme}:FILE' needs a file name, got {self.text!r}")
+        return self.argument
+
+    def optional_file(self) -> str | None:
+        """The file of ``scheme:FILE``, ``None`` for ``scheme`` alone or ``scheme:-`` (stdout).
+
+        ``scheme:`` with nothing after the colon is refused: it is a slip, not a request for
+        stdout.
+        """
+        if self.argument is None or self.argument == "-":
+            return None
+        if not self.argument.strip():
+            raise self.error(
+                f"names no file: give {self.scheme}:FILE, or {self.scheme} alone for stdout"
+            )
+        return self.argument
+
+    def label(self, default: str) -> str:
+        """The name of ``scheme[:NAME]`` (``default`` without one); an empty name is refused."""
+        if self.argument is None:
+            return default
+        if not self.argument.strip():
+            raise self.error("the name after ':' is empty (leave out the ':' for the default)")
+        return self.argument
+
+    def no_argument(self) -> None:
+        """Refuse an argument, for sinks that take none."""
+        if self.argument is not None:
+            raise self.error(f"the {self.scheme!r} sink takes no argument")
 
 
-# Each backend by name, imported when a spec asks for it: this module never imports a backend
-# (they import it), and optional dependencies load only when used.
-_BACKENDS: dict[str, str] = {
-    "jsonl": "skinloc.live.sinks.jsonl:JsonLinesSink",
-    "ws": "skinloc.live.sinks.websocket:WebSocketSink",
-    "udp": "skinloc.live.sinks.udp:UdpSink",
-    "foxglove": "skinloc.live.sinks.foxglove:FoxgloveSink",
-    "lsl": "skinloc.live.sinks.lsl:LslSink",
-    "ros2": "skinloc.live.sinks.ros2.sink:Ros2Sink",
-    "mcap-ros2": "skinloc.live.sinks.ros2.bag:Ros2BagSink",
-}
-_WS_DEFAULT_PORT = "skinloc.live.sinks.websocket:DEFAULT_PORT"
+#: A sink factory: a parsed spec to a sink.
+SinkFactory = Callable[[SinkSpec], "Sink"]
 
 
-def _backend(name: str) -> Callable[..., Sink]:
-    """The sink class registered as ``name``, imported now."""
-    return resolve(_BACKENDS[name])
+@dataclass(frozen=True)
+class SinkType:
+    """One registered kind of sink.
+
+    Attributes
+    ----------
+    scheme : str
+        What a spec starts with (``udp``), lower case.
+    factory : str or callable
+        ``"package.module:Class.from_spec"`` (imported when a spec names the scheme, so the
+        registry never imports a backend or its optional dependencies) or a callable
+        ``(SinkSpec) -> Sink``.
+    form : str
+        The spec's form for help texts and errors (``udp://HOST:PORT (...)``).
+    aliases : tuple of str
+        Other schemes that mean this sink (``websocket`` for ``ws``).
+    requires : str or None
+        The optional dependency the sink needs (a top-level module in ``_lazy.EXTRAS``).
+    """
+
+    scheme: str
+    factory: str | SinkFactory
+    form: str
+    aliases: tuple[str, ...] = ()
+    requires: str | None = None
+
+    def build(self, spec: SinkSpec) -> Sink:
+        """The sink ``spec`` describes, importing the backend now."""
+        factory = resolve(self.factory) if isinstance(self.factory, str) else self.factory
+        return factory(spec)
+
+
+# The built-in sinks: one entry each. Backends are named, imported only when a spec asks for
+# one, so this module imports no backend (they import it) and no optional dependency.
+_BUILTIN: tuple[SinkType, ...] = (
+    SinkType(
+        "jsonl",
+        "skinloc.live.sinks.jsonl:JsonLinesSink.from_spec",
+        "jsonl (stdout) | jsonl:FILE",
+    ),
+    SinkType(
+        "ws",
+        "skinloc.live.sinks.websocket:WebSocketSink.from_spec",
+        "ws://HOST:PORT (WebSocket server; port 0: any free port)",
+        aliases=("websocket",),
+    ),
+    SinkType(
+        "udp",
+        "skinloc.live.sinks.udp:UdpSink.from_spec",
+        "udp://HOST:PORT (one JSON datagram per contact)",
+    ),
+    SinkType(
+        "foxglove",
+        "skinloc.live.sinks.foxglove:FoxgloveSink.from_spec",
+        "foxglove://HOST:PORT[?mcap=FILE] (Foxglove live 3D scene, port 0: any free port; MCAP)",
+        requires="foxglove",
+    ),
+    SinkType(
+        "mcap",
+        "skinloc.live.sinks.foxglove:FoxgloveSink.from_mcap_spec",
+        "mcap:FILE (Foxglove MCAP recording only)",
+        requires="foxglove",
+    ),
+    SinkType(
+        "lsl",
+        "skinloc.live.sinks.lsl:LslSink.from_spec",
+        "lsl[:NAME] (Lab Streaming Layer outlet)",
+        requires="pylsl",
+    ),
+    SinkType(
+        "ros2",
+        "skinloc.live.sinks.ros2.sink:Ros2Sink.from_spec",
+        "ros2[:NODE] (ROS 2 topics over DDS, or through rclpy when present)",
+        requires="cyclonedds",
+    ),
+    SinkType(
+        "mcap-ros2",
+        "skinloc.live.sinks.ros2.bag:Ros2BagSink.from_spec",
+        "mcap-ros2:FILE (the ROS 2 topics and raw frames as a ROS 2 bag, MCAP)",
+        requires="mcap",
+    ),
+)
+
+#: Every registered sink by scheme and alias: the built-ins, ``register_sink`` calls and (on
+#: first use) the ``skinloc.sinks`` entry points of installed packages.
+_REGISTRY: dict[str, SinkType] = {}
+_ENTRY_POINT_GROUP = "skinloc.sinks"
+_entry_points_loaded = False
+
+
+def _add(entry: SinkType, *, replace: bool) -> None:
+    for key in (entry.scheme, *entry.aliases):
+        if not replace and key in _REGISTRY:
+            raise ValueError(f"a sink is already registered as {key!r}")
+        _REGISTRY[key] = entry
+
+
+for _entry in _BUILTIN:
+    _add(_entry, replace=False)
+
+#: The spec forms of the built-in sinks, for help texts (``sink_forms()``: every registered).
+SINK_SPECS: tuple[str, ...] = tuple(e.form for e in _BUILTIN)
+
+
+def _load_entry_points() -> None:
+    """Register the sinks installed packages declare under ``skinloc.sinks`` (once).
+
+    An entry point ``toy = "package.module:ToySink.from_spec"`` registers the scheme ``toy``;
+    its target is imported only when a spec names it. Built-in schemes are never replaced.
+    """
+    global _entry_points_loaded
+    if _entry_points_loaded:
+        return
+    _entry_points_loaded = True
+    from importlib.metadata import entry_points
+
+    for ep in entry_points(group=_ENTRY_POINT_GROUP):
+        scheme = ep.name.lower()
+        if scheme in _REGISTRY:
+            log.warning("sink %r of entry point %s is taken: ignored", scheme, ep.value)
+            continue
+        form = f"{scheme}[:...] (from {ep.dist.name if ep.dist else ep.value})"
+        _add(SinkType(scheme, ep.value, form), replace=False)
+
+
+def register_sink(
+    scheme: str,
+    factory: str | SinkFactory | None = None,
+    *,
+    form: str | None = None,
+    aliases: Sequence[str] = (),
+    requires: str | None = None,
+    replace: bool = False,
+) -> Any:
+    """Register a sink under ``scheme``: the one step that adds a sink.
+
+    Parameters
+    ----------
+    scheme : str
+        What a spec starts with; letters, digits, ``-`` and ``_``.
+    factory : str or callable, optional
+        ``"package.module:Class.from_spec"`` (imported only when used) or a callable
+        ``(SinkSpec) -> Sink``. Omitted: use as a class decorator, the class's ``from_spec``.
+    form : str, optional
+        The spec's form for help texts (default ``scheme[:...]``).
+    aliases : sequence of str
+        Other schemes meaning the same sink.
+    requires : str, optional
+        The optional dependency it needs (a module name), for tests that skip without it.
+    replace : bool, default False
+        Replace a sink already registered under the scheme (otherwise ``ValueError``).
+
+    Examples
+    --------
+    >>> @register_sink("null", form="null (drops every contact)")  # doctest: +SKIP
+    ... class NullSink(Sink):
+    ...     def emit(self, contact): pass
+    """
+    scheme = scheme.lower()
+    if not scheme or not all(c.isalnum() or c in "-_" for c in scheme):
+        raise ValueError(f"a sink scheme is letters, digits, '-' and '_', got {scheme!r}")
+
+    def add(target: str | SinkFactory) -> None:
+        entry = SinkType(scheme, target, form or f"{scheme}[:...]", tuple(aliases), requires)
+        _add(entry, replace=replace)
+
+    if factory is not None:
+        add(factory)
+        return factory
+
+    def decorate(cls: type[Sink]) -> type[Sink]:
+        add(cls.from_spec)
+        return cls
+
+    return decorate
+
+
+def unregister_sink(scheme: str) -> None:
+    """Remove the sink registered as ``scheme`` (and its aliases); a no-op when there is none."""
+    entry = _REGISTRY.get(scheme.lower())
+    if entry is not None:
+        for key in (entry.scheme, *entry.aliases):
+            _REGISTRY.pop(key, None)
+
+
+def sink_types() -> list[SinkType]:
+    """Every registered sink, once each, built-ins first."""
+    _load_entry_points()
+    return list({id(e): e for e in _REGISTRY.values()}.values())
+
+
+def sink_forms() -> list[str]:
+    """The spec forms of every registered sink, for help texts and errors."""
+    return [e.form for e in sink_types()]
 
 
 def make_sink(spec: str | Sink) -> Sink:
@@ -219,9 +511,15 @@ def make_sink(spec: str | Sink) -> Sink:
     Parameters
     ----------
     spec : str
-        One of ``SINK_SPECS``: ``jsonl``, ``jsonl:out.jsonl``, ``ws://127.0.0.1:8767``,
-        ``udp://127.0.0.1:9870``, ``foxglove://127.0.0.1:8766?mcap=run.mcap``,
-        ``mcap:run.mcap``, ``lsl``, ``lsl:skin``, ``ros2``, ``mcap-ros2:run.mcap``.
+        ``scheme[:argument]`` of a registered sink (``sink_forms()``): ``jsonl``,
+        ``jsonl:out.jsonl``, ``ws://127.0.0.1:8767``, ``udp://127.0.0.1:9870``,
+        ``foxglove://127.0.0.1:8766?mcap=run.mcap``, ``mcap:run.mcap``, ``lsl``, ``lsl:skin``,
+        ``ros2``, ``ros2:NODE``, ``mcap-ros2:run.mcap``.
+
+    Raises
+    ------
+    ValueError
+        One line, naming the spec: an unknown scheme or an argument the sink cannot mean.
 
     Examples
     --------
@@ -230,31 +528,11 @@ def make_sink(spec: str | Sink) -> Sink:
     """
     if isinstance(spec, Sink):
         return spec
-    text = str(spec).strip()
-    scheme, _, rest = text.partition(":")
-    scheme = scheme.lower()
-    if scheme == "jsonl":
-        return _backend("jsonl")(rest or None)
-    if scheme in ("ws", "websocket"):
-        return _backend("ws")(*_host_port(text, resolve(_WS_DEFAULT_PORT)))
-    if scheme == "udp":
-        return _backend("udp")(*_host_port(text, 9870))
-    if scheme == "foxglove":
-        host, port = _host_port(text, 8766)
-        query = parse_qs(urlsplit(text).query)
-        mcap = query.get("mcap", [None])[0]
-        live = query.get("live", ["1"])[0] not in ("0", "false", "no")
-        return _backend("foxglove")(host=host, port=port, mcap_path=mcap, live=live)
-    if scheme == "mcap":
-        if not rest:
-            raise ValueError("sink 'mcap:FILE' needs a file name")
-        return _backend("foxglove")(mcap_path=rest, live=False)
-    if scheme == "lsl":
-        return _backend("lsl")(rest or "skinloc")
-    if scheme == "ros2":
-        return _backend("ros2")(rest or "skinloc")
-    if scheme == "mcap-ros2":
-        if not rest:
-            raise ValueError("sink 'mcap-ros2:FILE' needs a file name")
-        return _backend("mcap-ros2")(rest)
-    raise ValueError(f"unknown sink {text!r}; use one of: {'; '.join(SINK_SPECS)}")
+    parsed = SinkSpec.parse(spec)
+    entry = _REGISTRY.get(parsed.scheme)
+    if entry is None:
+        _load_entry_points()
+        entry = _REGISTRY.get(parsed.scheme)
+    if entry is None:
+        raise ValueError(f"unknown sink {parsed.text!r}; use one of: {'; '.join(sink_forms())}")
+    return entry.build(parsed)

@@ -25,7 +25,7 @@ import numpy as np
 
 from skinloc._lazy import require_extra
 from skinloc.live.contact import track_colour
-from skinloc.live.sinks.base import Sink, SkinInfo, gesture_json
+from skinloc.live.sinks.base import Sink, SinkSpec, SkinInfo, gesture_json
 
 if TYPE_CHECKING:
     from skinloc.live.contact import Contact
@@ -55,6 +55,24 @@ class FoxgloveSink(Sink):
     """
 
     name = "foxglove"
+
+    @classmethod
+    def from_spec(cls, spec: SinkSpec) -> FoxgloveSink:
+        """``foxglove[://HOST][:PORT][?mcap=FILE&live=0]``: a live server, an MCAP file or both."""
+        host, port = spec.address(8766)
+        options = spec.query("mcap", "live")
+        mcap = options.get("mcap")
+        if mcap == "":
+            raise spec.error("mcap= names no file")
+        live = options.get("live", "1").lower()
+        if live not in ("0", "1", "false", "true", "no", "yes"):
+            raise spec.error(f"live= takes 1 or 0, got {live!r}")
+        return cls(host=host, port=port, mcap_path=mcap, live=live not in ("0", "false", "no"))
+
+    @classmethod
+    def from_mcap_spec(cls, spec: SinkSpec) -> FoxgloveSink:
+        """``mcap:FILE``: the Foxglove scene recorded to FILE, no live server."""
+        return cls(mcap_path=spec.file(), live=False)
 
     def __init__(
         self,

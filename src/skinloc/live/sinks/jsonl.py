@@ -6,7 +6,7 @@ import sys
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
 
-from skinloc.live.sinks.base import Sink, gesture_json
+from skinloc.live.sinks.base import Sink, SinkSpec, gesture_json
 
 if TYPE_CHECKING:
     from skinloc.live.contact import Contact
@@ -23,6 +23,11 @@ class JsonLinesSink(Sink):
     """
 
     name = "jsonl"
+
+    @classmethod
+    def from_spec(cls, spec: SinkSpec) -> JsonLinesSink:
+        """``jsonl`` (or ``jsonl:-``): stdout; ``jsonl:FILE``: appended to FILE."""
+        return cls(spec.optional_file())
 
     def __init__(self, path: str | Path | None = None) -> None:
         self.path = None if path in (None, "", "-") else Path(path)

@@ -24,7 +24,7 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 from skinloc._lazy import require_extra
-from skinloc.live.sinks.base import Sink, SkinInfo, gesture_json
+from skinloc.live.sinks.base import Sink, SinkSpec, SkinInfo, gesture_json
 
 if TYPE_CHECKING:
     from skinloc.live.contact import Contact
@@ -69,6 +69,11 @@ class LslSink(Sink):
     """
 
     name = "lsl"
+
+    @classmethod
+    def from_spec(cls, spec: SinkSpec) -> LslSink:
+        """``lsl[:NAME]``: outlets named after NAME (default ``skinloc``)."""
+        return cls(spec.label("skinloc"))
 
     def __init__(self, name: str = "skinloc") -> None:
         self.stream_name = name

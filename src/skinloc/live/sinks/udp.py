@@ -6,14 +6,17 @@ import logging
 import socket
 from typing import TYPE_CHECKING, Any
 
-from skinloc.live.sinks.base import Sink, gesture_json
+from skinloc.live.sinks.base import Sink, SinkSpec, gesture_json
 
 if TYPE_CHECKING:
     from skinloc.live.contact import Contact
 
 log = logging.getLogger(__name__)
 
-__all__ = ["UdpSink"]
+__all__ = ["DEFAULT_PORT", "UdpSink"]
+
+#: Where datagrams go when the spec names no port.
+DEFAULT_PORT = 9870
 
 
 class UdpSink(Sink):
@@ -24,6 +27,11 @@ class UdpSink(Sink):
     """
 
     name = "udp"
+
+    @classmethod
+    def from_spec(cls, spec: SinkSpec) -> UdpSink:
+        """``udp[://HOST][:PORT]``: datagrams to HOST (127.0.0.1) and PORT (9870)."""
+        return cls(*spec.address(DEFAULT_PORT))
 
     def __init__(self, host: str = "127.0.0.1", port: int = 9870) -> None:
         if not 0 < int(port) < 65536:

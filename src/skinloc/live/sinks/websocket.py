@@ -16,7 +16,7 @@ import socket
 import threading
 from typing import TYPE_CHECKING, Any
 
-from skinloc.live.sinks.base import Sink, SkinInfo, gesture_json
+from skinloc.live.sinks.base import Sink, SinkSpec, SkinInfo, gesture_json
 
 if TYPE_CHECKING:
     from skinloc.live.contact import Contact
@@ -61,6 +61,11 @@ class WebSocketSink(Sink):
     """
 
     name = "websocket"
+
+    @classmethod
+    def from_spec(cls, spec: SinkSpec) -> WebSocketSink:
+        """``ws[://HOST][:PORT]``: a server on HOST (127.0.0.1) and PORT (8767; 0: any free)."""
+        return cls(*spec.address(DEFAULT_PORT))
 
     def __init__(self, host: str = "127.0.0.1", port: int = DEFAULT_PORT) -> None:
         port = int(port)

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from skinloc._lazy import require_extra
-from skinloc.live.sinks.base import SkinInfo
+from skinloc.live.sinks.base import SinkSpec, SkinInfo
 from skinloc.live.sinks.ros2.topics import Ros2Topics
 
 __all__ = ["Ros2BagSink", "offered_qos"]
@@ -59,6 +59,11 @@ class Ros2BagSink(Ros2Topics):
     """
 
     name = "mcap-ros2"
+
+    @classmethod
+    def from_spec(cls, spec: SinkSpec) -> Ros2BagSink:
+        """``mcap-ros2:FILE``: a new ROS 2 bag at FILE, raw frames included."""
+        return cls(spec.file())
 
     def __init__(self, path: str | Path, *, frames: bool = True) -> None:
         super().__init__()

@@ -34,7 +34,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from skinloc.errors import MissingExtraError
-from skinloc.live.sinks.base import Sink, SkinInfo
+from skinloc.live.sinks.base import Sink, SinkSpec, SkinInfo
 from skinloc.live.sinks.ros2.records import (
     pack_frame,
     pack_gesture,
@@ -47,6 +47,7 @@ from skinloc.live.sinks.ros2.records import (
 from skinloc.live.sinks.ros2.topics import quaternion_from_rpy as quaternion_from_rpy
 from skinloc.live.sinks.ros2.topics import ros_name as ros_name
 from skinloc.live.sinks.ros2.topics import topic_base as topic_base
+from skinloc.ros2.names import node_name_error
 
 if TYPE_CHECKING:
     from skinloc.live.contact import Contact
@@ -99,6 +100,15 @@ class Ros2Sink(Sink):
     """
 
     name = "ros2"
+
+    @classmethod
+    def from_spec(cls, spec: SinkSpec) -> Ros2Sink:
+        """``ros2[:NODE]``: the node NODE (default ``skinloc``), by ROS 2's node-name rules."""
+        node = spec.label("skinloc")
+        why = node_name_error(node)
+        if why:
+            raise spec.error(why)
+        return cls(node)
 
     def __init__(
         self,

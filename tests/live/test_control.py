@@ -146,3 +146,29 @@ def test_a_param_dump_reads_back_as_skins_file_tables(tmp_path):
         read_param_dump(tmp_path / "bad.yaml")
     with pytest.raises(ValueError, match="not found"):
         read_param_dump(tmp_path / "none.yaml")
+
+
+def test_a_skins_file_reads_a_param_dump_back(tmp_path):
+    from skinloc.live.skins_file import load_skins
+
+    (tmp_path / "dump.yaml").write_text(
+        "/skinloc:\n  ros__parameters:\n    left_arm:\n      pipeline:\n"
+        "        touch_on_z: 9.5\n        max_contacts: 2\n      gestures:\n"
+        "        tap_max_s: 0.2\n"
+    )
+    cfg = tmp_path / "robot.toml"
+    cfg.write_text(
+        'params = "dump.yaml"\n[[skin]]\nname = "left-arm"\nmodel = "m.h5"\n'
+        "pipeline = { touch_on_z = 7.0, quiet_z = 2.5 }\n"
+        '[[skin]]\nname = "leg"\nmodel = "m.h5"\n'
+    )
+    (arm, leg), _ = load_skins(cfg)
+    assert (arm.config.touch_on_z, arm.config.max_contacts, arm.config.quiet_z) == (9.5, 2, 2.5)
+    assert arm.gestures.tap_max_s == 0.2
+    assert leg.config == PipelineConfig()
+    # a dumped value the settings refuse is refused as in the skins file itself
+    (tmp_path / "dump.yaml").write_text(
+        "/skinloc:\n  ros__parameters:\n    leg:\n      pipeline:\n        touch_off_z: 50.0\n"
+    )
+    with pytest.raises(ValueError, match="touch_off_z"):
+        load_skins(cfg)

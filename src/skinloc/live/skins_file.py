@@ -3,6 +3,7 @@
 A TOML file lists the skins of a robot; each becomes a ``SkinConfig`` of one ``Runner``::
 
     sinks = ["jsonl", "ws://127.0.0.1:8767"]   # receive the contacts of every skin
+    params = "skinloc_params.yaml"   # optional: `ros2 param dump /skinloc` of a run, read back
 
     [defaults]                 # any SkinConfig field, for every skin
     model = "arm.h5"           # paths are relative to this file
@@ -32,6 +33,8 @@ A TOML file lists the skins of a robot; each becomes a ``SkinConfig`` of one ``R
     gestures = { swipe_min_mm = 40.0 }
 
 Every key is checked: an unknown one is an error naming the skin, the key and the known keys.
+``params`` names a ``ros2 param dump`` file of the ROS 2 node (``skinloc.live.sinks.ros2.params``):
+its ``pipeline`` and ``gestures`` values of each skin override the file's, checked alike.
 """
 
 from __future__ import annotations
@@ -43,6 +46,8 @@ from typing import Any
 
 from skinloc.live.core import PipelineConfig
 from skinloc.live.runner import Runner, SkinConfig
+from skinloc.live.sinks.ros2.params import read_param_dump
+from skinloc.ros2.names import ros_name
 
 __all__ = ["load_skins", "runner_from_config"]
 
@@ -71,11 +76,17 @@ def load_skins(path: str | Path) -> tuple[list[SkinConfig], list[str]]:
         raw = tomllib.loads(path.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ValueError(f"cannot read skins file {path}: {exc}") from None
-    unknown = sorted(set(raw) - {"sinks", "defaults", "skin"})
+    unknown = sorted(set(raw) - {"sinks", "defaults", "skin", "params"})
     if unknown:
         raise ValueError(
-            f"{path}: unknown top-level key(s) {', '.join(unknown)}; use sinks, defaults, [[skin]]"
+            f"{path}: unknown top-level key(s) {', '.join(unknown)}; use sinks, defaults, params, "
+            "[[skin]]"
         )
+    dumped: dict[str, dict[str, Any]] = {}
+    if "params" in raw:
+        if not isinstance(raw["params"], str):
+            raise ValueError(f"{path}: params must be the path of a ros2 param dump file")
+        dumped = read_param_dump(_resolve(raw["params"], path.parent))
     skins_raw = raw.get("skin", [])
     if not isinstance(skins_raw, list) or not skins_raw:
         raise ValueError(f"{path}: no [[skin]] entries")
@@ -86,11 +97,12 @@ def load_skins(path: str | Path) -> tuple[list[SkinConfig], list[str]]:
     for k, entry in enumerate(skins_raw):
         merged = {**defaults, **entry}
         name = str(merged.get("name", f"skin{k}"))
+        saved = dumped.get(ros_name(name), {})
         for table in ("pipeline", "gestures"):
-            parts = (defaults.get(table, {}), entry.get(table, {}))
+            parts = (defaults.get(table, {}), entry.get(table, {}), saved.get(table, {}))
             if not all(isinstance(p, dict) for p in parts):
                 raise ValueError(f"{path}: skin {name!r}: {table} must be a table of settings")
-            merged[table] = {**parts[0], **parts[1]}
+            merged[table] = {**parts[0], **parts[1], **parts[2]}
         merged["name"] = name
         bad = sorted(set(merged) - known)
         if bad:

@@ -172,3 +172,12 @@ def test_a_skins_file_reads_a_param_dump_back(tmp_path):
     )
     with pytest.raises(ValueError, match="touch_off_z"):
         load_skins(cfg)
+
+
+@pytest.mark.parametrize("name", ["9bad", "bad name", "a-b", ""])
+def test_a_ros2_node_name_follows_ros_naming_rules(name):
+    from skinloc.live.sinks.ros2.sink import Ros2Sink
+
+    with pytest.raises(ValueError, match="node name"):
+        Ros2Sink(name)
+    assert Ros2Sink("skinloc_2").node_name == "skinloc_2"

@@ -18,6 +18,7 @@ Answers are ``{"ok": bool, "message": str}``.
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Iterator
 from typing import Any
@@ -26,6 +27,8 @@ import numpy as np
 
 from skinloc.live.sinks.ros2.params import apply_values, settings_of, skin_key
 from skinloc.sensors.health import classify_sensors
+
+log = logging.getLogger(__name__)
 
 __all__ = ["SkinControl"]
 
@@ -49,14 +52,21 @@ class SkinControl:
         self._pending: list[tuple[Any, int]] = []  # (request id, slot) of tares in progress
         self._rate: dict[int, tuple[float, int]] = {}  # slot -> (time, frames) of the last look
         self._seen: dict[int, dict[str, int]] = {}  # slot -> counters at the last diagnostics
+        self.n_errors = 0  # failures of a sink's ``serve`` (logged once)
 
     # ------------------------------------------------------------------ the loop's call
     def serve(self, now: float) -> None:
         """Let every sink that serves a control interface do so (the runner's sweep)."""
         for sink in self.runner.all_sinks():
             serve = getattr(sink, "serve", None)
-            if serve is not None:
+            if serve is None:
+                continue
+            try:
                 serve(self, now)
+            except Exception:  # noqa: BLE001 - serving a control interface never stops the loop
+                self.n_errors += 1
+                if self.n_errors == 1:
+                    log.exception("serving the %s sink's requests failed", sink.name)
 
     # ------------------------------------------------------------------ requests
     def _slot(self, key: str) -> int | None:
@@ -163,7 +173,7 @@ class SkinControl:
             "nonfinite_frames": int(d.get("nonfinite_frames", 0)),
             "dropped_frames": int(wire.get("n_dropped", 0)),
             "corrupt_frames": int(wire.get("n_corrupted", 0)),
-            "errors": int(d.get("errors", 0)),  # the runner's exception counters, when kept
+            "errors": _count(d.get("errors", 0)),  # the runner's exception counters, if kept
             "publisher_dropped": int(extra.get("publisher_dropped", 0)),
         }
         seen = self._seen.get(slot, {})
@@ -220,3 +230,13 @@ class SkinControl:
             "message": "; ".join(error + warn) or "OK",
             "values": values,
         }
+
+
+def _count(value: Any) -> int:
+    """A counter of the runner's stats: a number, or a table of them (summed)."""
+    if isinstance(value, dict):
+        return sum(_count(v) for v in value.values())
+    try:
+        return int(value)
+    except (TypeError, ValueError):
+        return 0

@@ -49,8 +49,8 @@ FIXED = ("gestures", "footprint_gestures")
 
 # ranges (inclusive) of the numeric settings; the settings' own check has the exact rule
 _INT_MIN = {"track_miss_frames": 0}
-_FLOAT_RANGE = {"release_fraction": (0.0, 1.0), "beta": (0.0, 1e6)}
-_FLOAT_MAX = 1e6
+_FLOAT_RANGE = {"release_fraction": (0.0, 1.0)}
+_FLOAT_MAX = 1e9
 
 
 @dataclass(frozen=True)
@@ -105,7 +105,7 @@ def _spec(f: dataclasses.Field, default: Any, doc: str, prefix: str) -> ParamSpe
         read_only = f.name in FIXED and prefix == "pipeline."
         return ParamSpec(key, "bool", default, doc, read_only=read_only)
     if isinstance(default, int):
-        return ParamSpec(key, "int", default, doc, float(_INT_MIN.get(f.name, 1)), 1e6)
+        return ParamSpec(key, "int", default, doc, float(_INT_MIN.get(f.name, 1)), 1e9)
     if isinstance(default, float):
         lo, hi = _FLOAT_RANGE.get(f.name, (0.0, _FLOAT_MAX))
         return ParamSpec(key, "float", default, doc, lo, hi)

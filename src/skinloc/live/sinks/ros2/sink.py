@@ -406,7 +406,7 @@ class Ros2Sink(Sink):
         answered; each skin's settings go to the node once, the diagnostics about once a
         second. Without a node (plain DDS) there is nothing to serve.
         """
-        if self._proc is None or self._r < 0:
+        if self._proc is None or self._r < 0 or self.backend_used != "rclpy":
             return
         now = time.monotonic() if now is None else now
         self._read_requests()
@@ -423,7 +423,8 @@ class Ros2Sink(Sink):
             self._control({"answer": rid, **answer})
         if now >= self._next_diag:
             self._next_diag = now + _DIAG_PERIOD_S
-            self._control({"diagnostics": control.diagnostics(now, self._queue_values())})
+            status = control.diagnostics(now, self._queue_values())
+            self._control({"diagnostics": status}, wait_s=0.0)  # the next one comes in 1 s
 
     def _read_requests(self) -> None:
         """Read what the publisher said since (never blocks); requests go to ``_requests``."""
@@ -448,10 +449,10 @@ class Ros2Sink(Sink):
                 elif "error" in msg:
                     log.warning("ROS 2 publisher: %s", msg["error"])
 
-    def _control(self, message: dict[str, Any]) -> None:
+    def _control(self, message: dict[str, Any], wait_s: float = 0.1) -> None:
         """A message to the node (a ``CONTROL`` record; dropped if the pipe stays full)."""
         record = pack_control(message)
-        self._wait_for_room(len(record), 0.1)
+        self._wait_for_room(len(record), wait_s)
         if not self._room_for(len(record)):
             return
         with contextlib.suppress(BlockingIOError, BrokenPipeError):

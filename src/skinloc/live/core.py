@@ -22,6 +22,7 @@ times), latencies in microseconds, signals in raw counts or in noise standard de
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
@@ -151,20 +152,16 @@ class SkinCore:
         self._last_ts: float | None = None
         cfg = self.config
         self.max_contacts = cfg.max_contacts
-        self._tracker: Tracker | None = None
         #: this stream's memory of its last full multi-contact search (None: every frame
         #: searched in full, the answers' reference)
         self.search_memory: SearchMemory | None = SearchMemory()
-        if cfg.max_contacts > 1:
-            self._tracker = Tracker(
-                cfg.max_contacts,
-                cfg.track_gate_mm,
-                cfg.track_miss_frames,
-                cfg.track_confirm_frames,
-                self.engine.constrain_into,
-                self._filt_prm if cfg.filter == "one-euro" else None,
-                pair=pair_prior(self.engine, self._delta),
-            )
+        self._tracker: Tracker | None = self._make_tracker(cfg)
+        # the baseline and noise of the last capture (``health``: drift, stuck sensors)
+        self._cal_baseline = np.zeros(n, dtype=np.float64)
+        self._cal_sigma = np.full(n, np.nan)
+        self._tare_from: np.ndarray | None = None  # the baseline a tare in progress replaces
+        #: what the last finished ``tare`` changed (None before one ends)
+        self.last_tare: dict[str, float] | None = None
         self.gestures: list[dict[str, Any]] = []  # events due, collected by ``take_gestures``
         self._recognizer: GestureRecognizer | None = None
         self._landing: LandingWatch | None = None  # a second finger in time, for gestures
@@ -196,6 +193,20 @@ class SkinCore:
                     self._landing = LandingWatch(self.engine.noise_weights())
         self._warm_up()
 
+    def _make_tracker(self, cfg: PipelineConfig) -> Tracker | None:
+        """The multi-contact tracker of ``cfg`` (None for the single-contact pipeline)."""
+        if cfg.max_contacts <= 1:
+            return None
+        return Tracker(
+            cfg.max_contacts,
+            cfg.track_gate_mm,
+            cfg.track_miss_frames,
+            cfg.track_confirm_frames,
+            self.engine.constrain_into,
+            self._filt_prm if cfg.filter == "one-euro" else None,
+            pair=pair_prior(self.engine, self._delta),
+        )
+
     def _warm_up(self) -> None:
         """Compile (or load from numba's cache) the per-frame kernels now, not on a touch."""
         n = self.n_sensors
@@ -223,7 +234,7 @@ class SkinCore:
         self._baseline[:] = F.mean(axis=0)
         sigma = F.std(axis=0) if len(F) > 1 else np.zeros(self.n_sensors)
         self._inv_sigma[:] = 1.0 / np.maximum(sigma, self.config.noise_floor_counts)
-        self.calibrated = True
+        self._captured(sigma)
         self._n_acc = 0
 
     def recalibrate(self) -> None:
@@ -260,9 +271,132 @@ class SkinCore:
             mean = self._acc / m
             var = np.maximum(self._acc2 / m - mean * mean, 0.0) * m / max(m - 1, 1)
             self._baseline[:] = mean
-            self._inv_sigma[:] = 1.0 / np.maximum(np.sqrt(var), self.config.noise_floor_counts)
-            self.calibrated = True
+            sigma = np.sqrt(var)
+            self._inv_sigma[:] = 1.0 / np.maximum(sigma, self.config.noise_floor_counts)
+            self._captured(sigma)
             log.info("%s: baseline from %d frames", self.name, m)
+
+    def _captured(self, sigma: np.ndarray) -> None:
+        """A baseline capture ended: keep it (for ``health``) and close a tare in progress."""
+        self._cal_baseline[:] = self._baseline
+        self._cal_sigma[:] = sigma
+        self.calibrated = True
+        if self._tare_from is not None:
+            shift = self._baseline - self._tare_from
+            self.last_tare = {
+                "mean_shift_counts": float(shift.mean()),
+                "max_abs_shift_counts": float(np.abs(shift).max()),
+            }
+            self._tare_from = None
+
+    # ------------------------------------------------------------------ live control
+    def tare(self) -> None:
+        """Re-baseline now: capture a fresh baseline from the next ``baseline_frames`` frames.
+
+        Refused while the skin is touched (or a touch is starting), so a tare never makes a
+        finger part of the baseline, and while a capture is in progress. When the capture
+        ends, ``last_tare`` holds what changed: ``mean_shift_counts`` (the new baseline minus
+        the one it replaced, averaged over the sensors) and ``max_abs_shift_counts``.
+
+        Raises
+        ------
+        ValueError
+            With the reason, when refused.
+        """
+        if self._touching or self._above:
+            raise ValueError(f"skin {self.name!r} is touched; tare refused (release it first)")
+        if not self.calibrated:
+            raise ValueError(f"skin {self.name!r} is capturing its baseline; try again later")
+        self._tare_from = self._baseline.copy()
+        self.last_tare = None
+        self.recalibrate()
+
+    @property
+    def taring(self) -> bool:
+        """Whether a ``tare`` is capturing its baseline."""
+        return self._tare_from is not None
+
+    def reset_tracks(self) -> int:
+        """Forget the tracks and filter state now (refused while touched); returns tracks dropped.
+
+        Raises
+        ------
+        ValueError
+            While the skin is touched (its open tracks would end without an ``end``).
+        """
+        if self._touching:
+            raise ValueError(f"skin {self.name!r} is touched; reset refused (release it first)")
+        n = 0
+        if self._tracker is not None:
+            n = len(self._tracker.end_all())
+            self._tracker = self._make_tracker(self.config)
+        if self.search_memory is not None:
+            self.search_memory.reset()
+        self._filt_state[:] = 0.0
+        return n
+
+    def update_config(
+        self, config: PipelineConfig, gestures: GestureConfig | None = None
+    ) -> list[str]:
+        """Apply new settings from the next frame; returns the names of the fields changed.
+
+        ``config`` is a checked ``PipelineConfig`` (its ``__post_init__`` is the one
+        validation); ``gestures`` new gesture thresholds (None: unchanged). Thresholds, drift
+        and filter settings apply at the next frame; ``baseline_frames`` and
+        ``noise_floor_counts`` at the next capture (a tare). A change of the tracker's settings
+        (``max_contacts``, ``track_*``, ``filter``) builds a new tracker and is refused while
+        the skin is touched; ``gestures`` and ``footprint_gestures`` are fixed at start.
+
+        Raises
+        ------
+        ValueError
+            With the reason, when a change is refused; nothing is applied then.
+        """
+        old = self.config
+        changed = [
+            f.name
+            for f in dataclasses.fields(old)
+            if getattr(old, f.name) != getattr(config, f.name)
+        ]
+        fixed = [n for n in changed if n in ("gestures", "footprint_gestures")]
+        if fixed:
+            raise ValueError(f"{', '.join(fixed)} cannot change while running (restart instead)")
+        rebuild = any(
+            n == "max_contacts" or n.startswith("track_") or n == "filter" for n in changed
+        )
+        if rebuild and self._touching:
+            raise ValueError(
+                f"skin {self.name!r} is touched; {', '.join(changed)} can change only while "
+                "nothing touches"
+            )
+        if gestures is not None and self._recognizer is not None:
+            self._recognizer.cfg = gestures
+        self.config = config
+        self._filt_prm[:] = (config.min_cutoff_hz, config.beta, config.d_cutoff_hz)
+        if "drift_time_constant_s" in changed and self._last_ts is not None:
+            self._alpha = min(self._dt / config.drift_time_constant_s, 1.0)
+        if rebuild:
+            self.max_contacts = config.max_contacts
+            self._tracker = self._make_tracker(config)
+        return changed
+
+    def health(self) -> dict[str, Any]:
+        """What a maintainer monitors of this skin's signal (counts).
+
+        Returns
+        -------
+        dict
+            ``noise`` ``(n_sensors,)`` each sensor's no-touch std at the last capture (NaN
+            before one); ``stuck`` ``(n_sensors,)`` bool, sensors that did not change at all
+            over it; ``drift`` ``(n_sensors,)`` the baseline now minus the one captured (what
+            drift tracking moved since).
+        """
+        sigma = self._cal_sigma
+        return {
+            "noise": sigma.copy(),
+            "stuck": sigma == 0.0,
+            "drift": self._baseline - self._cal_baseline,
+        }
 
     # ------------------------------------------------------------------ frames
     def process(

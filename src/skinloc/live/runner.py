@@ -30,6 +30,7 @@ from typing import Any
 
 from skinloc.errors import SourceNotConnectedError
 from skinloc.live.config import PipelineConfig
+from skinloc.live.control import SkinControl
 from skinloc.live.core import Contact, SkinCore
 from skinloc.live.feeds import PortFeed, ThreadFeed, open_port_feed
 from skinloc.live.scripted import ScriptedFinger
@@ -144,6 +145,8 @@ class Runner:
         self._error: BaseException | None = None
         self._touches_ended = False  # the ends of the open touches went out (once, at the end)
         self.n_emitted = 0
+        #: settings, tare and diagnostics for the sinks that serve them (the ROS 2 node)
+        self.control = SkinControl(self)
 
     # ------------------------------------------------------------------ lifecycle
     def open(self) -> Runner:
@@ -343,7 +346,12 @@ class Runner:
             for slot, core in enumerate(cores):
                 if core.touching:
                     self._emit(slot, core.end_stale(now), out)
+            self.control.serve(now)
         return out
+
+    def all_sinks(self) -> list[Sink]:
+        """Every sink: those of all skins, then each skin's own."""
+        return [*self.global_sinks, *(s for sinks in self.skin_sinks for s in sinks)]
 
     @property
     def waiting(self) -> list[tuple[str, str]]:

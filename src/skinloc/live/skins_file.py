@@ -3,6 +3,7 @@
 A TOML file lists the skins of a robot; each becomes a ``SkinConfig`` of one ``Runner``::
 
     sinks = ["jsonl", "ws://127.0.0.1:8767"]   # receive the contacts of every skin
+    params = "skinloc_params.yaml"   # optional: `ros2 param dump /skinloc` of a run, read back
 
     [defaults]                 # any SkinConfig field, for every skin
     model = "arm.h5"           # paths are relative to this file
@@ -32,6 +33,8 @@ A TOML file lists the skins of a robot; each becomes a ``SkinConfig`` of one ``R
     gestures = { swipe_min_mm = 40.0 }
 
 Every key is checked: an unknown one is an error naming the skin, the key and the known keys.
+``params`` names a ``ros2 param dump`` file of the ROS 2 node (``skinloc.live.sinks.ros2.params``):
+its ``pipeline`` and ``gestures`` values of each skin override the file's, checked alike.
 """
 
 from __future__ import annotations
@@ -43,6 +46,8 @@ from typing import Any
 
 from skinloc.live.core import PipelineConfig
 from skinloc.live.runner import Runner, SkinConfig
+from skinloc.live.sinks.ros2.params import read_param_dump
+from skinloc.ros2.names import ros_name
 
 __all__ = ["load_skins", "read_skins_toml", "runner_from_config", "skin_table"]
 
@@ -94,11 +99,17 @@ def load_skins(path: str | Path) -> tuple[list[SkinConfig], list[str]]:
     if not path.is_file():
         raise ValueError(f"skins file not found: {path}")
     raw = read_skins_toml(path)
-    unknown = sorted(set(raw) - {"sinks", "defaults", "skin"})
+    unknown = sorted(set(raw) - {"sinks", "defaults", "skin", "params"})
     if unknown:
         raise ValueError(
-            f"{path}: unknown top-level key(s) {', '.join(unknown)}; use sinks, defaults, [[skin]]"
+            f"{path}: unknown top-level key(s) {', '.join(unknown)}; use sinks, defaults, params, "
+            "[[skin]]"
         )
+    dumped: dict[str, dict[str, Any]] = {}
+    if "params" in raw:
+        if not isinstance(raw["params"], str):
+            raise ValueError(f"{path}: params must be the path of a ros2 param dump file")
+        dumped = read_param_dump(_resolve(raw["params"], path.parent))
     skins_raw = raw.get("skin", [])
     if not isinstance(skins_raw, list) or not skins_raw:
         raise ValueError(f"{path}: no [[skin]] entries")
@@ -109,9 +120,10 @@ def load_skins(path: str | Path) -> tuple[list[SkinConfig], list[str]]:
     for k, entry in enumerate(skins_raw):
         merged = {**defaults, **entry}
         name = str(merged.get("name", f"skin{k}"))
+        saved = dumped.get(ros_name(name), {})
         for table in ("pipeline", "gestures"):
             try:
-                merged[table] = skin_table(raw, k, table)
+                merged[table] = {**skin_table(raw, k, table), **saved.get(table, {})}
             except ValueError as exc:
                 raise ValueError(f"{path}: {exc}") from None
         merged["name"] = name

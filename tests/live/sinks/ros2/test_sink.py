@@ -177,8 +177,9 @@ _LOOPBACK = (
 
 @pytest.fixture
 def domain(monkeypatch):
-    """A DDS domain of this test run only, on loopback."""
+    """A DDS domain of this test run only, on loopback (plain DDS, rclpy installed or not)."""
     monkeypatch.setenv("CYCLONEDDS_URI", _LOOPBACK)
+    monkeypatch.setenv("SKINLOC_ROS2_BACKEND", "dds")
     return random.Random(os.getpid() ^ time.time_ns()).randrange(1, 232)
 
 

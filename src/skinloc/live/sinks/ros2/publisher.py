@@ -20,13 +20,22 @@ import logging
 import os
 import signal
 import sys
+import threading
 import time
 from typing import Any
 
 import numpy as np
 
 from skinloc.live.sinks.base import SkinInfo
-from skinloc.live.sinks.ros2.records import FRAME, GESTURE, MATCHED, SKINS, SYNC, RecordReader
+from skinloc.live.sinks.ros2.records import (
+    CONTROL,
+    FRAME,
+    GESTURE,
+    MATCHED,
+    SKINS,
+    SYNC,
+    RecordReader,
+)
 from skinloc.live.sinks.ros2.topics import Ros2Topics, rclpy_available, require_msgs
 
 log = logging.getLogger(__name__)
@@ -83,6 +92,9 @@ class _DdsBackend:
         w = self.writers.get(topic)
         return len(w.get_matched_subscriptions()) if w is not None else 0
 
+    def control(self, message: dict[str, Any]) -> None:
+        """No node: parameters, services and diagnostics are not served (the sink said so)."""
+
     def close(self) -> None:
         self.writers.clear()
         self._refs.clear()
@@ -90,17 +102,29 @@ class _DdsBackend:
 
 
 class _RclpyBackend:
-    """A ROS 2 node (rclpy) publishing the same CDR bytes (``Publisher.publish`` takes bytes)."""
+    """A ROS 2 node (rclpy) publishing the same CDR bytes (``Publisher.publish`` takes bytes).
 
-    def __init__(self, node_name: str) -> None:
+    Its parameters, services and ``/diagnostics`` are ``node.NodeServices``'s. A message type
+    whose Python package is missing (``tf2_msgs``: no wheel of it) goes out through a plain DDS
+    writer beside the node (``_DdsBackend``), with the same type name and CDR bytes.
+    """
+
+    def __init__(self, node_name: str, domain_id: int, ask: Any = None) -> None:
         import rclpy
+        from rclpy.signals import SignalHandlerOptions
+
+        from skinloc.live.sinks.ros2.node import NodeServices
 
         self._own_init = False
+        self.domain_id = domain_id
         if not rclpy.ok():
-            rclpy.init()
+            # no signal handlers: the sink's owner ends this process by closing its pipe
+            rclpy.init(domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO)
             self._own_init = True
         self.node = rclpy.create_node(node_name)
         self.pubs: dict[str, Any] = {}
+        self._dds: _DdsBackend | None = None  # for types without a Python package here
+        self.services = NodeServices(self.node, ask) if ask is not None else None
 
     def advertise(self, topic: str, cls: type, latched: bool) -> None:
         import importlib
@@ -112,7 +136,13 @@ class _RclpyBackend:
         if topic in self.pubs:
             return
         pkg, _, name = ros_type_name(cls).split("/")
-        msg_type = getattr(importlib.import_module(f"{pkg}.msg"), name)
+        try:
+            msg_type = getattr(importlib.import_module(f"{pkg}.msg"), name)
+        except ImportError:
+            if self._dds is None:
+                self._dds = _DdsBackend(self.domain_id)
+            self._dds.advertise(topic, cls, latched)
+            return
         qos = QoSProfile(
             history=HistoryPolicy.KEEP_LAST,
             depth=1 if latched else _DEPTH,
@@ -122,15 +152,29 @@ class _RclpyBackend:
         self.pubs[topic] = self.node.create_publisher(msg_type, topic, qos)
 
     def write(self, topic: str, data: bytes) -> None:
-        self.pubs[topic].publish(data)
+        pub = self.pubs.get(topic)
+        if pub is None and self._dds is not None:
+            self._dds.write(topic, data)
+            return
+        pub.publish(data)
 
     def matched(self, topic: str) -> int:
         p = self.pubs.get(topic)
+        if p is None and self._dds is not None:
+            return self._dds.matched(topic)
         return p.get_subscription_count() if p is not None else 0
+
+    def control(self, message: dict[str, Any]) -> None:
+        if self.services is not None:
+            self.services.control(message)
 
     def close(self) -> None:
         import rclpy
 
+        if self.services is not None:
+            self.services.close()
+        if self._dds is not None:
+            self._dds.close()
         self.node.destroy_node()
         if self._own_init:
             rclpy.shutdown()
@@ -147,14 +191,20 @@ class Ros2Publisher(Ros2Topics):
         DDS domain.
     backend : {"auto", "dds", "rclpy"}
         ``auto``: rclpy when importable, else plain DDS.
+    ask : callable(dict), optional
+        Sends the node's requests to the skins' process (``node.NodeServices``); None: the
+        node serves no parameters, services or diagnostics.
     """
 
-    def __init__(self, node_name: str, domain_id: int, backend: str = "auto") -> None:
+    def __init__(
+        self, node_name: str, domain_id: int, backend: str = "auto", ask: Any = None
+    ) -> None:
         super().__init__()
         self.node_name = node_name
         self.domain_id = domain_id
         self.backend = backend
         self.backend_used = ""
+        self._ask = ask
         self._io: Any = None
 
     def open(self, skins: list[SkinInfo]) -> None:
@@ -163,15 +213,14 @@ class Ros2Publisher(Ros2Topics):
             for s in skins:
                 if s.name not in self._skins:
                     self._add_skin(s)
-            if any(s.parent_frame for s in skins):
-                self._publish_tf_static()
+            self._publish_tf_static()
             return
         use_rclpy = self.backend == "rclpy" or (self.backend == "auto" and rclpy_available())
         require_msgs()
         if use_rclpy:
             if not rclpy_available():
                 raise ImportError("backend 'rclpy' needs a sourced ROS 2 installation")
-            self._io = _RclpyBackend(self.node_name)
+            self._io = _RclpyBackend(self.node_name, self.domain_id, self._ask)
         else:
             self._io = _DdsBackend(self.domain_id)
         self.backend_used = "rclpy" if use_rclpy else "dds"
@@ -182,6 +231,11 @@ class Ros2Publisher(Ros2Topics):
 
     def _write(self, topic: str, data: bytes, t_ns: int, sequence: int | None = None) -> None:
         self._io.write(topic, data)
+
+    def control(self, message: dict[str, Any]) -> None:
+        """A ``CONTROL`` message of the skins' process, for the node."""
+        if self._io is not None:
+            self._io.control(message)
 
     def close(self) -> None:
         """Leave the domain (destroy the node). Idempotent."""
@@ -220,13 +274,18 @@ class _Stats:
 
 def _serve(fd_in: int, reply: Any, config: dict[str, Any]) -> int:
     """Read records from ``fd_in`` until its end; publish; answer on ``reply``."""
+    lock = threading.Lock()  # the node's thread asks too
 
     def say(**msg: Any) -> None:
-        reply.write(json.dumps(msg) + "\n")
-        reply.flush()
+        line = json.dumps(msg) + "\n"
+        with lock:
+            reply.write(line)
+            reply.flush()
 
     reader = RecordReader()
-    pub = Ros2Publisher(config["node_name"], int(config["domain_id"]), config["backend"])
+    pub = Ros2Publisher(
+        config["node_name"], int(config["domain_id"]), config["backend"], lambda m: say(**m)
+    )
     stats = _Stats()
     gather_s = float(config.get("gather_s", 0.001))
     opened = False
@@ -270,6 +329,12 @@ def _serve(fd_in: int, reply: Any, config: dict[str, Any]) -> int:
                         say(ready=True, backend=pub.backend_used, pid=os.getpid())
                 elif kind == SYNC:
                     say(sync=value, stats=stats.as_dict())
+                elif kind == CONTROL:
+                    try:
+                        pub.control(value)
+                    except Exception:  # noqa: BLE001 - the node must go on publishing
+                        stats.errors += 1
+                        log.exception("serving the node failed")
                 elif kind == MATCHED:
                     token, topic = value
                     say(matched=token, n=pub._io.matched(topic) if pub._io is not None else 0)

@@ -16,6 +16,9 @@ A record is ``<I`` total length (header included), ``<B`` kind, then the payload
 * ``SYNC``: ``<I`` token: the publisher answers once everything before it is published.
 * ``MATCHED``: ``<I`` token, then a topic name (UTF-8): the publisher answers with the number of
   subscriptions its writer of that topic has matched.
+* ``CONTROL``: UTF-8 JSON for the node (``skinloc.live.sinks.ros2.node``): each skin's settings
+  (``{"settings": ...}``), an answer to one of its requests (``{"answer": ID, ...}``) and the
+  diagnostics (``{"diagnostics": [...]}``).
 
 Frame records are far below ``PIPE_BUF`` (4096 bytes), so a non-blocking write of one is atomic:
 it goes in whole or raises ``BlockingIOError`` (the pipe is full: the record is dropped and
@@ -37,12 +40,14 @@ if TYPE_CHECKING:
     from skinloc.live.sinks.base import SkinInfo
 
 __all__ = [
+    "CONTROL",
     "FRAME",
     "GESTURE",
     "MATCHED",
     "SKINS",
     "SYNC",
     "RecordReader",
+    "pack_control",
     "pack_frame",
     "pack_gesture",
     "pack_matched",
@@ -50,7 +55,7 @@ __all__ = [
     "pack_sync",
 ]
 
-FRAME, GESTURE, SKINS, SYNC, MATCHED = 1, 2, 3, 4, 5
+FRAME, GESTURE, SKINS, SYNC, MATCHED, CONTROL = 1, 2, 3, 4, 5, 6
 
 _HEAD = struct.Struct("<IB")  # record length, kind
 _FRAME = struct.Struct("<HddB")  # skin, timestamp s, emitted at (monotonic s), n contacts
@@ -127,13 +132,19 @@ def pack_matched(token: int, topic: str) -> bytes:
     return _HEAD.pack(_HEAD.size + len(body), MATCHED) + body
 
 
+def pack_control(message: dict[str, Any]) -> bytes:
+    """A JSON-ready message for the node as a ``CONTROL`` record."""
+    body = json.dumps(message, separators=(",", ":")).encode()
+    return _HEAD.pack(_HEAD.size + len(body), CONTROL) + body
+
+
 class RecordReader:
     """Split a byte stream into records, rebuilding contacts and events.
 
     ``feed(data)`` yields ``(kind, value)`` for every record completed by ``data``:
     ``FRAME``: ``(skin, timestamp_s, emitted_s, [Contact, ...])``; ``GESTURE``: ``(skin,
     timestamp_s, emitted_s, event dict)``; ``SKINS``: ``list[SkinInfo]``; ``SYNC``: the token;
-    ``MATCHED``: ``(token, topic)``.
+    ``MATCHED``: ``(token, topic)``; ``CONTROL``: the message (dict).
     The contacts carry the skin's name once ``names`` (the numbered skins) has it.
     """
 
@@ -200,4 +211,6 @@ class RecordReader:
             return _SYNC.unpack(body)[0]
         if kind == MATCHED:
             return _SYNC.unpack_from(body)[0], body[_SYNC.size :].decode()
+        if kind == CONTROL:
+            return json.loads(body)
         raise ValueError(f"corrupt record stream (unknown record kind {kind})")

@@ -24,7 +24,9 @@ import contextlib
 import fcntl
 import json
 import logging
+import math
 import os
+import re
 import select
 import subprocess
 import sys
@@ -33,9 +35,12 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from skinloc.errors import MissingExtraError
 from skinloc.live.sinks.base import Sink, SinkSpec, SkinInfo
 from skinloc.live.sinks.ros2.records import (
+    pack_control,
     pack_frame,
     pack_gesture,
     pack_matched,
@@ -62,6 +67,8 @@ _BYTES_PER_FRAME = 256  # a frame record of up to 3 contacts, rounded up: sizes 
 #: be left with a finger that lifted (any other frame is dropped at once)
 _END_WAIT_S = 2.0
 _START_TIMEOUT_S = 120.0  # a loaded machine may take long to import cyclonedds and join
+_DIAG_PERIOD_S = 1.0  # /diagnostics, as diagnostic_updater publishes
+_LATENCIES = 256  # the latest frames' latencies kept per skin, for the diagnostics' p99
 _ERRORS = {
     "ValueError": ValueError,
     "ImportError": ImportError,
@@ -87,7 +94,8 @@ class Ros2Sink(Sink):
     domain_id : int, optional
         DDS domain (default: ``ROS_DOMAIN_ID``, else 0).
     backend : {"auto", "dds", "rclpy"}
-        ``auto``: rclpy when importable, else plain DDS.
+        ``auto``: the environment variable ``SKINLOC_ROS2_BACKEND`` when set, else rclpy when
+        importable, else plain DDS.
     queue_frames : int, default=4096
         About how many frames the pipe to the publisher holds (``_BYTES_PER_FRAME`` each, within
         the system's pipe size limit); a frame that finds it full is dropped and counted. 4096
@@ -120,8 +128,15 @@ class Ros2Sink(Sink):
         gather_s: float = 0.001,
         dds_config: str | None = None,
     ) -> None:
+        if backend == "auto":
+            backend = os.environ.get("SKINLOC_ROS2_BACKEND", "").strip() or "auto"
         if backend not in ("auto", "dds", "rclpy"):
             raise ValueError(f"unknown ROS 2 backend {backend!r}; use auto, dds or rclpy")
+        if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", node_name or ""):
+            raise ValueError(
+                f"ROS 2 node name {node_name!r} is not valid: letters, digits and underscores, "
+                "not starting with a digit"
+            )
         if domain_id is None:
             env = os.environ.get("ROS_DOMAIN_ID", "").strip()
             try:
@@ -147,6 +162,11 @@ class Ros2Sink(Sink):
         self.n_put = self.n_dropped = 0
         self._child: dict[str, Any] = {}  # the publisher's latest statistics
         self._gone_logged = False
+        self._requests: list[dict[str, Any]] = []  # the node's requests, for ``serve``
+        self._served_skins: set[str] = set()  # skins whose settings the node has
+        self._next_diag = 0.0
+        self._latency: dict[int, np.ndarray] = {}  # per skin: a ring of latencies, us
+        self._n_latency: dict[int, int] = {}
 
     # ------------------------------------------------------------------ the publisher process
     @property
@@ -213,6 +233,12 @@ class Ros2Sink(Sink):
         if first:
             msg = self._reply(lambda m: "ready" in m, _START_TIMEOUT_S, "start")
             self.backend_used = msg.get("backend", "")
+            if self.backend_used == "dds":
+                log.warning(
+                    "ROS 2 without rclpy: plain DDS topics and /tf_static only; no node in the "
+                    "ROS graph, no parameters, no tare or reset_tracks services, no /diagnostics "
+                    "(pip install 'skinloc[ros2]' or source a ROS 2 install for those)"
+                )
             os.set_blocking(self._w, False)  # from now on a full pipe drops, never waits
         else:
             self._sync(30.0)
@@ -241,6 +267,9 @@ class Ros2Sink(Sink):
                     raise _ERRORS.get(msg.get("type"), RuntimeError)(msg["error"])
                 if "stats" in msg or "final" in msg:
                     self._child = msg.get("stats") or msg.get("final")
+                if "request" in msg:
+                    self._requests.append(msg)
+                    continue
                 if want(msg):
                     return msg
             left = end - time.monotonic()
@@ -364,11 +393,105 @@ class Ros2Sink(Sink):
     def emit_contacts(self, skin: str, timestamp_s: float, contacts: Sequence[Contact]) -> None:
         """Queue one frame of ``skin`` for the publisher (see ``Ros2Topics.emit_contacts``)."""
         keep = any(c.state == "end" for c in contacts)
-        self._put(pack_frame(self._skin(skin), timestamp_s, time.monotonic(), contacts), keep)
+        i = self._skin(skin)
+        if contacts:
+            ring = self._latency.get(i)
+            if ring is None:
+                ring = self._latency[i] = np.full(_LATENCIES, np.nan)
+            n = self._n_latency.get(i, 0)
+            ring[n % _LATENCIES] = contacts[0].latency_us
+            self._n_latency[i] = n + 1
+        self._put(pack_frame(i, timestamp_s, time.monotonic(), contacts), keep)
 
     def emit_gesture(self, skin: str, timestamp_s: float, event: Mapping[str, Any]) -> None:
         """Queue a gesture event of ``skin`` (published as JSON on ``/skinloc/S/gestures``)."""
         self._put(pack_gesture(self._skin(skin), timestamp_s, time.monotonic(), dict(event)))
+
+    # ------------------------------------------------------------------ the node's requests
+    def serve(self, control: Any, now: float | None = None) -> None:
+        """Serve the node from the pipeline's thread (the runner calls it every sweep).
+
+        ``control`` is the runner's ``skinloc.live.control.SkinControl``: the node's requests
+        (a parameter set, a tare) are applied to the skins through it, between frames, and
+        answered; each skin's settings go to the node once, the diagnostics about once a
+        second. Without a node (plain DDS) there is nothing to serve.
+        """
+        if self._proc is None or self._r < 0 or self.backend_used != "rclpy":
+            return
+        now = time.monotonic() if now is None else now
+        self._read_requests()
+        new = [n for n in self._index if n not in self._served_skins]
+        if new:
+            self._served_skins.update(new)
+            self._control({"settings": {n: control.settings(n) for n in new}})
+        for req in self._requests:
+            answer = control.handle(req)
+            if answer is not None:
+                self._control({"answer": req["request"], **answer})
+        self._requests.clear()
+        for rid, answer in control.finished():
+            self._control({"answer": rid, **answer})
+        if now >= self._next_diag:
+            self._next_diag = now + _DIAG_PERIOD_S
+            status = control.diagnostics(now, self._queue_values())
+            self._control({"diagnostics": status}, wait_s=0.0)  # the next one comes in 1 s
+
+    def _read_requests(self) -> None:
+        """Read what the publisher said since (never blocks); requests go to ``_requests``."""
+        while True:
+            try:
+                chunk = os.read(self._r, 65536)
+            except BlockingIOError:
+                break
+            except OSError:
+                return
+            if not chunk:
+                break
+            self._replies += chunk
+        while b"\n" in self._replies:
+            line, _, self._replies = self._replies.partition(b"\n")
+            with contextlib.suppress(ValueError):
+                msg = json.loads(line)
+                if "request" in msg:
+                    self._requests.append(msg)
+                elif "stats" in msg or "final" in msg:
+                    self._child = msg.get("stats") or msg.get("final")
+                elif "error" in msg:
+                    log.warning("ROS 2 publisher: %s", msg["error"])
+
+    def _control(self, message: dict[str, Any], wait_s: float = 0.1) -> None:
+        """A message to the node (a ``CONTROL`` record; dropped if the pipe stays full)."""
+        record = pack_control(message)
+        self._wait_for_room(len(record), wait_s)
+        if not self._room_for(len(record)):
+            return
+        with contextlib.suppress(BlockingIOError, BrokenPipeError):
+            os.set_blocking(self._w, True)
+            try:
+                os.write(self._w, record)
+            finally:
+                os.set_blocking(self._w, False)
+
+    def _queue_values(self) -> dict[str, dict[str, float]]:
+        """Per skin: latency p99 (us) of its latest frames; the publisher's queue and drops."""
+        import termios
+
+        try:
+            queued = int.from_bytes(
+                fcntl.ioctl(self._w, termios.FIONREAD, b"\0\0\0\0"), sys.byteorder
+            )
+        except (OSError, AttributeError):
+            queued = -1
+        out = {}
+        for name, i in self._index.items():
+            ring = self._latency.get(i)
+            finite = ring[np.isfinite(ring)] if ring is not None else np.zeros(0)
+            out[name] = {
+                "latency_p99_us": float(np.percentile(finite, 99)) if len(finite) else math.nan,
+                "publisher_queue_bytes": queued,
+                "publisher_dropped": self.n_dropped,
+            }
+        return out
 
     # ------------------------------------------------------------------ the owner's side
     def flush(self, timeout_s: float = 10.0) -> bool:

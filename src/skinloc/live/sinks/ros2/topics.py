@@ -19,9 +19,10 @@ topic                           type                                    QoS
 Per frame: ``contact`` is the strongest touching contact (published while something touches);
 ``contacts`` every touching contact ordered by slot (empty when nothing touches); ``markers``
 one sphere per track (``id`` = the track id, the finger's colour) and a ``DELETE`` of each track
-that ended in the frame. ``/tf_static`` carries ``parent_frame -> skin/S`` for every skin whose
-pose on the robot is configured (skins file keys ``parent_frame``, ``translation``,
-``rotation``/``rpy``).
+that ended in the frame. ``/tf_static`` carries ``parent_frame -> skin/S`` for every skin: its
+pose on the robot from the skins file (keys ``parent_frame``, ``translation``,
+``rotation``/``rpy``), else the identity under ``DEFAULT_PARENT`` (``base_link``), so RViz shows
+every skin at once.
 """
 
 from __future__ import annotations
@@ -45,6 +46,7 @@ if TYPE_CHECKING:
     from skinloc.live.contact import Contact
 
 __all__ = [
+    "DEFAULT_PARENT",
     "Ros2Topics",
     "dds_available",
     "quaternion_from_rpy",
@@ -55,6 +57,8 @@ __all__ = [
 ]
 
 _TOUCHING = ("start", "move")
+#: the parent frame of a skin whose pose on the robot is not configured (REP 105's robot base)
+DEFAULT_PARENT = "base_link"
 
 
 def _touching(c: Contact) -> bool:
@@ -198,13 +202,11 @@ class Ros2Topics(Sink):
         now = m.stamp_of(time.time())
         transforms = []
         for info in self._skins.values():
-            if not info.parent_frame:
-                continue
             tx, ty, tz = info.translation_m
             qx, qy, qz, qw = info.rotation_xyzw
             transforms.append(
                 m.TransformStamped(
-                    header=m.Header(stamp=now, frame_id=info.parent_frame),
+                    header=m.Header(stamp=now, frame_id=info.parent_frame or DEFAULT_PARENT),
                     child_frame_id=f"skin/{info.name}",
                     transform=m.Transform(m.Vector3(tx, ty, tz), m.Quaternion(qx, qy, qz, qw)),
                 )

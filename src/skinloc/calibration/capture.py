@@ -117,7 +117,9 @@ class TouchCapture:
     settle_frames : int
         Consecutive touch frames before capture starts (not captured themselves).
     release_frames : int
-        Consecutive no-touch frames that count as a release.
+        Consecutive no-touch frames that count as a release: the app's guided capture keeps
+        the default (3), a session pulling from a source ``RELEASE_FRAMES`` (2), as each
+        did before they shared this rule.
     """
 
     detector: TouchDetector

@@ -81,3 +81,32 @@ def test_replace_swaps_an_existing_file_for_the_new_header(tmp_path):
     RecordingAppender(head, path, replace=True)
     assert read_recording(path).n_point_logs == 0
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.h5"]  # no temporary file left
+
+
+def test_a_change_waits_for_a_reader_that_holds_the_file(tmp_path):
+    """HDF5 locks a file while another process reads it; the appender waits, not fails."""
+    import subprocess
+    import sys
+
+    rec = make_recording(2, 4)
+    path = tmp_path / "a.h5"
+    app = RecordingAppender(rec.subset(slice(0, 1)), path)
+    reader = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import h5py, sys, time\n"
+            f"f = h5py.File({str(path)!r}, 'r')\n"
+            "print('open', flush=True)\n"
+            "time.sleep(0.5)\n"
+            "f.close()\n",
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert reader.stdout.readline().strip() == "open"
+        app.append(rec.targets[1], rec.frames[1])  # refused at once before the wait
+    finally:
+        reader.wait()
+    assert read_recording(path).n_point_logs == 2

@@ -10,6 +10,7 @@ import errno
 import json
 import os
 import shutil
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -34,6 +35,9 @@ __all__ = ["DISK_RESERVE", "RecordingAppender", "StreamAppender"]
 #: HDF5 file that meets a full disk is left broken (h5py may even crash on it), so an appender
 #: refuses to write before that happens, and the file keeps everything appended so far.
 DISK_RESERVE = 32 * 1024
+#: Longest wait, s, for a reader of a calibration file (HDF5 locks a file while it is read) to
+#: let the appender write its next change.
+LOCK_WAIT_S = 10.0
 
 
 def _ensure_room(path: Path, nbytes: int) -> None:
@@ -57,7 +61,11 @@ class RecordingAppender:
 
     The file is opened for each change and closed after it, so it is never held open between
     touches: any reader (training, ``skinloc info``, the app's other pages) can open it then,
-    and a session dropped without ``close`` leaves nothing open.
+    and a session dropped without ``close`` leaves nothing open. A change waits (up to
+    ``LOCK_WAIT_S``) for a reader that holds the file's lock. Each change is one flush of a
+    few milliseconds; a crash inside one can leave HDF5's bookkeeping half written, a risk
+    the whole rewrite through a rename did not have, traded for writing a touch, not the
+    session, per touch.
 
     Parameters
     ----------
@@ -133,7 +141,16 @@ class RecordingAppender:
         if not self._open:
             raise RecordingError(f"{self.path} is closed for writing")
         _ensure_room(self.path, nbytes)
-        with h5py.File(self.path, "r+") as f:
+        deadline = time.monotonic() + LOCK_WAIT_S
+        while True:
+            try:
+                f = h5py.File(self.path, "r+")
+                break
+            except OSError as exc:  # someone reads it now (``skinloc info``, a polling test)
+                if "lock" not in str(exc).lower() or time.monotonic() > deadline:
+                    raise cannot_write(self.path, exc) from None
+                time.sleep(0.01)
+        with f:
             yield f
             f.flush()
 
@@ -150,7 +167,9 @@ class RecordingAppender:
         if not np.all(np.isfinite(frames)):
             raise RecordingError("point log frames have NaN or infinite values")
         i = self.n_point_logs
-        with self._edit(frames.nbytes + 16 * len(frames) + 24) as f:
+        meta = {**self.meta, "modified": utc_now()}
+        text = json.dumps(meta)
+        with self._edit(frames.nbytes + 16 * len(frames) + 24 + len(text)) as f:
             g = f["point_logs"]
             try:
                 for name in self._NAMES:
@@ -158,12 +177,13 @@ class RecordingAppender:
                 g["targets"][i] = np.asarray(target, dtype=np.float64).reshape(3)
                 g["frames"][i] = frames
                 g["frame_times"][i] = np.full(self._shape[0], np.nan) if times is None else times
+                f.attrs["meta"] = text  # in the same flush: one short window per touch
             except BaseException:  # Ctrl-C mid-write: no half-written point log stays
                 for name in self._NAMES:
                     g[name].resize(i, axis=0)
                 raise
         self.n_point_logs = i + 1
-        self.update_meta(modified=utc_now())
+        self.meta = meta
 
     def remove(self, index: int) -> None:
         """Take point log ``index`` out: the later ones move down by one, the rest stays.

@@ -1,19 +1,23 @@
-"""Guided capture, frame by frame: wait for a steady touch, capture, wait for the release.
+"""The quality checks of guided capture: they flag touches worth retaking.
 
-``TouchCapture`` is the per-frame form of ``CalibrationSession.record_point`` for a UI that must
-stay responsive (undo, skip, a key to capture now) while it waits. The quality checks flag
-touches worth retaking: weak, short, or off-target (an image unlike its neighbours').
+A touch is weak, short, saturated or off-target (an image unlike its neighbours'). The touch
+rule itself (``TouchCapture``: wait for a steady touch, capture, wait for the release; the
+``TouchDetector``) is ``skinloc.calibration.capture``'s, the one rule of every calibration
+capture; it is re-exported here for the app.
 """
 
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
-from enum import StrEnum
 
 import numpy as np
 
-from skinloc.calibration.session import TouchDetector
+from skinloc.calibration.capture import (
+    CapturedTouch,
+    CapturePhase,
+    TouchCapture,
+    TouchDetector,
+)
 
 log = logging.getLogger(__name__)
 
@@ -25,107 +29,6 @@ __all__ = [
     "off_target",
     "touch_flags",
 ]
-
-
-class CapturePhase(StrEnum):
-    """Where a capture stands."""
-
-    WAIT_TOUCH = "wait_touch"  # waiting for a steady touch
-    CAPTURING = "capturing"  # storing frames
-    WAIT_RELEASE = "wait_release"  # the finger must lift before the next touch
-
-
-@dataclass
-class CapturedTouch:
-    """The frames of one touch.
-
-    Attributes
-    ----------
-    frames : (s, n_sensors) float32
-        Raw counts.
-    times : (s,) float
-        Frame timestamps, s.
-    n_untouched : int
-        Captured frames the detector did not see as a touch (the finger lifted early).
-    forced : bool
-        Started by the key, not by the detector.
-    """
-
-    frames: np.ndarray
-    times: np.ndarray
-    n_untouched: int
-    forced: bool
-
-
-@dataclass
-class TouchCapture:
-    """Per-frame state machine of one guided touch.
-
-    Parameters
-    ----------
-    detector : TouchDetector
-        Decides whether a frame is a touch.
-    samples : int
-        Frames to capture per touch.
-    settle_frames : int
-        Consecutive touch frames before capture starts.
-    release_frames : int
-        Consecutive no-touch frames that count as a release.
-    """
-
-    detector: TouchDetector
-    samples: int
-    settle_frames: int = 5
-    release_frames: int = 3
-    phase: CapturePhase = CapturePhase.WAIT_TOUCH
-    run: int = 0
-    _frames: list[np.ndarray] = field(default_factory=list)
-    _times: list[float] = field(default_factory=list)
-    _untouched: int = 0
-    _forced: bool = False
-
-    @property
-    def n_captured(self) -> int:
-        """Frames stored so far in the current capture."""
-        return len(self._frames)
-
-    def restart(self, touched_now: bool = True) -> None:
-        """Drop a capture in progress; wait for a release first when ``touched_now``."""
-        self._frames, self._times, self._untouched, self._forced = [], [], 0, False
-        self.run = 0
-        self.phase = CapturePhase.WAIT_RELEASE if touched_now else CapturePhase.WAIT_TOUCH
-
-    def force(self) -> None:
-        """Start capturing with the next frame, touch detected or not (the key fallback)."""
-        if self.phase is not CapturePhase.CAPTURING:
-            self._frames, self._times, self._untouched = [], [], 0
-            self._forced = True
-            self.phase = CapturePhase.CAPTURING
-
-    def feed(self, values: np.ndarray, timestamp_s: float) -> CapturedTouch | None:
-        """Advance by one frame of raw counts; returns the touch when its capture completes."""
-        touched = self.detector.is_touched(values)
-        if self.phase is CapturePhase.WAIT_RELEASE:
-            self.run = self.run + 1 if not touched else 0
-            if self.run >= self.release_frames:
-                self.phase, self.run = CapturePhase.WAIT_TOUCH, 0
-            return None
-        if self.phase is CapturePhase.WAIT_TOUCH:
-            self.run = self.run + 1 if touched else 0
-            if self.run >= self.settle_frames:
-                self._frames, self._times, self._untouched, self._forced = [], [], 0, False
-                self.phase = CapturePhase.CAPTURING
-            return None
-        self._frames.append(np.asarray(values, dtype=np.float32))
-        self._times.append(float(timestamp_s))
-        self._untouched += not touched
-        if len(self._frames) < self.samples:
-            return None
-        touch = CapturedTouch(
-            np.stack(self._frames), np.asarray(self._times), self._untouched, self._forced
-        )
-        self.restart(touched_now=True)
-        return touch
 
 
 #: The range of a sensor's raw counts (16 bits): a value at either end is clipped.

@@ -1,8 +1,12 @@
 """The calibration session: baseline, targets, touches, point logs; free of any UI.
 
 The session reads frames from any ``FrameSource`` and talks to the person (or a scripted
-finger) through a ``Prober``. The recording is written atomically after the baseline and after
-every point log, so a crash loses at most the touch in progress, and ``resume`` carries on.
+finger) through a ``Prober``. Its touches follow the one touch rule of
+``calibration.capture`` (``TouchCapture``); its file is written by the one appender,
+``data.appender.RecordingAppender``: the header after the baseline, then each point log as
+it comes, so a crash loses at most the touch in progress, and ``resume`` carries on. The app
+drives the same session frame by frame (``store_point_log``, ``drop_point_log``,
+``save_plan_and_meta``).
 """
 
 from __future__ import annotations
@@ -17,8 +21,15 @@ from typing import Any, Protocol
 import numpy as np
 
 from skinloc._typing import Points
+from skinloc.calibration.capture import (
+    RELEASE_FRAMES,
+    CapturedTouch,
+    CapturePhase,
+    TouchCapture,
+    TouchDetector,
+)
 from skinloc.data.appender import RecordingAppender
-from skinloc.data.recording import Recording, read_recording, write_recording
+from skinloc.data.recording import Recording, read_recording
 from skinloc.errors import FrameTimeoutError, RecordingError
 from skinloc.files import side_path, written_through_side
 from skinloc.geometry.mesh import SamplingMode, sample_targets, surface_points
@@ -30,6 +41,8 @@ log = logging.getLogger(__name__)
 SESSION_MODES = (*(m.value for m in SamplingMode), "active")
 #: Candidate targets an active session chooses from, per point log asked for (at least 64).
 ACTIVE_POOL_PER_POINT = 3
+#: Longest wait for each frame of a touch being captured, s (the source's clock).
+CAPTURE_READ_TIMEOUT_S = 1.0
 
 __all__ = [
     "SESSION_MODES",
@@ -109,40 +122,6 @@ class SessionConfig:
             raise ValueError("SessionConfig.threshold_sigma and touch_timeout_s must be positive")
 
 
-class TouchDetector:
-    """Decide from one frame whether the skin is touched.
-
-    Parameters
-    ----------
-    baseline : (n_sensors,) float
-        No-touch mean, counts.
-    noise : (n_sensors,) float
-        No-touch standard deviation, counts.
-    threshold_sigma, min_active :
-        See ``SessionConfig``.
-    """
-
-    def __init__(
-        self,
-        baseline: np.ndarray,
-        noise: np.ndarray,
-        threshold_sigma: float = 5.0,
-        min_active: int = 2,
-    ) -> None:
-        self.baseline = np.asarray(baseline, dtype=np.float64)
-        # A floor of 1 count keeps a perfectly quiet sensor from triggering on quantisation.
-        self.threshold = threshold_sigma * np.maximum(np.asarray(noise, dtype=np.float64), 1.0)
-        self.min_active = min_active
-
-    def n_active(self, values: np.ndarray) -> int:
-        """Sensors above threshold in ``values (n_sensors,)`` raw counts."""
-        return int(np.count_nonzero(np.asarray(values) - self.baseline > self.threshold))
-
-    def is_touched(self, values: np.ndarray) -> bool:
-        """Whether ``values (n_sensors,)`` raw counts look like a touch."""
-        return self.n_active(values) >= self.min_active
-
-
 class Prober(Protocol):
     """Who touches the skin: a person prompted by a UI, or a scripted finger."""
 
@@ -186,15 +165,17 @@ class CalibrationSession:
     mesh : trimesh.Trimesh
         The skin surface the targets lie on, m.
     path : str or Path
-        Recording to write (HDF5), rewritten atomically after every point log.
+        Recording to write (HDF5): its header after the baseline (replacing any file there,
+        atomically), then each point log appended as it comes (``RecordingAppender``).
     config : SessionConfig
         Session settings.
     targets : (n, 3) float, optional
         Targets to use instead of sampling them (e.g. a loaded list).
     incremental : bool
-        Create ``path`` (never replacing a file) and append each point log to it, instead of
-        rewriting it atomically after each one (time linear, not quadratic, in the session's
-        length); ``self.recording`` then holds the header only. ``close`` closes the file.
+        Create ``path`` exclusively (never replacing a file: a side file that the caller
+        renames when the session is complete) instead of replacing it.
+
+    ``self.recording`` holds the whole recording (header and point logs) as in the file.
     """
 
     def __init__(
@@ -214,10 +195,6 @@ class CalibrationSession:
         self.path = Path(path)
         self.config = config or SessionConfig()
         self._pool: Points | None = None
-        # Targets and mean images of the touches made, for the active choice (kept here
-        # because an incremental session's recording holds its header only).
-        self._done_targets: list[np.ndarray] = []
-        self._done_images: list[np.ndarray] = []
         #: Targets the person skipped, ``(s, 3)`` m: an active session never asks them again.
         self.skipped: Points = np.zeros((0, 3))
         if targets is None:
@@ -268,8 +245,6 @@ class CalibrationSession:
     @property
     def n_done(self) -> int:
         """Point logs recorded so far."""
-        if self._appender is not None:
-            return self._appender.n_point_logs
         return 0 if self.recording is None else self.recording.n_point_logs
 
     @property
@@ -306,28 +281,76 @@ class CalibrationSession:
         self.detector = TouchDetector(
             self.recording.baseline, self.recording.noise, cfg.threshold_sigma, cfg.min_active
         )
-        if self.incremental:
-            self._appender = RecordingAppender(self.recording, self.path)
-        else:
-            write_recording(self.recording, self.path)
+        self._appender = RecordingAppender(self.recording, self.path, replace=not self.incremental)
         return self.recording
 
-    def _wait(self, touched: bool, n_consecutive: int) -> None:
-        """Read frames until ``n_consecutive`` in a row are (or are not) touches.
+    # ------------------------------------------------------------ the file
+    @property
+    def writer(self) -> RecordingAppender:
+        """The appender of this session's file (a resumed file is opened on the first change)."""
+        if self._appender is None:
+            if self.recording is None:
+                raise RecordingError("capture the baseline before recording point logs")
+            # From the file, the truth of what is stored (the caller may have changed
+            # ``self.recording`` already).
+            self._appender = RecordingAppender.reopen(self.path)
+        return self._appender
 
-        The timeout runs on the source's clock, so a simulated skin times out in simulated time.
+    def store_point_log(self, target: Points, frames: np.ndarray, times: np.ndarray) -> None:
+        """Add a point log to the recording and append it to the file.
+
+        ``target (3,)`` m, ``frames (s, n_sensors)`` raw counts, ``times (s,)`` s.
         """
-        assert self.detector is not None
-        run, start = 0, None
-        while run < n_consecutive:
-            frame = self.source.read(timeout_s=self.config.touch_timeout_s)
+        if self.recording is None:
+            raise RecordingError("capture the baseline before recording point logs")
+        self.writer.append(target, frames, times)
+        self.recording.append(target, frames, times)
+
+    def drop_point_log(self, index: int) -> None:
+        """Take point log ``index`` out of the file.
+
+        The caller takes it out of ``self.recording``, with what else it keeps per touch
+        (``app.workspace.state.pop_point_log``).
+        """
+        self.writer.remove(index)
+
+    def save_plan_and_meta(self) -> None:
+        """Write the recording's plan (``planned_targets``) and meta as they are now."""
+        assert self.recording is not None
+        self.writer.set_planned_targets(self.recording.planned_targets)
+        self.writer.set_meta(self.recording.meta)
+
+    def update_meta(self, **values: Any) -> None:
+        """Merge ``values`` into the recording's meta, in memory and in the file."""
+        assert self.recording is not None
+        self.recording.meta.update(values)
+        self.writer.update_meta(**values)
+
+    # ------------------------------------------------------------ the touch rule
+    def _pull(self, capture: TouchCapture) -> CapturedTouch | None:
+        """Feed ``capture`` frames from the source until its touch or its release.
+
+        Returns the captured touch, or None when ``capture`` waited for a release.
+        A wait for a touch or a release times out after ``touch_timeout_s`` on the source's
+        clock (a simulated skin times out in simulated time); a frame being captured must come
+        within ``CAPTURE_READ_TIMEOUT_S``.
+        """
+        timeout = self.config.touch_timeout_s
+        waiting = capture.phase
+        start = None
+        while True:
+            capturing = capture.phase is CapturePhase.CAPTURING
+            frame = self.source.read(timeout_s=CAPTURE_READ_TIMEOUT_S if capturing else timeout)
             start = frame.timestamp_s if start is None else start
-            run = run + 1 if self.detector.is_touched(frame.values) == touched else 0
-            if run < n_consecutive and frame.timestamp_s - start > self.config.touch_timeout_s:
-                what = "touch" if touched else "release"
+            touch = capture.feed(frame.values, frame.timestamp_s)
+            if touch is not None or capture.phase is not waiting:
+                if touch is not None or waiting is CapturePhase.WAIT_RELEASE:
+                    return touch
+                continue  # the touch settled: its frames are captured next
+            if not capturing and frame.timestamp_s - start > timeout:
+                what = "touch" if waiting is CapturePhase.WAIT_TOUCH else "release"
                 raise FrameTimeoutError(
-                    f"no {what} detected on {self.source_name} within "
-                    f"{self.config.touch_timeout_s:g} s"
+                    f"no {what} detected on {self.source_name} within {timeout:g} s"
                 )
 
     def target_for(self, index: int) -> np.ndarray:
@@ -369,16 +392,12 @@ class CalibrationSession:
     def touched(self) -> tuple[Points, np.ndarray]:
         """Targets ``(n, 3)`` m and mean baseline-subtracted images ``(n, k)`` of the touches.
 
-        From the recording when it holds them (whoever appended or removed point logs, e.g.
-        the app), else (an incremental session) from those this session recorded.
+        From the recording, whoever appended or removed its point logs (e.g. the app).
         """
         rec = self.recording
-        if self._appender is None and rec is not None:
-            return np.asarray(rec.targets, dtype=np.float64), rec.touch_means.astype(np.float64)
-        k = self.source.n_sensors if rec is None else rec.n_sensors
-        if not self._done_targets:
-            return np.zeros((0, 3)), np.zeros((0, k))
-        return np.asarray(self._done_targets), np.asarray(self._done_images)
+        if rec is None:
+            return np.zeros((0, 3)), np.zeros((0, self.source.n_sensors))
+        return np.asarray(rec.targets, dtype=np.float64), rec.touch_means.astype(np.float64)
 
     def active_pool(self) -> Points:
         """Candidate targets of an active session, ``(c, 3)`` m, evenly spread and seeded."""
@@ -390,24 +409,28 @@ class CalibrationSession:
         return self._pool
 
     def record_point(self, index: int, prober: Prober) -> None:
-        """Prompt target ``index``, wait for a steady touch, capture and store its frames."""
-        if self.recording is None:
+        """Prompt target ``index``, wait for a steady touch, capture and store its frames.
+
+        The touch rule is ``TouchCapture``'s (the app's too): ``settle_frames`` touch frames
+        in a row, then ``samples_per_touch`` frames captured, then, after the prober lifts,
+        ``RELEASE_FRAMES`` no-touch frames in a row.
+        """
+        if self.recording is None or self.detector is None:
             raise RecordingError("capture the baseline before recording point logs")
         target = self.target_for(index)
         prober.prompt(index, target)
-        self._wait(touched=True, n_consecutive=self.config.settle_frames)
-        frames, times = self.source.read_many(self.config.samples_per_touch)
-        self._done_targets.append(np.array(target, dtype=np.float64))
-        # Computed as ``Recording.touch_means`` does, so a resumed session sees the same.
-        delta = np.asarray(frames, dtype=np.float32) - self.recording.baseline.astype(np.float32)
-        self._done_images.append(delta[None].mean(axis=1)[0].astype(np.float64))
-        if self._appender is not None:
-            self._appender.append(target, frames, times)
-        else:
-            self.recording.append(target, frames, times)
-            write_recording(self.recording, self.path)
+        cfg = self.config
+        capture = TouchCapture(
+            self.detector,
+            cfg.samples_per_touch,
+            settle_frames=cfg.settle_frames,
+            release_frames=RELEASE_FRAMES,
+        )
+        touch = self._pull(capture)
+        assert touch is not None
+        self.store_point_log(target, touch.frames, touch.times)
         prober.captured(index)
-        self._wait(touched=False, n_consecutive=2)
+        self._pull(capture)
 
     def run(self, prober: Prober, progress: Callable[[int, int], None] | None = None) -> Recording:
         """Record every remaining point log; returns the finished recording."""
@@ -421,7 +444,7 @@ class CalibrationSession:
         return self.recording
 
     def close(self) -> None:
-        """Close the file of an incremental session (a no-op otherwise)."""
+        """Sync the session's file to disk (a no-op if nothing was written)."""
         if self._appender is not None:
             self._appender.close()
 
@@ -481,6 +504,6 @@ def simulate_session(
                 skin.disconnect()
             if session._appender is not None:
                 contacts = np.asarray(finger.contacts[: session.n_done]).tolist()
-                session._appender.update_meta(true_contacts=contacts, **truth_layout(skin))
+                session.update_meta(true_contacts=contacts, **truth_layout(skin))
             session.close()
     return read_recording(path)

@@ -10,15 +10,24 @@ import errno
 import json
 import os
 import shutil
+import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from skinloc._typing import Points
-from skinloc.data.recording import Recording, utc_now, write_h5
+from skinloc.data.recording import (
+    Recording,
+    file_meta,
+    read_recording,
+    utc_now,
+    write_h5,
+    write_planned_targets,
+)
 from skinloc.errors import RecordingError
-from skinloc.files import cannot_write
+from skinloc.files import atomic_write, cannot_write
 from skinloc.h5layout import create_stream
 
 __all__ = ["DISK_RESERVE", "RecordingAppender", "StreamAppender"]
@@ -27,6 +36,9 @@ __all__ = ["DISK_RESERVE", "RecordingAppender", "StreamAppender"]
 #: HDF5 file that meets a full disk is left broken (h5py may even crash on it), so an appender
 #: refuses to write before that happens, and the file keeps everything appended so far.
 DISK_RESERVE = 32 * 1024
+#: Longest wait, s, for a reader of a calibration file (HDF5 locks a file while it is read) to
+#: let the appender write its next change.
+LOCK_WAIT_S = 10.0
 
 
 def _ensure_room(path: Path, nbytes: int) -> None:
@@ -38,15 +50,23 @@ def _ensure_room(path: Path, nbytes: int) -> None:
 
 
 class RecordingAppender:
-    """A recording written point log by point log into one open HDF5 file.
+    """The one writer of a calibration recording while it is made: each change as it comes.
 
-    Rewriting a whole recording after every point log (``write_recording``) costs time
-    quadratic in the session's length; this appends each point log to resizable datasets and
-    flushes, so the file on disk always holds the complete point logs so far and stays
-    readable by ``read_recording`` (same layout, docs/formats.md).
+    Every calibration capture (``skinloc collect``, ``skinloc simulate``, the app's guided
+    capture, through ``calibration.session.CalibrationSession``) writes with it. A point log is
+    appended to resizable datasets (``write_h5(appendable=True)``); taking one back, a new
+    plan of targets or new meta touch only those parts; the whole file is never rewritten
+    (rewriting it after every point log costs time quadratic in the session's length). The
+    file on disk always holds the complete point logs so far and stays readable by
+    ``read_recording`` (same layout, docs/formats.md).
 
-    The file is created exclusively: it never replaces an existing one. Callers write it under
-    a side name and rename it over the target when the session is complete.
+    The file is opened for each change and closed after it, so it is never held open between
+    touches: any reader (training, ``skinloc info``, the app's other pages) can open it then,
+    and a session dropped without ``close`` leaves nothing open. A change waits (up to
+    ``LOCK_WAIT_S``) for a reader that holds the file's lock. Each change is one flush of a
+    few milliseconds; a crash inside one can leave HDF5's bookkeeping half written, a risk
+    the whole rewrite through a rename did not have, traded for writing a touch, not the
+    session, per touch.
 
     Parameters
     ----------
@@ -54,32 +74,86 @@ class RecordingAppender:
         The header (grid, mesh, baseline, planned targets, meta) and any point logs so far.
     path : str or Path
         File to create.
+    replace : bool
+        Replace an existing ``path`` atomically with the new header (``skinloc collect
+        --new --force``); by default the file is created exclusively and an existing one is
+        refused (callers write a side file and rename it when the session is complete).
     """
 
-    def __init__(self, rec: Recording, path: str | Path) -> None:
-        import h5py
+    _NAMES = ("targets", "frames", "frame_times")
 
-        from skinloc import __version__
+    def __init__(self, rec: Recording, path: str | Path, *, replace: bool = False) -> None:
+        import h5py
 
         rec.validate()
         self.path = Path(path)
-        self.meta = {"created": utc_now(), **rec.meta, "skinloc_version": __version__}
+        self.meta = file_meta(rec.meta)
         self.n_point_logs = rec.n_point_logs
         self._shape = (rec.frames.shape[1] or int(rec.meta.get("samples_per_touch", 0)),)
         self._shape += (rec.n_sensors,)
         if rec.n_point_logs == 0:  # size the empty datasets for the frames to come
             rec = Recording(**{**rec.__dict__, "frames": np.zeros((0, *self._shape), np.float32)})
+        self._open = True
+        if replace:
+            atomic_write(self.path, lambda tmp: _write_appendable(tmp, rec, self.meta))
+            return
         try:
-            self._file = h5py.File(self.path, "x")
+            f = h5py.File(self.path, "x")
         except OSError as exc:
             raise cannot_write(self.path, exc) from None
         try:
-            write_h5(self._file, rec, self.meta, appendable=True)
-            self._file.flush()
+            with f:
+                write_h5(f, rec, self.meta, appendable=True)
         except BaseException:
-            self._file.close()
             self.path.unlink(missing_ok=True)
             raise
+
+    @classmethod
+    def reopen(cls, path: str | Path, rec: Recording | None = None) -> RecordingAppender:
+        """Carry on writing the recording in ``path`` (``rec``: it, already read).
+
+        A file written whole (``write_recording``: an imported recording, an older session)
+        is rewritten once, atomically, in the appendable layout; after that only changes are
+        written.
+        """
+        path = Path(path)
+        if rec is None:
+            rec = read_recording(path)
+        app = cls.__new__(cls)
+        app.path = path
+        app.meta = file_meta(rec.meta)
+        app.n_point_logs = rec.n_point_logs
+        samples = rec.frames.shape[1] if rec.n_point_logs else rec.meta.get("samples_per_touch")
+        app._shape = (int(samples or 0), rec.n_sensors)
+        app._open = True
+        if not _appendable(path):
+            if rec.n_point_logs == 0:
+                rec = Recording(
+                    **{**rec.__dict__, "frames": np.zeros((0, *app._shape), np.float32)}
+                )
+            atomic_write(path, lambda tmp: _write_appendable(tmp, rec, app.meta))
+        return app
+
+    @contextlib.contextmanager
+    def _edit(self, nbytes: int) -> Iterator[Any]:
+        """The file, open for one change (after a check of the disk's room); then closed."""
+        import h5py
+
+        if not self._open:
+            raise RecordingError(f"{self.path} is closed for writing")
+        _ensure_room(self.path, nbytes)
+        deadline = time.monotonic() + LOCK_WAIT_S
+        while True:
+            try:
+                f = h5py.File(self.path, "r+")
+                break
+            except OSError as exc:  # someone reads it now (``skinloc info``, a polling test)
+                if "lock" not in str(exc).lower() or time.monotonic() > deadline:
+                    raise cannot_write(self.path, exc) from None
+                time.sleep(0.01)
+        with f:
+            yield f
+            f.flush()
 
     def append(self, target: Points, frames: np.ndarray, times: np.ndarray | None = None) -> None:
         """Add one point log and flush it to disk.
@@ -93,36 +167,79 @@ class RecordingAppender:
             )
         if not np.all(np.isfinite(frames)):
             raise RecordingError("point log frames have NaN or infinite values")
-        _ensure_room(self.path, frames.nbytes + 16 * len(frames) + 24)
-        g = self._file["point_logs"]
         i = self.n_point_logs
-        names = ("targets", "frames", "frame_times")
-        try:
-            for name in names:
-                g[name].resize(i + 1, axis=0)
-            g["targets"][i] = np.asarray(target, dtype=np.float64).reshape(3)
-            g["frames"][i] = frames
-            g["frame_times"][i] = np.full(self._shape[0], np.nan) if times is None else times
-        except BaseException:  # Ctrl-C mid-write: no half-written point log stays in the file
-            for name in names:
-                g[name].resize(i, axis=0)
-            raise
+        meta = {**self.meta, "modified": utc_now()}
+        text = json.dumps(meta)
+        with self._edit(frames.nbytes + 16 * len(frames) + 24 + len(text)) as f:
+            g = f["point_logs"]
+            try:
+                for name in self._NAMES:
+                    g[name].resize(i + 1, axis=0)
+                g["targets"][i] = np.asarray(target, dtype=np.float64).reshape(3)
+                g["frames"][i] = frames
+                g["frame_times"][i] = np.full(self._shape[0], np.nan) if times is None else times
+                f.attrs["meta"] = text  # in the same flush: one short window per touch
+            except BaseException:  # Ctrl-C mid-write: no half-written point log stays
+                for name in self._NAMES:
+                    g[name].resize(i, axis=0)
+                raise
         self.n_point_logs = i + 1
-        self.update_meta(modified=utc_now())
+        self.meta = meta
+
+    def remove(self, index: int) -> None:
+        """Take point log ``index`` out: the later ones move down by one, the rest stays.
+
+        The point logs are moved one at a time in order, so an interruption leaves at worst
+        a later point log twice in the file, never one lost.
+        """
+        n = self.n_point_logs
+        if not 0 <= index < n:
+            raise IndexError(f"no point log {index}: the recording has {n}")
+        with self._edit(0) as f:
+            g = f["point_logs"]
+            for j in range(index, n - 1):
+                for name in self._NAMES:
+                    g[name][j] = g[name][j + 1]
+            for name in self._NAMES:
+                g[name].resize(n - 1, axis=0)
+        self.n_point_logs = n - 1
+
+    def set_planned_targets(self, planned: Points | None) -> None:
+        """Store the session's plan of targets, ``(N, 3)`` m (None: remove it)."""
+        with self._edit(0 if planned is None else 24 * len(planned)) as f:
+            old = f.get("planned_targets")
+            if planned is None:
+                if old is not None:
+                    del f["planned_targets"]
+                return
+            planned = np.asarray(planned, dtype=np.float64).reshape(-1, 3)
+            if old is not None and old.maxshape[0] is None:
+                old.resize(len(planned), axis=0)
+                old[...] = planned
+                return
+            if old is not None:
+                del f["planned_targets"]
+            write_planned_targets(f, planned)
+
+    def set_meta(self, meta: dict[str, Any]) -> None:
+        """Store ``meta`` as the recording's meta (its ``created`` and ``modified`` kept)."""
+        kept = {k: self.meta[k] for k in ("created", "modified") if k in self.meta}
+        self._store_meta({**kept, **file_meta(meta)})
 
     def update_meta(self, **values: Any) -> None:
         """Merge ``values`` into the stored meta and flush."""
-        meta = json.dumps({**self.meta, **values})
-        _ensure_room(self.path, len(meta))
-        self.meta.update(values)
-        self._file.attrs["meta"] = meta
-        self._file.flush()
+        self._store_meta({**self.meta, **values})
+
+    def _store_meta(self, meta: dict[str, Any]) -> None:
+        text = json.dumps(meta)
+        with self._edit(len(text)) as f:
+            f.attrs["meta"] = text
+        self.meta = meta
 
     def close(self) -> None:
-        """Flush, sync to disk and close (idempotent)."""
-        if self._file.id.valid:
-            self._file.flush()
-            self._file.close()
+        """Sync the file to disk; no change is written after it (idempotent)."""
+        if self._open:
+            self._open = False
             with open(self.path, "rb") as fh:
                 os.fsync(fh.fileno())
 
@@ -131,6 +248,24 @@ class RecordingAppender:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _write_appendable(tmp: Path, rec: Recording, meta: dict[str, Any]) -> None:
+    import h5py
+
+    with h5py.File(tmp, "w") as f:
+        write_h5(f, rec, meta, appendable=True)
+
+
+def _appendable(path: Path) -> bool:
+    """Whether ``path``'s point logs and plan can grow and shrink in place."""
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        g = f["point_logs"]
+        grows = all(n in g and g[n].maxshape[0] is None for n in RecordingAppender._NAMES)
+        plan = f.get("planned_targets")
+        return grows and (plan is None or plan.maxshape[0] is None)
 
 
 class StreamAppender:
@@ -180,7 +315,6 @@ class StreamAppender:
     ) -> None:
         import h5py
 
-        from skinloc import __version__
         from skinloc.geometry.mesh import surface_points
 
         k = n_tx * n_rx
@@ -203,11 +337,7 @@ class StreamAppender:
         except OSError as exc:
             raise cannot_write(self.path, exc) from None
         try:
-            write_h5(
-                self.file,
-                header,
-                {"created": utc_now(), **header.meta, "skinloc_version": __version__},
-            )
+            write_h5(self.file, header, file_meta(header.meta))
             self._data = create_stream(self.file, k, chunk)
             for name, (shape, dtype) in (columns or {}).items():
                 self._data[name] = self.file.create_dataset(

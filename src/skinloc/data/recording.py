@@ -25,11 +25,13 @@ log = logging.getLogger(__name__)
 
 __all__ = [
     "FORMAT_VERSION",
+    "file_meta",
     "read_recording",
     "Recording",
     "utc_now",
     "write_h5",
     "write_mat",
+    "write_planned_targets",
     "write_recording",
 ]
 
@@ -335,8 +337,9 @@ def _read_mat(path: Path) -> Recording:
 def write_h5(f, rec: Recording, meta: dict[str, Any], appendable: bool = False) -> None:
     """Write ``rec`` into the open HDF5 file ``f`` (the layout of docs/formats.md).
 
-    ``appendable`` makes the point-log datasets resizable along the first axis (chunked one
-    point log at a time), so ``RecordingAppender`` can add point logs without a rewrite;
+    ``appendable`` makes the point-log datasets and the plan resizable along the first axis
+    (point logs chunked one at a time), so ``RecordingAppender`` can add and take back point
+    logs and change the plan without a rewrite;
     readers see the same shapes and dtypes either way.
     """
     set_kind(f, RECORDING)
@@ -362,17 +365,35 @@ def write_h5(f, rec: Recording, meta: dict[str, Any], appendable: bool = False) 
             times = np.full(rec.frames.shape[:2], np.nan)
         g.create_dataset("frame_times", data=times, maxshape=(None, s) if appendable else None)
     if rec.planned_targets is not None:
-        f["planned_targets"] = rec.planned_targets
+        if appendable:
+            write_planned_targets(f, rec.planned_targets)
+        else:
+            f["planned_targets"] = rec.planned_targets
+
+
+def write_planned_targets(f, planned: np.ndarray) -> None:
+    """Create ``planned_targets (N, 3)`` m in the open HDF5 file ``f``, resizable.
+
+    The appendable layout's plan (``RecordingAppender.set_planned_targets`` changes it in
+    place); readers see the same shape and dtype as a fixed one.
+    """
+    planned = np.asarray(planned, dtype=np.float64).reshape(-1, 3)
+    f.create_dataset("planned_targets", data=planned, maxshape=(None, 3), chunks=(64, 3))
+
+
+def file_meta(meta: dict[str, Any]) -> dict[str, Any]:
+    """The meta a recording's file stores: ``meta``, ``created`` added if new, the version."""
+    from skinloc import __version__
+
+    return {"created": utc_now(), **meta, "skinloc_version": __version__}
 
 
 def write_recording(rec: Recording, path: str | Path) -> None:
     """Write ``rec`` as a skinloc HDF5 recording, atomically (a crash leaves the old file)."""
     import h5py
 
-    from skinloc import __version__
-
     rec.validate()
-    meta = {"created": utc_now(), **rec.meta, "skinloc_version": __version__}
+    meta = file_meta(rec.meta)
 
     def write(tmp: Path) -> None:
         with h5py.File(tmp, "w") as f:

@@ -16,6 +16,11 @@ configuration file) connect cores to frame sources and to sinks (``skinloc.live.
 ``TouchState`` in ``live.config``; both are re-exported here. The compiled steps are
 ``live.baseline`` (baseline subtraction, drift) and ``live.one_euro`` (the filter).
 
+The touch detection here is deliberately not the calibration touch rule
+(``calibration.capture``: a held press on a fixed baseline, judged by how many sensors it
+moves, kept for a fixed number of frames): a live contact moves, on a baseline that tracks
+drift, and starts and ends by hysteresis on the frame's largest z-score, compiled.
+
 Units: metres in the mesh frame, times in seconds (``time.monotonic`` for arrival and output
 times), latencies in microseconds, signals in raw counts or in noise standard deviations (z).
 """

@@ -17,7 +17,7 @@ from skinloc.app.capture import (
 from skinloc.app.device import DeviceLink
 from skinloc.app.workspace.state import ActiveSession, Mode, app_meta, pop_point_log
 from skinloc.calibration.session import CalibrationSession, SessionConfig
-from skinloc.data.recording import Recording, write_recording
+from skinloc.data.recording import Recording
 from skinloc.errors import RecordingError
 from skinloc.sources.base import Frame
 
@@ -228,13 +228,14 @@ class GuidedCapture:
         # The history first: the touch must exist somewhere at every instant.
         a.folder.archive("touch", arrays, {"reason": reason, "recording": which, "index": index})
         removed = pop_point_log(rec, index)
+        sess.drop_point_log(index)
         if which == "validation":
             self._keep_attempt(rec, index, reason, removed)
         planned = rec.planned_targets if rec.planned_targets is not None else rec.targets
         rec.planned_targets = np.concatenate([rec.targets, removed["target"][None], planned[n:]])
         sess.targets = rec.planned_targets
         self._refresh_flags(rec)
-        write_recording(rec, sess.path)
+        sess.save_plan_and_meta()
         if self.capture is not None:
             self.capture.restart(touched_now=True)
         self._stop_capture_finger()
@@ -258,7 +259,7 @@ class GuidedCapture:
             sess.skipped = np.concatenate([np.reshape(sess.skipped, (-1, 3)), target[None]])
             rec.planned_targets = np.delete(sess.targets, n, axis=0)
             sess.targets = rec.planned_targets
-            write_recording(rec, sess.path)
+            sess.save_plan_and_meta()
             self._choose_next(sess)
             if self.capture is not None:
                 self.capture.restart(touched_now=True)
@@ -307,7 +308,7 @@ class GuidedCapture:
         flags, peak = touch_flags(touch, rec.baseline, self.detector, ref)
         if touch.forced:
             flags.append("forced")
-        rec.append(target, touch.frames, touch.times)
+        sess.store_point_log(target, touch.frames, touch.times)  # on disk before anything else
         meta.setdefault("touch_flags", []).append(flags)
         peaks.append(peak)
         if len(self._quiet) >= 20:
@@ -324,7 +325,7 @@ class GuidedCapture:
         if self.mode is Mode.VALIDATE:
             self._score_touch(rec, index)
         self._refresh_flags(rec)
-        write_recording(rec, sess.path)  # autosave: the touch is on disk before anything else
+        sess.save_plan_and_meta()
         if self._finger is not None and self._finger_down:
             self._finger.captured(index)
             self._finger_down = False
@@ -352,7 +353,7 @@ class GuidedCapture:
             return
         sess.target_for(sess.n_done)
         rec.planned_targets = sess.targets
-        write_recording(rec, sess.path)
+        sess.save_plan_and_meta()
 
     def _refresh_flags(self, rec: Recording) -> None:
         meta = app_meta(rec)

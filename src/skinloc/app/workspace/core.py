@@ -89,6 +89,20 @@ class Workspace(
         self.message = ""
         self.live_sink = TabSink(hub)
         self.record_tee = RecordTee()
+        self.page_states: dict[str, Any] = {}
+
+    def add_page_state(self, name: str, state: Any) -> None:
+        """Keep the state of the app page ``name`` (``skinloc.app.pages``; None: it keeps none)."""
+        if name in self.page_states:
+            raise ValueError(f"the workspace has the state of a page named {name!r} already")
+        self.page_states[name] = state
+
+    def page_state(self, name: str) -> Any:
+        """The state of the app page ``name`` (what its ``AppPage.state`` built, or None)."""
+        try:
+            return self.page_states[name]
+        except KeyError:
+            raise ValueError(f"no app page named {name!r}") from None
 
     def require(self, client: str | None) -> None:
         """Give ``client`` control if nobody has it; raise ``BusyError`` if another tab has."""

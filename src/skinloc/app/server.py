@@ -1,8 +1,9 @@
 """The app's web server: JSON actions over HTTP, the live stream over a WebSocket, the page.
 
-``create_app`` builds the FastAPI application around one ``Workspace``; the routes are in
-``skinloc.app.routes`` (one module per concern) and the guard that lets only the app's own page
-act in ``skinloc.app.guard``. Every action that changes something names its tab in the
+``create_app`` builds the FastAPI application around one ``Workspace``; the pages (their routes,
+one module per concern in ``skinloc.app.routes``, and their state) come from the registry
+``skinloc.app.pages``, and the guard that lets only the app's own page act is
+``skinloc.app.guard``. Every action that changes something names its tab in the
 ``X-Skinloc-Client`` header; a tab without control gets 409 and the message that the session
 is busy. Errors a person can fix come back as 400 with a one-line ``detail``.
 
@@ -29,18 +30,7 @@ from starlette.types import Scope
 
 from skinloc.app.guard import RequestGuard, own_origins
 from skinloc.app.hub import Hub
-from skinloc.app.routes import (
-    capture,
-    device,
-    export,
-    meshes,
-    pages,
-    record,
-    sessions,
-    settings,
-    stream,
-    traces,
-)
+from skinloc.app.pages import mount_pages
 from skinloc.app.store import SessionBusyError
 from skinloc.app.workspace import AppConfig, BusyError, Workspace
 from skinloc.errors import SkinlocError
@@ -133,16 +123,8 @@ def create_app(
             parts.append(f"{where or 'body'}: {err.get('msg', 'invalid')}")
         return JSONResponse({"detail": _one_line("; ".join(parts))}, status_code=422)
 
-    pages.add_routes(app, workspace, token)
-    device.add_routes(app, workspace)
-    sessions.add_routes(app, workspace)
-    meshes.add_routes(app, workspace)
-    capture.add_routes(app, workspace)
-    export.add_routes(app, workspace)
-    record.add_routes(app, workspace)
-    traces.add_routes(app, workspace)
-    settings.add_routes(app, workspace)
-    stream.add_routes(app, workspace, hub, token, accepted_origins)
+    # Every page's state, routes and files: the registry (skinloc.app.pages).
+    mount_pages(app, workspace, hub, token, accepted_origins)
     return app
 
 

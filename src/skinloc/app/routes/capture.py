@@ -4,19 +4,17 @@ from __future__ import annotations
 
 from typing import Any
 
-from fastapi import FastAPI
-
 from skinloc.app.routes.bodies import FlagBody, IndexBody, TrainBody, ValidateBody
-from skinloc.app.routes.common import OK, actions_router
-from skinloc.app.workspace import Workspace
+from skinloc.app.routes.common import OK, PageContext, actions_router
 
 
-def add_routes(app: FastAPI, workspace: Workspace) -> None:
+def add_routes(ctx: PageContext) -> None:
     """Add the guided-capture, training and live actions.
 
     ``POST /api/calibrate/start``, ``/api/validate/start``, ``/api/capture/...``,
     ``/api/finger``, ``/api/train``, ``/api/live/start``.
     """
+    app, workspace = ctx.app, ctx.workspace
     router = actions_router()
 
     @router.post("/api/calibrate/start")

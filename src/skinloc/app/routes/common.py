@@ -1,15 +1,20 @@
-"""What the route modules share: the tab's header, taking control, the plain answers."""
+"""What the route modules share: what a page gets, the tab's header, taking control, answers."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
-from fastapi import APIRouter, Depends, Header, Request
+from fastapi import APIRouter, Depends, FastAPI, Header, Request
 from fastapi.responses import Response
+from starlette.datastructures import Headers
+from starlette.types import Scope
 
-from skinloc.app.hub import to_json
+from skinloc.app.hub import Hub, to_json
+from skinloc.app.workspace import Workspace
 
-__all__ = ["OK", "ClientHeader", "actions_router", "json_response", "take_control"]
+__all__ = ["OK", "ClientHeader", "PageContext", "actions_router", "json_response", "take_control"]
 
 #: The tab an action comes from (its control of the skin is checked).
 ClientHeader = Header(default=None, alias="X-Skinloc-Client")
@@ -38,3 +43,34 @@ def actions_router() -> APIRouter:
     A route added to it cannot forget to.
     """
     return APIRouter(dependencies=[Depends(take_control)])
+
+
+@dataclass(frozen=True)
+class PageContext:
+    """What a page's ``add_routes`` receives.
+
+    Attributes
+    ----------
+    app : FastAPI
+        The application to add routes to.
+    workspace : Workspace
+        The app's shared state and actions (``skinloc.app.workspace``).
+    hub : Hub
+        Where messages to the tabs go.
+    token : str
+        The launch secret (the page's ``<meta name="skinloc-token">``).
+    origins : callable
+        ``(headers, scope) -> frozenset of str``: the app's own origins for a request.
+    state : Any
+        This page's own state (what its ``AppPage.state`` built), or None.
+    pages : tuple of skinloc.app.pages.AppPage
+        Every page of the app, in order (the index page shows the tabs of the added ones).
+    """
+
+    app: FastAPI
+    workspace: Workspace
+    hub: Hub
+    token: str
+    origins: Callable[[Headers, Scope], frozenset[str]]
+    state: Any = None
+    pages: tuple[Any, ...] = ()

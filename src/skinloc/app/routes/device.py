@@ -4,21 +4,19 @@ from __future__ import annotations
 
 from typing import Any
 
-from fastapi import FastAPI
-
 from skinloc.app.routes.bodies import ConnectBody, TouchBody
-from skinloc.app.routes.common import OK, actions_router
-from skinloc.app.workspace import Workspace
+from skinloc.app.routes.common import OK, PageContext, actions_router
 from skinloc.hardware.ports import check_source
 from skinloc.sources.base import SourceOptions
 
 
-def add_routes(app: FastAPI, workspace: Workspace) -> None:
+def add_routes(ctx: PageContext) -> None:
     """Add the skin's routes.
 
     ``GET /api/ports``, ``POST /api/connect``, ``/api/disconnect``, ``/api/rezero``,
     ``/api/sim/touch``.
     """
+    app, workspace = ctx.app, ctx.workspace
     router = actions_router()
 
     @router.get("/api/ports")

@@ -6,11 +6,10 @@ session's own exportable files are found (``skinloc.app.workspace.export``).
 
 from __future__ import annotations
 
-from fastapi import FastAPI, HTTPException
+from fastapi import HTTPException
 from fastapi.responses import Response
 
-from skinloc.app.routes.common import actions_router, json_response
-from skinloc.app.workspace import Workspace
+from skinloc.app.routes.common import PageContext, actions_router, json_response
 from skinloc.app.workspace.export import NoSuchExport
 
 #: Media type of each downloaded file, by suffix.
@@ -34,12 +33,13 @@ def download(name: str, content: bytes | str) -> Response:
     return Response(content, media_type=media, headers=headers)
 
 
-def add_routes(app: FastAPI, workspace: Workspace) -> None:
+def add_routes(ctx: PageContext) -> None:
     """Add the downloads (every one a GET).
 
     ``GET /api/export``, ``/api/export/files/{name}``, ``/api/export/validation.csv``,
     ``/api/export/errors.{png,svg}``.
     """
+    app, workspace = ctx.app, ctx.workspace
     router = actions_router()
 
     @router.get("/api/export")

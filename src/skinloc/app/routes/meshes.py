@@ -8,18 +8,18 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from fastapi import FastAPI, HTTPException, Query, Request
+from fastapi import HTTPException, Query, Request
 
-from skinloc.app.routes.common import actions_router
-from skinloc.app.workspace import Workspace
+from skinloc.app.routes.common import PageContext, actions_router
 from skinloc.errors import SkinlocError
 
 MAX_UPLOAD_BYTES = 64 * 1024 * 1024
 MESH_SUFFIXES = (".obj", ".stl", ".ply")
 
 
-def add_routes(app: FastAPI, workspace: Workspace) -> None:
+def add_routes(ctx: PageContext) -> None:
     """``GET /api/meshes`` and ``POST /api/meshes?filename=`` (the file is the body)."""
+    app, workspace = ctx.app, ctx.workspace
     router = actions_router()
 
     @router.get("/api/meshes")

@@ -4,20 +4,21 @@ from __future__ import annotations
 
 from typing import Any
 
-from fastapi import FastAPI, Query
+from fastapi import Query
 from fastapi.responses import Response
 
 from skinloc.app.routes.bodies import SessionBody
-from skinloc.app.routes.common import OK, actions_router, json_response
+from skinloc.app.routes.common import OK, PageContext, actions_router, json_response
 from skinloc.app.workspace import Workspace
 
 
-def add_routes(app: FastAPI, workspace: Workspace) -> None:
+def add_routes(ctx: PageContext) -> None:
     """Add the session routes.
 
     ``/api/sessions``, ``/api/sessions/{id}/open``, ``/api/session/close``,
     ``/api/recordings/import``, ``/api/sessions/{id}/targets.{svg,pdf}``.
     """
+    app, workspace = ctx.app, ctx.workspace
     router = actions_router()
 
     @router.get("/api/sessions")

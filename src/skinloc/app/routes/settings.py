@@ -2,16 +2,15 @@
 
 from __future__ import annotations
 
-from fastapi import FastAPI
 from fastapi.responses import Response
 
 from skinloc.app.routes.bodies import SettingsBody
-from skinloc.app.routes.common import actions_router, json_response
-from skinloc.app.workspace import Workspace
+from skinloc.app.routes.common import PageContext, actions_router, json_response
 
 
-def add_routes(app: FastAPI, workspace: Workspace) -> None:
+def add_routes(ctx: PageContext) -> None:
     """``GET /api/live/settings``, ``POST /api/live/settings``."""
+    app, workspace = ctx.app, ctx.workspace
     router = actions_router()
 
     @router.get("/api/live/settings")

@@ -9,27 +9,20 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import hmac
-from collections.abc import Callable
 
-from fastapi import FastAPI, Query, WebSocket, WebSocketDisconnect
-from starlette.datastructures import Headers
-from starlette.types import Scope
+from fastapi import Query, WebSocket, WebSocketDisconnect
 
-from skinloc.app.hub import Hub, to_json
-from skinloc.app.workspace import Workspace
+from skinloc.app.hub import to_json
+from skinloc.app.routes.common import PageContext
 
 #: Seconds of silence on a tab's WebSocket after which the server sends it a heartbeat.
 HEARTBEAT_S = 0.25
 
 
-def add_routes(
-    app: FastAPI,
-    workspace: Workspace,
-    hub: Hub,
-    token: str,
-    accepted_origins: Callable[[Headers, Scope], frozenset[str]],
-) -> None:
+def add_routes(ctx: PageContext) -> None:
     """``/ws?client=TAB&token=TOKEN``."""
+    app, workspace, hub, token = ctx.app, ctx.workspace, ctx.hub, ctx.token
+    accepted_origins = ctx.origins
 
     @app.websocket("/ws")
     async def stream(

@@ -4,15 +4,15 @@ from __future__ import annotations
 
 from typing import Literal
 
-from fastapi import FastAPI, Query
+from fastapi import Query
 from fastapi.responses import Response
 
-from skinloc.app.routes.common import actions_router, json_response
-from skinloc.app.workspace import Workspace
+from skinloc.app.routes.common import PageContext, actions_router, json_response
 
 
-def add_routes(app: FastAPI, workspace: Workspace) -> None:
+def add_routes(ctx: PageContext) -> None:
     """``GET /api/trace/sensor?tx=&rx=&seconds=``, ``GET /api/session/touch?index=&recording=``."""
+    app, workspace = ctx.app, ctx.workspace
     router = actions_router()
 
     @router.get("/api/trace/sensor")

@@ -6,37 +6,30 @@ lease): another tab that tries to change anything is told the session is busy, a
 over explicitly. Every touch is saved before anything else happens with it.
 
 The actions live in one module per concern (``link``, ``sessions``, ``guided``, ``finger``,
-``validation``, ``training``, ``live``), each a part of ``Workspace``; this module holds the
-state they share, the lease and the state message.
+``validation``, ``training``, ``live``, ...), each a part of ``Workspace``. The state they share
+is declared in ``state.WorkspaceState`` (each part is a subclass of it); what a part keeps for
+itself it declares in its own class and sets up in its ``__init__``. This module assembles the
+parts and holds the lease, the pages' state and the state message.
 """
 
 from __future__ import annotations
 
-import threading
 from dataclasses import asdict
 from typing import Any
 
-import numpy as np
-
-from skinloc.app.capture import TouchCapture
-from skinloc.app.device import DeviceLink
 from skinloc.app.hub import Hub
-from skinloc.app.live_io import TabSink
-from skinloc.app.store import SessionStore
 from skinloc.app.workspace.export import ExportFiles
 from skinloc.app.workspace.finger import FingerActions
 from skinloc.app.workspace.guided import GuidedCapture
-from skinloc.app.workspace.link import LinkActions, PageClock
+from skinloc.app.workspace.link import LinkActions
 from skinloc.app.workspace.live import LiveView
-from skinloc.app.workspace.record import LiveRecording, RecordTee
+from skinloc.app.workspace.record import LiveRecording
 from skinloc.app.workspace.sessions import SessionActions
 from skinloc.app.workspace.settings import LiveSettings
-from skinloc.app.workspace.state import ActiveSession, AppConfig, BusyError, Mode
+from skinloc.app.workspace.state import AppConfig, BusyError, Mode
 from skinloc.app.workspace.traces import TraceViews
 from skinloc.app.workspace.training import TrainingJobs
 from skinloc.app.workspace.validation import ValidationActions
-from skinloc.calibration.session import TouchDetector
-from skinloc.geometry.mesh import cone_skin
 
 __all__ = ["Workspace"]
 
@@ -62,33 +55,37 @@ class Workspace(
         Settings.
     hub : Hub
         Where messages to the tabs go.
+
+    Attributes
+    ----------
+    lease : str or None
+        The tab that has control of the skin and the session.
+    page_states : dict
+        The state of each app page by name (``skinloc.app.pages``; None for a page that keeps
+        none).
     """
 
+    lease: str | None
+    page_states: dict[str, Any]
+
     def __init__(self, config: AppConfig, hub: Hub) -> None:
-        self.config = config
-        self.hub = hub
-        self.store = SessionStore(config.data_dir)
-        self.default_mesh = config.mesh if config.mesh is not None else cone_skin()
-        self._lock = threading.RLock()
-        self.device: DeviceLink | None = None
-        self.active: ActiveSession | None = None
-        self.mode = Mode.IDLE
-        self.lease: str | None = None
-        self.capture: TouchCapture | None = None
-        self.detector: TouchDetector | None = None
-        self.finger_on = False
-        self._finger: Any = None
-        self._finger_due: float | None = None
-        self._finger_down = False
-        self._page_clock = PageClock()  # the mouse's path on the simulated skin
-        self._quiet: list[np.ndarray] = []
-        self._last_push = 0.0
-        self._last_report = 0.0
-        self._live_base: np.ndarray | None = None
-        self.training: dict[str, Any] | None = None
-        self.message = ""
-        self.live_sink = TabSink(hub)
-        self.record_tee = RecordTee()
+        # Each part sets up the state it declares (``WorkspaceState`` first, then the parts).
+        super().__init__(config, hub)
+        self.lease = None
+        self.page_states = {}
+
+    def add_page_state(self, name: str, state: Any) -> None:
+        """Keep the state of the app page ``name`` (``skinloc.app.pages``; None: it keeps none)."""
+        if name in self.page_states:
+            raise ValueError(f"the workspace has the state of a page named {name!r} already")
+        self.page_states[name] = state
+
+    def page_state(self, name: str) -> Any:
+        """The state of the app page ``name`` (what its ``AppPage.state`` built, or None)."""
+        try:
+            return self.page_states[name]
+        except KeyError:
+            raise ValueError(f"no app page named {name!r}") from None
 
     def require(self, client: str | None) -> None:
         """Give ``client`` control if nobody has it; raise ``BusyError`` if another tab has."""

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from skinloc.app.workspace.state import ActiveSession, app_meta
+from skinloc.app.workspace.state import ActiveSession, WorkspaceState, app_meta
 from skinloc.data.recording import Recording, read_recording
 from skinloc.errors import RecordingError
 
@@ -108,7 +108,7 @@ def validation_csv(rec: Recording) -> str:
     return out.getvalue()
 
 
-class ExportFiles:
+class ExportFiles(WorkspaceState):
     """Part of ``Workspace``: what the Export page downloads."""
 
     def export_list(self) -> dict[str, Any]:
@@ -119,7 +119,7 @@ class ExportFiles:
         with self._lock:
             a = self._need_session()
             files = []
-            recorder = getattr(self, "recorder", None)
+            recorder = self.recorder
             writing = None if recorder is None else recorder.side  # not until it is finished
             for p in sorted(a.folder.path.iterdir()):
                 kind = _kind(p.name)

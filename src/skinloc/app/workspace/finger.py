@@ -6,6 +6,7 @@ import time
 
 import numpy as np
 
+from skinloc.app.workspace.state import WorkspaceState
 from skinloc.calibration.session import ScriptedFinger
 from skinloc.errors import SkinlocError
 
@@ -24,8 +25,19 @@ class _SerialFinger:
         self.source.write(b"lift\n")
 
 
-class FingerActions:
-    """Part of ``Workspace``: the finger that touches each target by itself."""
+class FingerActions(WorkspaceState):
+    """Part of ``Workspace``: the finger that touches each target by itself.
+
+    Its finger, when it presses next and whether it is down are ``WorkspaceState``'s (guided
+    capture drives it).
+
+    Attributes
+    ----------
+    finger_on : bool
+        Whether the scripted finger touches the targets (switched on per session).
+    """
+
+    finger_on: bool = False
 
     def set_finger(self, on: bool) -> None:
         """Let the scripted finger touch each target (simulated or virtual skin)."""

@@ -15,15 +15,36 @@ from skinloc.app.capture import (
     touch_flags,
 )
 from skinloc.app.device import DeviceLink
-from skinloc.app.workspace.state import ActiveSession, Mode, app_meta, pop_point_log
+from skinloc.app.hub import Hub
+from skinloc.app.workspace.state import (
+    ActiveSession,
+    AppConfig,
+    Mode,
+    WorkspaceState,
+    app_meta,
+    pop_point_log,
+)
 from skinloc.calibration.session import CalibrationSession, SessionConfig
 from skinloc.data.recording import Recording
 from skinloc.errors import RecordingError
 from skinloc.sources.base import Frame
 
 
-class GuidedCapture:
-    """Part of ``Workspace``: calibration and validation touch by touch."""
+class GuidedCapture(WorkspaceState):
+    """Part of ``Workspace``: calibration and validation touch by touch.
+
+    Attributes
+    ----------
+    _quiet : list of numpy.ndarray
+        The last untouched frames (at most 100), ``(n_sensors,)`` counts each: the baseline's
+        drift is judged from them when a touch is stored.
+    """
+
+    _quiet: list[np.ndarray]
+
+    def __init__(self, config: AppConfig, hub: Hub) -> None:
+        super().__init__(config, hub)
+        self._quiet = []
 
     def start_calibration(self) -> None:
         """Resume the session's calibration, or capture its baseline and start it."""

@@ -14,7 +14,8 @@ import numpy as np
 
 from skinloc.app.capture import CapturePhase
 from skinloc.app.device import DeviceLink, SensorMonitor
-from skinloc.app.workspace.state import Mode
+from skinloc.app.hub import Hub
+from skinloc.app.workspace.state import AppConfig, Mode, WorkspaceState
 from skinloc.data.recording import read_recording
 from skinloc.errors import RecordingError
 from skinloc.geometry.mesh import nearest_on_surface
@@ -58,8 +59,26 @@ class PageClock:
         return [t + self._offset for t in times]
 
 
-class LinkActions:
-    """Part of ``Workspace``: the device, and every frame the reader thread hands over."""
+class LinkActions(WorkspaceState):
+    """Part of ``Workspace``: the device, and every frame the reader thread hands over.
+
+    Attributes
+    ----------
+    _page_clock : PageClock
+        The mouse's path on the simulated skin, on this machine's clock.
+    _last_push, _last_report : float
+        When a heat map and a sensor report last went to the tabs, monotonic s.
+    """
+
+    _page_clock: PageClock
+    _last_push: float
+    _last_report: float
+
+    def __init__(self, config: AppConfig, hub: Hub) -> None:
+        super().__init__(config, hub)
+        self._page_clock = PageClock()
+        self._last_push = 0.0
+        self._last_report = 0.0
 
     def connect(self, options: SourceOptions) -> None:
         """Open the skin ``options`` name (closing the one before)."""

@@ -12,19 +12,43 @@ from typing import Any
 
 import numpy as np
 
+from skinloc.app.hub import Hub
 from skinloc.app.live_io import FrameQueue, TabSink
-from skinloc.app.workspace.state import Mode
+from skinloc.app.workspace.state import AppConfig, Mode, WorkspaceState
 from skinloc.calibration.session import TouchDetector
 from skinloc.sources.base import Frame
 
 
-class LiveView:
-    """Part of ``Workspace``: the live view."""
+class LiveView(WorkspaceState):
+    """Part of ``Workspace``: the live view.
 
+    Its baseline is ``WorkspaceState._live_base`` (the heat map counts above it).
+
+    Attributes
+    ----------
+    live_sink : TabSink
+        Where the live pipeline's contacts and gestures go to the tabs.
+    _live_pipeline : skinloc.live.runner.Pipeline or None
+        The running pipeline.
+    _live_queue : FrameQueue or None
+        The frames on their way to it.
+    _live_engine : tuple or None
+        ``(model, its engine)``, built once per model.
+    """
+
+    live_sink: TabSink
     _live_pipeline: Any = None
     _live_queue: FrameQueue | None = None
-    _live_engine: tuple[Any, Any] | None = None  # (model, its engine), built once per model
-    live_sink: TabSink
+    _live_engine: tuple[Any, Any] | None = None
+
+    def __init__(self, config: AppConfig, hub: Hub) -> None:
+        super().__init__(config, hub)
+        self.live_sink = TabSink(hub)
+
+    @property
+    def live_running(self) -> bool:
+        """Whether the live pipeline runs."""
+        return self._live_pipeline is not None
 
     def start_live(self) -> None:
         """Capture a fresh baseline, then run the live pipeline on every frame."""

@@ -27,6 +27,8 @@ from typing import Any
 
 import numpy as np
 
+from skinloc.app.hub import Hub
+from skinloc.app.workspace.state import AppConfig, WorkspaceState
 from skinloc.h5layout import create_live_events, read_live_events  # re-exported: its reader
 from skinloc.live.sinks.base import Sink, SkinInfo, gesture_json
 from skinloc.sources.base import Frame
@@ -246,12 +248,26 @@ class RecordTee(Sink):
             target.emit_gesture(skin, timestamp_s, event)
 
 
-class LiveRecording:
-    """Part of ``Workspace``: the Record button."""
+class LiveRecording(WorkspaceState):
+    """Part of ``Workspace``: the Record button.
+
+    Attributes
+    ----------
+    recorder : LiveRecorder or None
+        The recording running.
+    record_tee : RecordTee
+        The live pipeline's sink that hands its contacts and gestures to ``recorder``.
+    last_recording : dict or None
+        The summary of the last recording made.
+    """
 
     recorder: LiveRecorder | None = None
     record_tee: RecordTee
     last_recording: dict[str, Any] | None = None
+
+    def __init__(self, config: AppConfig, hub: Hub) -> None:
+        super().__init__(config, hub)
+        self.record_tee = RecordTee()
 
     def start_recording(self, fmt: str) -> dict[str, Any]:
         """Record the stream (and the live view's contacts and gestures) to ``fmt``."""

@@ -11,15 +11,23 @@ import trimesh
 
 from skinloc.app.device import DeviceLink
 from skinloc.app.store import SessionFolder
-from skinloc.app.workspace.state import ActiveSession, Mode, app_meta, same_mesh
+from skinloc.app.workspace.state import ActiveSession, Mode, WorkspaceState, app_meta, same_mesh
 from skinloc.calibration.session import CalibrationSession, SessionConfig
 from skinloc.data.recording import read_recording, write_recording
 from skinloc.errors import RecordingError, SkinlocError
 from skinloc.geometry.mesh import SamplingMode, mesh_from_arrays, nearest_on_surface
 
 
-class SessionActions:
-    """Part of ``Workspace``: the session folders and the open session."""
+class SessionActions(WorkspaceState):
+    """Part of ``Workspace``: the session folders and the open session.
+
+    Attributes
+    ----------
+    _coverage_cache : tuple or None
+        ``(model, its coverage map)``: the last map computed (about a second each).
+    """
+
+    _coverage_cache: tuple[Any, dict[str, Any]] | None = None
 
     def sessions(self) -> dict[str, Any]:
         """Sessions and loose recordings for the first page."""
@@ -233,7 +241,7 @@ class SessionActions:
         with self._lock:
             a = self._need_session()
             model = a.model
-            cached = getattr(self, "_coverage_cache", None)
+            cached = self._coverage_cache
         if model is None:
             raise ValueError("train a model first: the coverage map comes from the trained model")
         if getattr(model, "map_", None) is None:

@@ -16,6 +16,7 @@ import math
 from pathlib import Path
 from typing import Any
 
+from skinloc.app.workspace.state import WorkspaceState
 from skinloc.files import atomic_write
 from skinloc.live.config import PipelineConfig
 from skinloc.live.skins_file import read_skins_toml, skin_table
@@ -89,7 +90,7 @@ def toml_text(doc: dict[str, Any], header: str = "") -> str:
     return "\n".join(lines) + "\n"
 
 
-class LiveSettings:
+class LiveSettings(WorkspaceState):
     """Part of ``Workspace``: the live pipeline's settings, shown and saved."""
 
     def _skins_path(self) -> Path:
@@ -168,7 +169,7 @@ class LiveSettings:
                 "Run it outside the app with: skinloc run --config skins.toml",
             )
             atomic_write(path, lambda tmp: tmp.write_text(text, encoding="utf-8"))
-            live = self._live_pipeline is not None
+            live = self.live_running
             if live:
                 self._stop_live()
         if live:

@@ -1,7 +1,14 @@
-"""The app's settings and the state its actions share: modes, the open session, touch metadata."""
+"""The app's settings and the state its actions share: modes, the open session, touch metadata.
+
+``WorkspaceState`` declares the state that more than one part of ``Workspace`` reads or changes;
+what one part keeps for itself it declares in its own class (``tests/app/test_app_state.py``
+checks that every attribute a part uses is declared in one of the two, and that no part uses
+another's private state).
+"""
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
@@ -10,12 +17,16 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from skinloc.app.store import SessionFolder
-from skinloc.calibration.session import CalibrationSession
+from skinloc.app.capture import TouchCapture
+from skinloc.app.device import DeviceLink
+from skinloc.app.hub import Hub
+from skinloc.app.store import SessionFolder, SessionStore
+from skinloc.calibration.session import CalibrationSession, TouchDetector
 from skinloc.data.recording import Recording
 from skinloc.errors import SkinlocError
+from skinloc.geometry.mesh import cone_skin
 
-__all__ = ["ActiveSession", "AppConfig", "BusyError", "Mode"]
+__all__ = ["ActiveSession", "AppConfig", "BusyError", "Mode", "WorkspaceState"]
 
 
 class BusyError(SkinlocError):
@@ -79,6 +90,85 @@ class ActiveSession:
     cal: CalibrationSession | None = None
     val: CalibrationSession | None = None
     model: Any = None
+
+
+class WorkspaceState:
+    """The state the parts of ``Workspace`` share, declared in one place.
+
+    Every part (``link``, ``sessions``, ``guided``, ...) is a subclass, so what it may touch is
+    this class's attributes, its own class's, and the public attributes and the methods of the
+    other parts. The reader thread and the HTTP handlers change them only under ``_lock``.
+
+    Parameters
+    ----------
+    config : AppConfig
+        Settings.
+    hub : Hub
+        Where messages to the tabs go.
+
+    Attributes
+    ----------
+    config : AppConfig
+        Settings of this app process.
+    hub : Hub
+        Where messages to the tabs go.
+    store : SessionStore
+        The session folders under ``config.data_dir``.
+    default_mesh : trimesh.Trimesh
+        Skin of new sessions (``config.mesh``, else the paper's semi-cone).
+    device : DeviceLink or None
+        The connected skin.
+    active : ActiveSession or None
+        The open session.
+    mode : Mode
+        What the frames are used for.
+    capture : TouchCapture or None
+        The guided capture's per-frame state machine (calibration, validation).
+    detector : TouchDetector or None
+        Touched or not, against the running capture's or the live view's baseline.
+    message : str
+        The line the tabs show.
+    _lock : threading.RLock
+        Held by every action and by the reader thread for each frame.
+    _finger, _finger_due, _finger_down
+        The scripted finger (``finger``) as guided capture drives it: the finger (or None),
+        when it presses next (monotonic s, or None), whether it is down.
+    _live_base : numpy.ndarray or None
+        The live view's baseline, ``(n_sensors,)`` counts (what its heat map counts above).
+    """
+
+    config: AppConfig
+    hub: Hub
+    store: SessionStore
+    default_mesh: trimesh.Trimesh
+    device: DeviceLink | None
+    active: ActiveSession | None
+    mode: Mode
+    capture: TouchCapture | None
+    detector: TouchDetector | None
+    message: str
+    _lock: threading.RLock
+    _finger: Any
+    _finger_due: float | None
+    _finger_down: bool
+    _live_base: np.ndarray | None
+
+    def __init__(self, config: AppConfig, hub: Hub) -> None:
+        self.config = config
+        self.hub = hub
+        self.store = SessionStore(config.data_dir)
+        self.default_mesh = config.mesh if config.mesh is not None else cone_skin()
+        self._lock = threading.RLock()
+        self.device = None
+        self.active = None
+        self.mode = Mode.IDLE
+        self.capture = None
+        self.detector = None
+        self.message = ""
+        self._finger = None
+        self._finger_due = None
+        self._finger_down = False
+        self._live_base = None
 
 
 def app_meta(rec: Recording) -> dict[str, Any]:

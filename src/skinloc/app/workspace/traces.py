@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from skinloc.app.workspace.state import app_meta
+from skinloc.app.workspace.state import WorkspaceState, app_meta
 from skinloc.sources.base import Frame
 
 __all__ = ["MAX_POINTS", "RECENT_S", "TraceViews"]
@@ -47,8 +47,14 @@ def thin(t: np.ndarray, v: np.ndarray, n_max: int) -> tuple[np.ndarray, np.ndarr
     return np.concatenate([idx_t, t[m * k :]]), np.concatenate([idx_v, v[m * k :]])
 
 
-class TraceViews:
-    """Part of ``Workspace``: what the trace views of the page ask for."""
+class TraceViews(WorkspaceState):
+    """Part of ``Workspace``: what the trace views of the page ask for.
+
+    Attributes
+    ----------
+    _recent : collections.deque or None
+        ``(timestamp_s, values)`` of the last ``MAX_RECENT`` frames (made at the first frame).
+    """
 
     _recent: collections.deque | None = None
 

@@ -10,14 +10,23 @@ from typing import Any
 
 import numpy as np
 
-from skinloc.app.workspace.state import ActiveSession, app_meta
+from skinloc.app.workspace.state import ActiveSession, WorkspaceState, app_meta
 from skinloc.data.recording import Recording, read_recording
 
 log = logging.getLogger(__name__)
 
 
-class TrainingJobs:
-    """Part of ``Workspace``: training the session's localiser."""
+class TrainingJobs(WorkspaceState):
+    """Part of ``Workspace``: training the session's localiser.
+
+    Attributes
+    ----------
+    training : dict or None
+        The last training job: ``running``, its ``phase`` and progress, then its ``result``
+        or ``error``, and the ``session`` it trains.
+    """
+
+    training: dict[str, Any] | None = None
 
     def train(self, exclude: list[int] | None = None) -> None:
         """Train on the calibration in the background: held-out error, final model, influence.

@@ -7,12 +7,12 @@ from typing import Any
 
 import numpy as np
 
-from skinloc.app.workspace.state import ActiveSession, Mode, app_meta
+from skinloc.app.workspace.state import ActiveSession, Mode, WorkspaceState, app_meta
 from skinloc.calibration.session import CalibrationSession, SessionConfig
 from skinloc.data.recording import Recording
 
 
-class ValidationActions:
+class ValidationActions(WorkspaceState):
     """Part of ``Workspace``: validation runs, each touch scored, the result summed up."""
 
     def start_validation(self, n_points: int | None = None) -> None:

@@ -22,12 +22,39 @@ REAL_DIR = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "hir
 LOUD_SKIPS = ("tests/app/test_app_browser.py",)
 
 
+#: Folders whose tests share a session fixture too costly to build in every worker of
+#: ``pytest -n``: each runs in one worker (tests/firmware: the firmware and its emulator).
+ONE_WORKER_DIRS = ("tests/firmware/",)
+
+
+def xdist_group(item) -> str | None:
+    """The worker group of a test under ``pytest -n N --dist loadgroup`` (``make test``).
+
+    Its folder when in ``ONE_WORKER_DIRS``; its module when it uses a module- (or class-)
+    scoped fixture, so that the fixture is built once; else none: it goes to whichever worker
+    is free. Session fixtures are built once per worker (``tests/_live.py``'s models too).
+    """
+    path = item.nodeid.split("::", 1)[0].replace("\\", "/")
+    one = next((d for d in ONE_WORKER_DIRS if path.startswith(d)), None)
+    if one:
+        return one
+    info = getattr(item, "_fixtureinfo", None)  # pytest's own record of the test's fixtures
+    if info is None:
+        return path
+    scopes = {d.scope for defs in info.name2fixturedefs.values() for d in defs}
+    return path if scopes & {"module", "class", "package"} else None
+
+
 def pytest_collection_modifyitems(config, items) -> None:
     """``real`` on every test that reads the real recordings (through ``real_dir``), so
-    ``-m "not real"`` runs without them; a mark on a fixture itself would have no effect."""
+    ``-m "not real"`` runs without them; a mark on a fixture itself would have no effect.
+    Its ``xdist_group`` on every test that needs one (ignored without ``--dist loadgroup``)."""
     for item in items:
         if "real_dir" in getattr(item, "fixturenames", ()):
             item.add_marker(pytest.mark.real)
+        group = xdist_group(item)
+        if group and not item.get_closest_marker("xdist_group"):
+            item.add_marker(pytest.mark.xdist_group(group))
 
 
 def _skip_reason(report) -> str:

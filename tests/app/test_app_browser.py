@@ -11,81 +11,26 @@ from __future__ import annotations
 
 import contextlib
 import os
-import shutil
-import socket
 import threading
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed")
-uvicorn = pytest.importorskip("uvicorn")
+pytest.importorskip("uvicorn")
 
-from skinloc.app.server import create_app  # noqa: E402
-from skinloc.app.workspace import AppConfig  # noqa: E402
-from tests._helpers import scaled, wait_until  # noqa: E402
+# The fixtures (server, chromium) are tests/app/conftest.py's; the browser's setup, _app's.
+from tests.app._app import (  # noqa: E402
+    ARTIFACTS,
+    open_browser,
+    settle,
+    watch,
+)
+from tests.app._app import wait as _wait  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[2]
-ARTIFACTS = Path(os.environ.get("SKINLOC_ARTIFACTS", ROOT / "build" / "test-artifacts" / "app"))
 #: Calibration targets; docs/app.md's screenshots use SKINLOC_APP_POINTS=40.
 N_POINTS = int(os.environ.get("SKINLOC_APP_POINTS", "10"))
-CHROMIUM_ARGS = [
-    "--no-sandbox",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--no-first-run",
-    # WebGL without a GPU.
-    "--use-angle=swiftshader",
-    "--enable-unsafe-swiftshader",
-]
-
-
-#: Why scripts/ensure-chromium.sh (make test) could not install Chromium, when it could not.
-CHROMIUM_STATUS = ROOT / "build" / "chromium-status.txt"
-
-
-def find_chromium() -> str:
-    for name in ("chromium", "chromium-browser", "google-chrome"):
-        path = shutil.which(name)
-        if path:
-            return path
-    why = "run 'sh scripts/ensure-chromium.sh' (make test does) or apt-get install chromium"
-    if CHROMIUM_STATUS.is_file():
-        why = CHROMIUM_STATUS.read_text().strip() or why
-    pytest.skip(f"no Chromium (chromium, chromium-browser, google-chrome) on PATH: {why}")
-
-
-@pytest.fixture
-def server(tmp_path):
-    """The app on a free loopback port, served by uvicorn on a thread."""
-    # Bind here and hand uvicorn the socket: no window for another process to take the port.
-    sock = socket.create_server(("127.0.0.1", 0))
-    port = sock.getsockname()[1]
-    config = AppConfig(data_dir=tmp_path / "sessions", finger_delay_s=0.15)
-    app = create_app(config)
-    srv = uvicorn.Server(uvicorn.Config(app, log_level="warning", ws="websockets-sansio"))
-    thread = threading.Thread(target=srv.run, kwargs={"sockets": [sock]}, daemon=True)
-    thread.start()
-
-    def started() -> bool:
-        if not thread.is_alive():
-            pytest.fail("the app server's thread ended before it started")
-        return srv.started
-
-    wait_until(started, "the app server to start", 120.0, interval_s=0.05)
-    yield f"http://127.0.0.1:{port}/", app
-    srv.should_exit = True
-    thread.join(timeout=30)
-    sock.close()
-
-
-@pytest.fixture
-def chromium() -> str:
-    """The Chromium binary (looked up before the server starts, to skip early)."""
-    return find_chromium()
 
 
 def test_full_session_in_the_browser(chromium, server, tmp_path):
@@ -95,8 +40,7 @@ def test_full_session_in_the_browser(chromium, server, tmp_path):
     expect = sync_api.expect
     ARTIFACTS.mkdir(parents=True, exist_ok=True)
     errors: list[str] = []
-    with sync_api.sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
+    with open_browser(chromium) as browser:
         page = browser.new_page(viewport={"width": 1440, "height": 900})
         watch(page, errors)
 
@@ -141,7 +85,11 @@ def test_full_session_in_the_browser(chromium, server, tmp_path):
         panel.locator(".start").click()
         wait_state("s.mode === 'calibrate' && s.guided.phase === 'wait_touch'")
         expect(panel.locator(".big-state")).to_contain_text("Touch the red target")
-        page.wait_for_timeout(1200)  # the view turns towards the target (for the picture only)
+        # the view turned towards the target (for the picture)
+        page.wait_for_function(
+            "() => { const v = window.skinloc.viewer; return v.targetPoint && !v.fly; }"
+        )
+        settle(page)
         shot("03-calibrate")
         panel.locator(".finger").check()
         wait_state("s.message === 'calibration complete'", timeout_ms=180_000)
@@ -225,6 +173,7 @@ def test_full_session_in_the_browser(chromium, server, tmp_path):
         page.click("#live-start")
         wait_state("s.mode === 'live'")
         page.check("#mouse-touch")
+        skin = app.state.workspace.device.source  # the simulated skin the mouse presses
         box = page.locator("#viewer canvas").bounding_box()
         page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
         # One finger (the multi-contact search may see a second one for a frame: any count).
@@ -247,12 +196,13 @@ def test_full_session_in_the_browser(chromium, server, tmp_path):
                     " window.skinloc.state?.mode, document.body.className]"
                 ))  # fmt: skip
                 page.mouse.up()
-                page.wait_for_timeout(500)
+                _wait(lambda: skin.contact is None, "the simulated finger lifted")
         else:
             raise AssertionError(f"no live contact under the mouse; the page said: {said}")
-        for k in range(6):  # move a little, so the trail has a shape
+        for k in range(6):  # move a little, so the trail has a shape: each move on the skin
+            was = skin.contact
             page.mouse.move(box["x"] + box["width"] / 2 + 4 * k, box["y"] + box["height"] / 2)
-            page.wait_for_timeout(100)
+            _wait(lambda was=was: skin.contact is not was, f"mouse move {k} on the skin")
         # Contacts arrive over the WebSocket: wait for them (a loaded machine is slow).
         # A track's row (the "No contact." row counts as a row too, so ask for a progress bar).
         expect(page.locator("#live-tracks tbody tr:has(.progress)")).to_have_count(1)
@@ -300,7 +250,7 @@ def test_full_session_in_the_browser(chromium, server, tmp_path):
             first = page.locator("#live-gestures li").first.inner_text()
             assert "two finger tap" in first and "tracks 97, 98" in first
             assert "swipe ↑ up" in page.locator("#live-gestures li").nth(2).inner_text()
-            page.wait_for_timeout(300)  # the last points drawn
+            settle(page)  # the last points drawn
             shot("06b-live-tracks")
         page.wait_for_function(
             "() => document.querySelector('#live-state').textContent === 'not touched'"
@@ -355,7 +305,7 @@ def test_full_session_in_the_browser(chromium, server, tmp_path):
             "() => document.querySelector('.guided[data-kind=calibrate] .count').textContent === ''"
         )
         assert "browser test" in panel.locator(".reopen-select option:checked").inner_text()
-        page.wait_for_timeout(400)  # the progress bar's transition
+        settle(page)  # the progress bar's transition
         shot("09-reopen")
         panel.locator(".reopen-btn").click()
         wait_state("s.session && s.session.name === 'browser test'")
@@ -493,24 +443,6 @@ class COVERAGE_DRAWN:  # noqa: N801 - a named wait
         )
 
 
-def watch(page, errors: list[str]) -> None:
-    """Collect the page's errors and three.js's warnings (it warns through console.warn).
-
-    A refused action (409, busy) is what the second tab should meet, not an error.
-    """
-
-    def console(m) -> None:
-        if "status of 409" in m.text:
-            return
-        if m.type == "error" or (m.type == "warning" and "THREE" in m.text):
-            errors.append(f"{m.type}: {m.text}")
-
-    page.on("pageerror", lambda exc: errors.append(str(exc)))
-    page.on("console", console)
-    # a page's own waits (clicks, wait_for_function) get the load's stretch, as wait_until does
-    page.set_default_timeout(scaled(60.0) * 1000.0)
-
-
 def hover_cell(page, canvas: str, tx: int, rx: int) -> None:
     """Move the mouse over cell (tx, rx) of a heat map."""
     geo = page.evaluate(
@@ -569,7 +501,7 @@ def link_lost(browser, page, url, wait_state, shot, tmp_path, errors) -> None:
         # The Connect page keeps its shape with the long error of a lost port.
         wait_state("s.device && s.device.error", on=other)
         assert dev.path in other.locator("#source-select option:checked").inner_text()
-        other.wait_for_timeout(600)
+        settle(other)  # the long error laid out
         assert other.evaluate("document.documentElement.scrollWidth") <= 1440
         grow = other.locator("#page-connect .card.grow").bounding_box()
         assert grow["width"] > 600
@@ -612,8 +544,7 @@ def test_a_tab_notices_a_silent_link_by_itself(chromium, server):
     app.state.workspace.connect(SourceOptions(source="sim"))
     errors: list[str] = []
     drop = threading.Event()
-    with sync_api.sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
+    with open_browser(chromium) as browser:
         page = browser.new_page(viewport={"width": 1440, "height": 900})
         watch(page, errors)
 
@@ -642,10 +573,6 @@ def test_a_tab_notices_a_silent_link_by_itself(chromium, server):
         page.wait_for_selector("#linklost", state="hidden", timeout=30_000)
         browser.close()
     assert not errors, f"the page logged errors: {errors}"
-
-
-def _wait(check, what: str, timeout_s: float = 180.0) -> None:
-    wait_until(check, what, timeout_s, interval_s=0.05)
 
 
 def _calibrate(ws, off_target_at: int | None = None) -> None:
@@ -688,8 +615,7 @@ def test_sessions_own_their_state_and_flagged_touches_are_gated(chromium, server
     _wait(lambda: ws.training and not ws.training.get("running"), "training", 300)
     assert ws.finger_on
     errors: list[str] = []
-    with sync_api.sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
+    with open_browser(chromium) as browser:
         page = browser.new_page(viewport={"width": 1440, "height": 900})
         watch(page, errors)
         page.goto(url)
@@ -720,7 +646,7 @@ def test_sessions_own_their_state_and_flagged_touches_are_gated(chromium, server
             page.click(f"#nav button[data-page={name}]")
             page.click(button)
             expect(page.locator("#message")).to_contain_text("train a model first")
-            page.wait_for_timeout(300)  # an uncaught rejection would be reported by now
+            settle(page)  # an uncaught rejection would be reported by now
             # The refusal itself (the browser logs the 400) is expected; nothing else is.
             errors[:] = [e for e in errors if "status of 400" not in e]
             assert not errors, errors
@@ -808,18 +734,30 @@ def test_heat_map_scale_is_steady_robust_and_lockable(chromium, server):
     ws.connect(SourceOptions(source="sim", rate_hz=200.0, seed=3))
     errors: list[str] = []
     scale = "() => document.querySelector('#heat-connect')._heat?.scale"
-    with sync_api.sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
+    with open_browser(chromium) as browser:
         page = browser.new_page(viewport={"width": 1440, "height": 900})
         watch(page, errors)
         page.goto(url)
         page.click("#nav button[data-page=connect]")
         page.wait_for_function(f"() => ({scale})() > 0")
-        page.wait_for_timeout(1000)
+        # The heat map's draws, counted on the page: each draw sets a new canvas._heat.
+        page.evaluate(
+            "() => { const c = document.querySelector('#heat-connect'); let last = c._heat;"
+            " window.__heatDraws = 0; const f = () => { if (c._heat !== last) {"
+            " last = c._heat; window.__heatDraws += 1; } requestAnimationFrame(f); };"
+            " requestAnimationFrame(f); }"
+        )
+
+        def drawn(n: int) -> None:
+            """``n`` more frames drawn into the heat map."""
+            page.wait_for_function("(n) => window.__heatDraws >= n", arg=page.evaluate(
+                "() => window.__heatDraws") + n)  # fmt: skip
+
+        drawn(60)  # the scale has seen a second or so of frames
         seen = []
         for _ in range(20):  # untouched: one scale, whatever the noise draws
             seen.append(page.evaluate(scale))
-            page.wait_for_timeout(100)
+            drawn(5)
         assert len(set(seen)) == 1, seen
         key = page.locator("#page-connect .heat-key").first
         for word in ("noisy", "weak", "dead", "line"):
@@ -833,7 +771,7 @@ def test_heat_map_scale_is_steady_robust_and_lockable(chromium, server):
         page.wait_for_function(
             "(s) => Math.max(...window.skinloc.frame.delta.map(Math.abs)) > 2 * s", arg=locked
         )
-        page.wait_for_timeout(300)
+        drawn(10)  # the touch's frames drawn with the locked scale
         assert page.evaluate(scale) == locked
         page.locator("#heat-connect + .heat-controls .heat-lock").uncheck()
         page.wait_for_function(f"(s) => ({scale})() > s", arg=locked)
@@ -851,8 +789,7 @@ def test_a_long_press_says_how_long_it_was_held(chromium, server):
 
     sink = app.state.workspace.live_sink
     errors: list[str] = []
-    with sync_api.sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
+    with open_browser(chromium) as browser:
         page = browser.new_page(viewport={"width": 1440, "height": 900})
         watch(page, errors)
         page.goto(url)

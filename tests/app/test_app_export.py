@@ -27,13 +27,9 @@ from skinloc.app.workspace import AppConfig  # noqa: E402
 from skinloc.data.recording import read_recording  # noqa: E402
 from skinloc.models.localizer import ContactLocalizer  # noqa: E402
 from skinloc.sources.base import SourceOptions  # noqa: E402
-from tests._helpers import wait_until  # noqa: E402
+from tests.app._app import wait as _wait  # noqa: E402
 
 A = {"X-Skinloc-Client": "tab-a"}
-
-
-def _wait(check, what: str, timeout_s: float = 180.0) -> None:
-    wait_until(check, what, timeout_s, interval_s=0.05)
 
 
 @pytest.fixture(scope="module")

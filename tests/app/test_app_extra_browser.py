@@ -1,6 +1,6 @@
 """Issue 22, section 4 in a real browser: export, record, train-page evidence, traces, settings.
 
-Reuses the fixtures of ``test_app_browser`` (the app on a free port, Debian's Chromium); the
+The fixtures (the app on a free port, Debian's Chromium) are ``conftest.py``'s; the
 session is prepared through the workspace, and the page does what a researcher would.
 """
 
@@ -17,17 +17,9 @@ pytest.importorskip("uvicorn")
 from skinloc.data.recording import read_recording  # noqa: E402
 from skinloc.models.localizer import ContactLocalizer  # noqa: E402
 from skinloc.sources.base import SourceOptions  # noqa: E402
-from tests._helpers import wait_until  # noqa: E402
 from tests.app import test_app_browser as base  # noqa: E402
-from tests.app.test_app_browser import CHROMIUM_ARGS, watch  # noqa: E402
-
-# The fixtures of the whole-session test: the app on a free port, the Chromium binary.
-server = base.server
-chromium = base.chromium
-
-
-def _wait(check, what: str, timeout_s: float = 180.0) -> None:
-    wait_until(check, what, timeout_s, interval_s=0.05)
+from tests.app._app import open_browser, settle, watch  # noqa: E402
+from tests.app._app import wait as _wait  # noqa: E402
 
 
 def _prepared(app, n_points: int = 6, n_validation: int = 3):
@@ -68,8 +60,7 @@ def test_export_downloads_every_file_and_view(chromium, server, tmp_path):
     errors: list[str] = []
     got = tmp_path / "downloads"
     got.mkdir()
-    with sync_api.sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
+    with open_browser(chromium) as browser:
         page = browser.new_page(viewport={"width": 1440, "height": 900}, accept_downloads=True)
         watch(page, errors)
         page.goto(url)
@@ -152,8 +143,7 @@ def test_record_the_live_stream_from_the_page(chromium, server, tmp_path):
     ws = _prepared(app, n_validation=0)
     folder = ws.active.folder.path
     errors: list[str] = []
-    with sync_api.sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
+    with open_browser(chromium) as browser:
         page = browser.new_page(viewport={"width": 1440, "height": 900}, accept_downloads=True)
         watch(page, errors)
         page.goto(url)
@@ -212,8 +202,7 @@ def test_train_page_shows_each_touch_error_on_the_skin_and_as_a_histogram(chromi
     te = ws.active.info["holdout"]["touch_errors"]
     assert len(te["index"]) == 8
     errors: list[str] = []
-    with sync_api.sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
+    with open_browser(chromium) as browser:
         page = browser.new_page(viewport={"width": 1440, "height": 900})
         watch(page, errors)
         page.goto(url)
@@ -253,7 +242,7 @@ def test_train_page_shows_each_touch_error_on_the_skin_and_as_a_histogram(chromi
         assert dots["visible"] and dots["n"] == 8
         np.testing.assert_allclose(sorted(dots["errors"]), sorted(te["error_mm"]))
         assert page.locator("#viewer").is_visible()
-        page.wait_for_timeout(500)  # the view draws the dots (for the picture only)
+        settle(page)  # the view draws the dots (for the picture)
         base.ARTIFACTS.mkdir(parents=True, exist_ok=True)
         page.screenshot(path=str(base.ARTIFACTS / "04c-train-evidence.png"))
         page.set_viewport_size({"width": 800, "height": 900})
@@ -271,8 +260,7 @@ def test_traces_of_a_sensor_a_live_track_and_a_touch(chromium, server):
     expect = sync_api.expect
     ws = _prepared(app, n_validation=0)
     errors: list[str] = []
-    with sync_api.sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
+    with open_browser(chromium) as browser:
         page = browser.new_page(viewport={"width": 1440, "height": 900})
         watch(page, errors)
         page.goto(url)
@@ -335,8 +323,7 @@ def test_live_settings_are_saved_to_the_skins_file_and_latency_is_shown(chromium
     expect = sync_api.expect
     ws = _prepared(app, n_validation=0)
     errors: list[str] = []
-    with sync_api.sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
+    with open_browser(chromium) as browser:
         page = browser.new_page(viewport={"width": 1440, "height": 900})
         watch(page, errors)
         page.goto(url)

@@ -29,13 +29,9 @@ from skinloc.app.workspace.record import read_live_events  # noqa: E402
 from skinloc.data.recording import read_recording  # noqa: E402
 from skinloc.sources.base import SourceOptions  # noqa: E402
 from skinloc.sources.replay import read_stream  # noqa: E402
-from tests._helpers import wait_until  # noqa: E402
+from tests.app._app import wait as _wait  # noqa: E402
 
 A = {"X-Skinloc-Client": "tab-a"}
-
-
-def _wait(check, what: str, timeout_s: float = 180.0):
-    return wait_until(check, what, timeout_s, interval_s=0.05)
 
 
 def _client(data, token: bool = True) -> TestClient:

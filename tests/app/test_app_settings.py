@@ -20,13 +20,9 @@ from skinloc.app.workspace.settings import EDITABLE, toml_text  # noqa: E402
 from skinloc.live.config import PipelineConfig  # noqa: E402
 from skinloc.live.skins_file import load_skins  # noqa: E402
 from skinloc.sources.base import SourceOptions  # noqa: E402
-from tests._helpers import wait_until  # noqa: E402
+from tests.app._app import wait as _wait  # noqa: E402
 
 A = {"X-Skinloc-Client": "tab-a"}
-
-
-def _wait(check, what: str, timeout_s: float = 180.0):
-    return wait_until(check, what, timeout_s, interval_s=0.05)
 
 
 @pytest.fixture(scope="module")

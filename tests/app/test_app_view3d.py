@@ -15,17 +15,10 @@ import threading
 import numpy as np
 import pytest
 
-from tests._helpers import wait_until
-
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed")
 
-from tests.app.test_app_browser import (  # noqa: E402
-    ARTIFACTS,
-    CHROMIUM_ARGS,
-    chromium,  # noqa: F401  (a fixture)
-    server,  # noqa: F401  (a fixture)
-    watch,
-)
+from tests.app._app import ARTIFACTS, open_browser, watch  # noqa: E402
+from tests.app._app import wait as _wait  # noqa: E402
 
 # Every shown number's box on the page, and the view's own boxes.
 LABEL_BOXES = """() => [...document.querySelectorAll('.view-label:not(.hidden)')].map((e) => {
@@ -80,10 +73,6 @@ def on_skin(page, box: dict, x: float, y: float) -> list[float] | None:
     )
 
 
-def _wait(check, what: str, timeout_s: float = 180.0) -> None:
-    wait_until(check, what, timeout_s, interval_s=0.05)
-
-
 def _session_waiting_at_a_target(ws, n_points: int, n_done: int) -> None:
     """A session of ``n_points`` targets, ``n_done`` touched by the scripted finger, the next
     one waiting for a touch."""
@@ -109,8 +98,7 @@ def test_the_3d_view_is_readable_at_1440_and_800(chromium, server):  # noqa: F81
     expect = sync_api.expect
     ARTIFACTS.mkdir(parents=True, exist_ok=True)
     errors: list[str] = []
-    with sync_api.sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
+    with open_browser(chromium) as browser:
         page = browser.new_page(viewport={"width": 1440, "height": 900})
         watch(page, errors)
         page.goto(url)
@@ -233,8 +221,7 @@ def test_dragging_on_the_skin_moves_the_simulated_finger(chromium, server):  # n
     sync_api.expect.set_options(timeout=60_000)
     expect = sync_api.expect
     errors: list[str] = []
-    with sync_api.sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
+    with open_browser(chromium) as browser:
         page = browser.new_page(viewport={"width": 1440, "height": 900})
         watch(page, errors)
         page.goto(url)
@@ -252,7 +239,7 @@ def test_dragging_on_the_skin_moves_the_simulated_finger(chromium, server):  # n
         for k in range(1, steps + 1):
             f = k / steps
             page.mouse.move(start[0] + f * (end[0] - start[0]), start[1] + f * (end[1] - start[1]))
-            page.wait_for_timeout(40)
+            page.wait_for_timeout(40)  # the drag's pace (a speed the test asserts, not a state)
         page.mouse.up()
         _wait(lambda: pressed and pressed[-1] is None, "the finger lifted")
         with lock:
@@ -317,8 +304,7 @@ def test_a_mouse_drag_on_the_live_page_is_tracked(chromium, server):  # noqa: F8
     _wait(lambda: ws.training and not ws.training.get("running"), "training", 300)
     assert ws.active.model is not None
     errors: list[str] = []
-    with sync_api.sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
+    with open_browser(chromium) as browser:
         page = browser.new_page(viewport={"width": 1440, "height": 900})
         watch(page, errors)
         page.goto(url)

@@ -8,7 +8,7 @@ and download everything from the Export page; each file is opened again with ski
 
 With ``SKINLOC_APP_SHOTS=DIR`` the test also saves every page (and the ``?`` help) at 1440 x 900
 and 800 x 900 into DIR, for docs/app.md, checking first that no two numbers of the 3D view overlap.
-Reuses the fixtures of ``test_app_browser`` (the app on a free port, Debian's Chromium).
+The fixtures (the app on a free port, Debian's Chromium) are ``conftest.py``'s.
 """
 
 from __future__ import annotations
@@ -34,12 +34,7 @@ pytest.importorskip("uvicorn")
 from skinloc.data.recording import read_recording  # noqa: E402
 from skinloc.models.localizer import ContactLocalizer  # noqa: E402
 from tests._helpers import SRC, scaled  # noqa: E402
-from tests.app import test_app_browser as base  # noqa: E402
-from tests.app.test_app_browser import CHROMIUM_ARGS, watch  # noqa: E402
-
-# The fixtures of the whole-session test: the app on a free port, the Chromium binary.
-server = base.server
-chromium = base.chromium
+from tests.app._app import open_browser, settle, watch  # noqa: E402
 
 #: A folder for the screenshots of every page at both widths (docs/app.md), or None: none.
 SHOTS = os.environ.get("SKINLOC_APP_SHOTS")
@@ -163,8 +158,7 @@ def test_the_whole_flow_as_a_user(chromium, server, tmp_path):
     shots = Path(SHOTS) if SHOTS else None
     if shots:
         shots.mkdir(parents=True, exist_ok=True)
-    with sync_api.sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
+    with open_browser(chromium) as browser:
         page = browser.new_page(viewport={"width": 1440, "height": 900}, accept_downloads=True)
         watch(page, errors)
 
@@ -202,7 +196,7 @@ def test_the_whole_flow_as_a_user(chromium, server, tmp_path):
                     before()
                 labels_apart(f"{name} at {width} px")
                 page.evaluate("window.scrollTo(0, 0)")  # a click may have scrolled the page
-                page.wait_for_timeout(300)  # transitions (progress bars), for the picture only
+                settle(page)  # transitions (progress bars), for the picture
                 path = shots / f"app-page-{name}-{width}.png"
                 page.screenshot(path=str(path))
                 _small_png(path)

@@ -46,8 +46,10 @@ def test_help_lists_the_hardware_commands():
 
 
 def test_ports():
-    assert run("ports").exit_code == 0
-    res = run("ports", "--json")
+    # --no-ask: never write to the virtual skins of tests running beside this one (pytest -n);
+    # asking a board is tests/firmware/test_host.py's
+    assert run("ports", "--no-ask").exit_code == 0
+    res = run("ports", "--json", "--no-ask")
     assert res.exit_code == 0 and isinstance(json.loads(res.output), list)
 
 

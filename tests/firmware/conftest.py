@@ -31,17 +31,27 @@ def fw_build(tmp_path_factory):
         if STATUS.is_file():
             why += f"; {STATUS.read_text().strip()}"
         _SKIPPED.append(why)
-        pytest.skip(f"firmware-in-the-loop tests: {why}")
+        pytest.skip(f"firmware-in-the-loop tests: {why}")  # the banner below reads this prefix
     return build_firmware(tmp_path_factory.mktemp("firmware-build"))
 
 
 def pytest_terminal_summary(terminalreporter) -> None:
-    if _SKIPPED:
+    """A banner when the firmware tests skipped, with the reason. Read from the reports, not
+    from ``_SKIPPED``: under ``pytest -n`` the skip happens in a worker process."""
+    reasons = [
+        str(r.longrepr[2]).removeprefix("Skipped: ")
+        for r in terminalreporter.stats.get("skipped", [])
+        if isinstance(r.longrepr, tuple) and len(r.longrepr) == 3
+        and r.nodeid.replace("\\", "/").startswith("tests/firmware/")
+    ]  # fmt: skip
+    prefix = "firmware-in-the-loop tests: "
+    found = [m.removeprefix(prefix) for m in reasons if m.startswith(prefix)]
+    why = (_SKIPPED or found or [""])[0]
+    if why:
         bar = "!" * 78
         terminalreporter.write_line(bar, red=True, bold=True)
         terminalreporter.write_line(
-            "FIRMWARE NOT TESTED: the firmware-in-the-loop tests (tests/firmware) skipped: "
-            + _SKIPPED[0],
+            "FIRMWARE NOT TESTED: the firmware-in-the-loop tests (tests/firmware) skipped: " + why,
             red=True,
             bold=True,
         )

@@ -1,41 +1,35 @@
-"""How sharp the capture's off-target flag is (docs/app.md, "Touch quality").
+"""How sharp the gate's off-target flag is (docs/app.md, "Touch quality"): issue 33's figures.
 
-Simulated 20-touch sessions on the paper's cone (the app's simulated skin): touches in turn
-get the image of a press at a surface point ``d`` mm from their target (the finger went
-there instead), and the share of such touches flagged, and of the other touches flagged with
-it, is counted. Clean sessions and the real recordings (every touch taken as good, real
-probing noise) give the false flags. On the real recordings, where no new image can be
-made, 20 touches in turn keep their image and have their target moved ``d`` mm instead (the
-same mismatch, but the wrong target, not the image, lies among the other touches).
+Sessions of 10, 20, 40 and 80 touches each get 1 to 3 bad touches, 40-100 mm off, and
+``skinloc.calibration.touch_check.off_target`` (the app's gate and ``skinloc check``) is run
+on them; the share of bad touches flagged ("caught") and of good touches flagged ("false") is
+counted.
 
-    python bench/off_target_eval.py [--sessions 10] [--limit 4.0]
-        [--data ../shared/data/hiro-cone-skin]
+- Simulated skins (``--skin-seed0``, default 300: skins that set nothing; the thresholds were
+  chosen on skins 200-215): the bad touch's image is of a press 40-100 mm from its target.
+- The real recordings: sessions drawn from the six recordings' touches (a recording of at
+  least the size, else the largest); the bad touch keeps its image and its target is moved
+  40-100 mm along the surface (relabelled).
+
+    python bench/off_target_eval.py [--sizes 10 20 40 80] [--sessions 12]
+        [--data ../shared/data/hiro-cone-skin] [--json out.json]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-from skinloc.app.capture import off_target
 from skinloc.calibration.session import SessionConfig, simulate_session
+from skinloc.calibration.touch_check import off_target
 from skinloc.data.recording import read_recording
 from skinloc.geometry.mesh import cone_skin, load_mesh, surface_points
 from skinloc.sim.skin import SimulatedSkin
-
-DISTANCES_MM = (40.0, 70.0, 100.0)
-REAL = (
-    "ConeSkinData_RND_20PL_1.mat",
-    "ConeSkinData_RND_20PL_2.mat",
-    "ConeSkinData30Points_RND_30PL_1.mat",
-    "ConeSkinData_RND_40PL_1.mat",
-    "ConeSkinData50Points_RND_50PL_1.mat",
-    "ConeSkinData80Points_RND_80PL_1.mat",
-)
 
 
 def displaced(surface: np.ndarray, target: np.ndarray, d_mm: float, rng) -> np.ndarray:
@@ -47,96 +41,96 @@ def displaced(surface: np.ndarray, target: np.ndarray, d_mm: float, rng) -> np.n
     return surface[rng.choice(near)]
 
 
-def pressed_image(skin: SimulatedSkin, point: np.ndarray, baseline: np.ndarray) -> np.ndarray:
-    """Mean image of a 10-frame press at ``point (3,)`` m, baseline subtracted, counts."""
-    skin.press(point, weak=False)
-    frames, _ = skin.read_many(10)
-    skin.release()
-    return frames.mean(axis=0) - baseline
+def simulated_sessions(size, n_sessions, rng, skin_seed0):
+    """``(targets, touch_means, bad, surface)`` of simulated sessions with pressed-off touches."""
+    mesh = cone_skin()
+    surf = surface_points(mesh, 2000)
+    with tempfile.TemporaryDirectory() as tmp:
+        for s in range(n_sessions):
+            skin = SimulatedSkin(mesh, random_state=skin_seed0 + s)
+            cfg = SessionConfig(n_points=size, samples_per_touch=10, random_state=s)
+            rec = simulate_session(skin, mesh, Path(tmp) / f"s{s}.h5", cfg)
+            skin.connect()
+            base = skin.read_many(50)[0].mean(axis=0)
+            t, m, bad = rec.targets.copy(), rec.touch_means.copy(), np.zeros(size, bool)
+            for j in rng.choice(size, rng.integers(1, 4), replace=False):
+                skin.press(displaced(surf, t[j], rng.uniform(40, 100), rng), weak=False)
+                m[j] = skin.read_many(10)[0].mean(axis=0) - base
+                skin.release()
+                bad[j] = True
+            skin.disconnect()
+            yield t, m, bad, surf
 
 
-def score(targets, means, surface, rng, per_session: int, limit: float, skin=None):
-    """Flags of the clean session, and of ``per_session`` touches off by each distance.
-
-    With the simulated ``skin`` the touch's image is of a press off its target; without, its
-    target is moved instead.
-    """
-    baseline = None
-    if skin is not None:
-        skin.connect()
-        baseline = skin.read_many(50)[0].mean(axis=0)
-    out: dict[str, list] = {"clean": [], "time": []}
-    t0 = time.perf_counter()
-    flags, _ = off_target(targets, means, limit=limit)
-    out["time"].append(time.perf_counter() - t0)
-    out["clean"].append(int(flags.sum()))
-    for d in DISTANCES_MM:
-        hit, other = [], []
-        for j in rng.choice(len(targets), per_session, replace=False):
-            moved, images = targets.copy(), means.copy()
-            elsewhere = displaced(surface, targets[j], d, rng)
-            if skin is None:
-                moved[j] = elsewhere
-            else:
-                images[j] = pressed_image(skin, elsewhere, baseline)
-            flags, _ = off_target(moved, images, limit=limit)
-            hit.append(bool(flags[j]))
-            other.append(int(flags.sum() - flags[j]))
-        out[f"hit{d:.0f}"] = hit
-        out[f"other{d:.0f}"] = other
-    if skin is not None:
-        skin.disconnect()
-    return out
+def real_sessions(size, n_sessions, rng, data: Path):
+    """``(targets, touch_means, bad, surface)`` drawn from the real recordings, relabelled."""
+    surf = surface_points(load_mesh(data / "Color_Cone.obj"), 2000)
+    recs = [read_recording(p) for p in sorted(data.glob("*.mat"))]
+    for s in range(n_sessions):
+        rec = recs[s % len(recs)]
+        if rec.n_point_logs < size:
+            rec = max(recs, key=lambda r: r.n_point_logs)
+        pick = rng.choice(rec.n_point_logs, size, replace=False)
+        t, m, bad = rec.targets[pick].copy(), rec.touch_means[pick].copy(), np.zeros(size, bool)
+        for j in rng.choice(size, rng.integers(1, 4), replace=False):
+            t[j] = displaced(surf, t[j], rng.uniform(40, 100), rng)
+            bad[j] = True
+        yield t, m, bad, surf
 
 
-def report(name: str, res: dict[str, list], n_touches: int) -> None:
-    clean = np.asarray(res["clean"])
-    print(
-        f"{name}: clean sessions {len(clean)}, false flags {clean.sum()} of "
-        f"{len(clean) * n_touches} touches; check {1e3 * np.median(res['time']):.0f} ms"
-    )
-    for d in DISTANCES_MM:
-        hit, other = np.asarray(res[f"hit{d:.0f}"]), np.asarray(res[f"other{d:.0f}"])
-        print(
-            f"  touch {d:.0f} mm off: flagged {hit.mean():.0%} ({hit.sum()}/{len(hit)}), "
-            f"good touches flagged with it {other.sum()} of {len(other) * (n_touches - 1)}"
-        )
+def score(sessions) -> dict:
+    hit = n_bad = false = n_good = 0
+    times = []
+    for t, m, bad, surf in sessions:
+        t0 = time.perf_counter()
+        flags = off_target(t, m, surf).flags
+        times.append(time.perf_counter() - t0)
+        hit += int((flags & bad).sum())
+        n_bad += int(bad.sum())
+        false += int((flags & ~bad).sum())
+        n_good += int((~bad).sum())
+    return {
+        "caught": hit,
+        "bad": n_bad,
+        "false": false,
+        "good": n_good,
+        "median_check_s": float(np.median(times)),
+    }
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--sessions", type=int, default=10)
-    ap.add_argument("--per-session", type=int, default=6)
-    ap.add_argument("--limit", type=float, default=4.0, help="off_target's limit")
+    ap.add_argument("--sizes", type=int, nargs="+", default=[10, 20, 40, 80])
+    ap.add_argument("--sessions", type=int, default=12)
+    ap.add_argument("--skin-seed0", type=int, default=300)
     ap.add_argument("--data", type=Path, default=Path("../shared/data/hiro-cone-skin"))
+    ap.add_argument("--only", choices=["sim", "real"])
+    ap.add_argument("--json", type=Path)
     args = ap.parse_args()
-    rng = np.random.default_rng(0)
-    mesh = cone_skin()
-    surface = surface_points(mesh, 2000)
-    res: dict[str, list] = {}
-    with tempfile.TemporaryDirectory() as tmp:
-        for s in range(args.sessions):
-            skin = SimulatedSkin(mesh, random_state=100 + s)
-            cfg = SessionConfig(n_points=20, samples_per_touch=10, random_state=s)
-            rec = simulate_session(skin, mesh, Path(tmp) / f"s{s}.h5", cfg)
-            for how, sim in (("pressed", skin), ("moved", None)):
-                one = score(
-                    rec.targets, rec.touch_means, surface, rng, args.per_session, args.limit, sim
-                )
-                for k, v in one.items():
-                    res.setdefault((how, k), []).extend(v)
-    for how, what in (("pressed", "pressed d mm off"), ("moved", "target moved d mm")):
-        part = {k: v for (h, k), v in res.items() if h == how}
-        report(f"simulated 20 touches, {what}", part, 20)
-    if not args.data.is_dir():
-        print(f"no real recordings at {args.data}: skipped")
-        return
-    real_surface = surface_points(load_mesh(args.data / "Color_Cone.obj"), 2000)
-    for name in REAL:
-        rec = read_recording(args.data / name)
-        n_moved = min(rec.n_point_logs, 20)
-        one = score(rec.targets, rec.touch_means, real_surface, rng, n_moved, args.limit)
-        report(f"real {name} ({rec.n_point_logs} touches), target moved", one, rec.n_point_logs)
+    rows = []
+    for kind in ("sim", "real"):
+        if args.only and kind != args.only:
+            continue
+        if kind == "real" and not args.data.is_dir():
+            print(f"no real recordings at {args.data}: skipped")
+            continue
+        for size in args.sizes:
+            rng = np.random.default_rng(size)
+            if kind == "sim":
+                gen = simulated_sessions(size, args.sessions, rng, args.skin_seed0)
+            else:
+                gen = real_sessions(size, args.sessions, rng, args.data)
+            r = {"kind": kind, "size": size, **score(gen)}
+            rows.append(r)
+            print(
+                f"{kind} {size} touches: caught {r['caught'] / r['bad']:.0%} "
+                f"({r['caught']}/{r['bad']}), good touches flagged "
+                f"{r['false'] / r['good']:.1%} ({r['false']}/{r['good']}), check "
+                f"{r['median_check_s']:.1f} s",
+                flush=True,
+            )
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1) + "\n")
 
 
 if __name__ == "__main__":

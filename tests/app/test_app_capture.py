@@ -93,10 +93,13 @@ def sim_session(tmp_path_factory):
     return simulate_session(skin, mesh, path, SessionConfig(n_points=30, samples_per_touch=10))
 
 
+SURFACE = surface_points(cone_skin(), 2000)
+
+
 def test_good_touches_are_not_off_target(sim_session):
-    flags, miss = off_target(sim_session.targets, sim_session.touch_means)
-    assert not flags.any()
-    assert np.all(np.isfinite(miss))
+    check = off_target(sim_session.targets, sim_session.touch_means, SURFACE)
+    assert not check.flags.any()
+    assert np.all(np.isfinite(check.distance_mm)) and np.all(np.isfinite(check.gain))
 
 
 def test_a_touch_made_elsewhere_is_off_target_and_only_it(sim_session):
@@ -104,7 +107,7 @@ def test_a_touch_made_elsewhere_is_off_target_and_only_it(sim_session):
     targets = sim_session.targets
     far = int(np.argmax(np.linalg.norm(targets - targets[4], axis=1)))
     means[4] = 1.1 * means[far]  # the finger went to the wrong place
-    flags, _ = off_target(targets, means)
+    flags = off_target(targets, means, SURFACE).flags
     assert flags[4] and flags.sum() == 1
 
 
@@ -128,27 +131,27 @@ def moved(targets: np.ndarray, surface: np.ndarray, j: int, d_mm: float) -> np.n
 
 def test_a_clean_session_of_20_flags_nothing(session_of_20):
     rec, _ = session_of_20
-    flags, score = off_target(rec.targets, rec.touch_means)
-    assert not flags.any() and np.all(np.isfinite(score))
+    check = off_target(rec.targets, rec.touch_means, SURFACE)
+    assert not check.flags.any() and np.all(np.isfinite(check.gain))
 
 
 def test_a_touch_80mm_off_its_target_in_20_is_flagged_alone(session_of_20):
     rec, surface = session_of_20
     # touch 7 was pressed 80 mm from where it was prompted (the image is of the press)
-    flags, _ = off_target(moved(rec.targets, surface, 7, 80.0), rec.touch_means)
+    flags = off_target(moved(rec.targets, surface, 7, 80.0), rec.touch_means, surface).flags
     assert flags[7] and flags.sum() == 1
     # and it is not that one touch: about half the touches of this session, each moved 80 mm,
     # are flagged alone (the nearest-image guess found 2 of 20)
     alone = 0
     for j in range(20):
-        flags, _ = off_target(moved(rec.targets, surface, j, 80.0), rec.touch_means)
+        flags = off_target(moved(rec.targets, surface, j, 80.0), rec.touch_means, surface).flags
         alone += bool(flags[j] and flags.sum() == 1)
     assert alone >= 8
 
 
 def test_too_few_touches_are_never_flagged(sim_session):
-    flags, miss = off_target(sim_session.targets[:4], sim_session.touch_means[:4])
-    assert not flags.any() and np.isnan(miss).all()
+    check = off_target(sim_session.targets[:4], sim_session.touch_means[:4], SURFACE)
+    assert not check.flags.any() and np.isnan(check.distance_mm).all()
 
 
 def test_baseline_drift_in_noise_units():

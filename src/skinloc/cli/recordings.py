@@ -1,4 +1,4 @@
-"""Commands about recordings themselves: ``skinloc snr``, ``info`` and ``convert``."""
+"""Commands about recordings themselves: ``skinloc check``, ``snr``, ``info`` and ``convert``."""
 
 from __future__ import annotations
 
@@ -24,6 +24,13 @@ def _truth_layout(rec) -> dict[str, Any]:
     """A simulated recording's true crossings (``skinloc simulate`` stores them), else nothing."""
     truth = rec.meta.get("truth_sensor_positions_m")
     return {} if truth is None else {"truth_sensor_positions_m": truth}
+
+
+def _finite_round(value: float, ndigits: int = 2) -> float | None:
+    """``value`` rounded for JSON, or None when it is not finite (too few touches)."""
+    import math
+
+    return round(float(value), ndigits) if math.isfinite(value) else None
 
 
 def _history_info(path: Path, history: list, as_json: bool) -> None:
@@ -62,6 +69,59 @@ def register(app: typer.Typer) -> None:
     """Add ``skinloc snr``, ``info`` and ``convert`` to ``app``."""
 
     # ------------------------------------------------------------------------------------ snr
+    @app.command()
+    @friendly_errors
+    def check(
+        data: Annotated[Path, typer.Argument(help="A calibration recording (.h5 or .mat).")],
+        as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    ) -> None:
+        """Every touch's flags, as the app's gate gives them: off_target, weak, short, saturated.
+
+        off_target: the map of the other touches puts the touch's image more than 20 mm from
+        its target and fits it there much better than at the target (docs/app.md, "Touch
+        quality"). Retake such a touch, or leave it out in the app (skinloc app).
+
+        Example: skinloc check cal.h5 --json
+        """
+        from skinloc.calibration.touch_check import check_recording
+
+        (rec,) = read_recordings([data], calibration=True)
+        flags, off = check_recording(rec)
+        touches = [
+            {
+                "index": i,
+                "flags": f,
+                "located_mm": _finite_round(off.distance_mm[i]),
+                "gain": _finite_round(off.gain[i]),
+            }
+            for i, f in enumerate(flags)
+        ]
+        result = {
+            "file": str(data),
+            "n_touches": len(touches),
+            "n_flagged": sum(bool(t["flags"]) for t in touches),
+            "off_target_gain_threshold": _finite_round(off.threshold),
+            "touches": touches,
+        }
+        if as_json:
+            print_json(result)
+            return
+        table = Table("touch", "flags", "located from target (mm)", "gain", title=str(data))
+        for t in touches:
+            if t["flags"]:
+                table.add_row(
+                    str(t["index"]),
+                    ", ".join(t["flags"]),
+                    "-" if t["located_mm"] is None else f"{t['located_mm']:.0f}",
+                    "-" if t["gain"] is None else f"{t['gain']:.2f}",
+                )
+        if result["n_flagged"]:
+            console.print(table)
+        console.print(
+            f"{result['n_flagged']} of {result['n_touches']} touches flagged "
+            f"(touch numbers from 0, in the file's order)"
+        )
+
     @app.command()
     @friendly_errors
     def snr(

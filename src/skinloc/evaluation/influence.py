@@ -26,6 +26,7 @@ from skinloc.evaluation.scoring import evaluate
 from skinloc.models.response_map import fit_gp, rbf, shape_features
 
 __all__ = [
+    "LeaveOneOutMap",
     "TouchInfluence",
     "cross_validated_errors",
     "leave_one_out_residuals",
@@ -169,17 +170,144 @@ def touch_influence(
     return TouchInfluence(base, k, out)
 
 
+@dataclass
+class LeaveOneOutMap:
+    """The response map of a session's touches, each touch left out of its own prediction.
+
+    The map is the GP of ``skinloc.models.response_map`` on the image shapes (``F``, mm
+    positions ``q_mm``) with the package's map prior; its hyperparameters are fitted once
+    (maximum a posteriori) and kept by ``with_excluded``. Touch ``i``'s leave-one-out map
+    comes in closed form from the whole map (a rank-one downdate of ``K^-1``), so no model is
+    fitted per touch.
+    """
+
+    q_mm: np.ndarray
+    F: np.ndarray
+    mu: np.ndarray
+    amp: float
+    length_scale_mm: float
+    noise: float
+    exclude: np.ndarray
+
+    @classmethod
+    def fit(cls, positions: np.ndarray, touch_means: np.ndarray, exclude=None) -> LeaveOneOutMap:
+        """Fit the map's hyperparameters on the touches not in ``exclude``."""
+        from skinloc.models.map_prior import load_prior
+
+        q = 1e3 * np.asarray(positions, dtype=np.float64).reshape(-1, 3)
+        F = shape_features(touch_means)
+        skip = np.zeros(len(q), bool) if exclude is None else np.asarray(exclude, dtype=bool)
+        use = ~skip
+        # The prior at every size (the default model drops it past a few touches): its pull
+        # keeps an off-target touch from bending the hyperparameters (a shorter length scale,
+        # more noise) into explaining itself.
+        prior = load_prior(None)
+        mu = prior.mean(F[use])
+        kern = fit_gp(q[use], F[use] - mu, None, (2.0, 300.0), None, prior).kernel_
+        return cls(
+            q,
+            F,
+            mu,
+            float(kern.k1.k1.constant_value),
+            float(kern.k1.k2.length_scale),
+            float(kern.k2.noise_level),
+            skip,
+        )
+
+    def with_excluded(self, exclude: np.ndarray) -> LeaveOneOutMap:
+        """The same hyperparameters, other touches left out of the map."""
+        return LeaveOneOutMap(
+            self.q_mm,
+            self.F,
+            self.mu,
+            self.amp,
+            self.length_scale_mm,
+            self.noise,
+            np.asarray(exclude, dtype=bool).copy(),
+        )
+
+    def _solve(self):
+        use = np.flatnonzero(~self.exclude)
+        q = self.q_mm[use]
+        K_inv = np.linalg.inv(
+            self.amp * rbf(q, q, self.length_scale_mm) + self.noise * np.eye(len(use))
+        )
+        alpha = K_inv @ (self.F[use] - self.mu)
+        return use, K_inv, alpha, np.diag(K_inv)
+
+    def residuals(self) -> np.ndarray:
+        """``(n,)`` each touch's image at its position against the others' map.
+
+        Mean squared difference over the features divided by the predictive variance (closed
+        form: ``y_i - [K^-1 y]_i / [K^-1]_ii``, variance ``1 / [K^-1]_ii``): about 1 for a
+        touch the map expects, large for an image recorded elsewhere.
+        """
+        use, K_inv, alpha, diag = self._solve()
+        out = np.empty(len(self.q_mm))
+        out[use] = ((alpha / diag[:, None]) ** 2).mean(axis=1) * diag
+        skip = np.flatnonzero(self.exclude)
+        if len(skip):
+            kx = self.amp * rbf(self.q_mm[skip], self.q_mm[use], self.length_scale_mm)
+            resid = self.F[skip] - self.mu - kx @ alpha
+            var = self.amp + self.noise - np.einsum("ij,jk,ik->i", kx, K_inv, kx)
+            out[skip] = (resid**2).mean(axis=1) / var
+        return out
+
+    def located(self, surface_points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Where the others' map puts each touch, and how much better its image fits there.
+
+        Parameters
+        ----------
+        surface_points : (P, 3) float
+            Candidate places on the skin, m.
+
+        Returns
+        -------
+        distance_mm : (n,) float
+            From each touch's position to the candidate its image fits best, mm.
+        gain : (n,) float
+            The image's per-feature Gaussian negative log-likelihood at its position minus at
+            that candidate (variance included, so a place far from every touch does not win
+            on its large variance alone): near 0 for a touch made where it says, large for
+            one made elsewhere.
+        """
+        P = 1e3 * np.asarray(surface_points, dtype=np.float64).reshape(-1, 3)
+        use, K_inv, alpha, diag = self._solve()
+        ls = self.length_scale_mm
+        n = len(self.q_mm)
+        at_own = np.empty(n)
+        at_own[use] = ((alpha / diag[:, None]) ** 2).mean(axis=1) * diag - np.log(diag)
+        kP = self.amp * rbf(P, self.q_mm[use], ls)
+        mP = self.mu + kP @ alpha
+        varP = self.amp + self.noise - np.einsum("ij,jk,ik->i", kP, K_inv, kP)
+        C = kP @ K_inv
+        where, best = np.empty((n, 3)), np.empty(n)
+        for j, i in enumerate(use):  # the map without touch i: a rank-one downdate
+            m_i = mP - np.outer(C[:, j], alpha[j] / diag[j])
+            v_i = varP + C[:, j] ** 2 / diag[j]
+            nll = ((self.F[i] - m_i) ** 2).mean(axis=1) / v_i + np.log(v_i)
+            k = int(np.argmin(nll))
+            where[i], best[i] = P[k], nll[k]
+        skip = np.flatnonzero(self.exclude)
+        if len(skip):
+            kx = self.amp * rbf(self.q_mm[skip], self.q_mm[use], ls)
+            var = self.amp + self.noise - np.einsum("ij,jk,ik->i", kx, K_inv, kx)
+            resid = self.F[skip] - self.mu - kx @ alpha
+            at_own[skip] = (resid**2).mean(axis=1) / var + np.log(var)
+            nll_all = ((self.F[skip][:, None, :] - mP[None]) ** 2).mean(axis=2) / varP + np.log(
+                varP
+            )
+            k = np.argmin(nll_all, axis=1)
+            where[skip], best[skip] = P[k], nll_all[np.arange(len(skip)), k]
+        return np.linalg.norm(where - self.q_mm, axis=1), at_own - best
+
+
 def leave_one_out_residuals(
     positions: np.ndarray, touch_means: np.ndarray, *, exclude: np.ndarray | None = None
 ) -> np.ndarray:
     """How badly the other touches' response map predicts each touch's image at its position.
 
-    The map is the GP of ``skinloc.models.response_map`` on the image shapes with the
-    package's map prior, its hyperparameters fitted once (maximum a posteriori);
-    each touch's shape is predicted at its own position by the map of the others (closed
-    form: ``y_i - [K^-1 y]_i / [K^-1]_ii``, variance ``1 / [K^-1]_ii``). The residual is the
-    mean squared difference over the features divided by that predictive variance: about 1
-    for a touch the map expects, large for an image recorded elsewhere.
+    ``LeaveOneOutMap.residuals`` of a map fitted on the touches not in ``exclude``.
 
     Parameters
     ----------
@@ -195,29 +323,4 @@ def leave_one_out_residuals(
     (n,) float
         Standardised residual of each touch (dimensionless).
     """
-    from skinloc.models.map_prior import load_prior
-
-    q = 1e3 * np.asarray(positions, dtype=np.float64).reshape(-1, 3)
-    F = shape_features(touch_means)
-    n = len(q)
-    skip = np.zeros(n, dtype=bool) if exclude is None else np.asarray(exclude, dtype=bool)
-    use = np.flatnonzero(~skip)
-    # The prior at every size (the default model drops it past a few touches): its pull keeps
-    # an off-target touch from bending the hyperparameters (a shorter length scale, more
-    # noise) into explaining itself.
-    prior = load_prior(None)
-    mu = prior.mean(F[use])
-    kern = fit_gp(q[use], F[use] - mu, None, (2.0, 300.0), None, prior).kernel_
-    amp, ls = float(kern.k1.k1.constant_value), float(kern.k1.k2.length_scale)
-    noise = float(kern.k2.noise_level)
-    K_inv = np.linalg.inv(amp * rbf(q[use], q[use], ls) + noise * np.eye(len(use)))
-    alpha = K_inv @ (F[use] - mu)
-    out = np.empty(n)
-    diag = np.diag(K_inv)
-    out[use] = ((alpha / diag[:, None]) ** 2).mean(axis=1) * diag
-    if skip.any():
-        kx = amp * rbf(q[skip], q[use], ls)
-        resid = F[skip] - mu - kx @ alpha
-        var = amp + noise - np.einsum("ij,jk,ik->i", kx, K_inv, kx)
-        out[skip] = (resid**2).mean(axis=1) / var
-    return out
+    return LeaveOneOutMap.fit(positions, touch_means, exclude).residuals()

@@ -27,6 +27,7 @@ from skinloc.app.workspace.state import (
 from skinloc.calibration.session import CalibrationSession, SessionConfig
 from skinloc.data.recording import Recording
 from skinloc.errors import RecordingError
+from skinloc.geometry.mesh import surface_points
 from skinloc.sources.base import Frame
 
 
@@ -382,7 +383,7 @@ class GuidedCapture(WorkspaceState):
         # Touches recorded elsewhere (skinloc collect on the same file) have no flags of their own.
         own.extend([] for _ in range(rec.n_point_logs - len(own)))
         del own[rec.n_point_logs :]
-        bad, _ = off_target(rec.targets, rec.touch_means)
+        bad = off_target(rec.targets, rec.touch_means, surface_points(rec.mesh, 2000)).flags
         meta["flags"] = [
             list(f) + (["off-target"] if b else []) for f, b in zip(own, bad, strict=True)
         ]

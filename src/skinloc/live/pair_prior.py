@@ -184,7 +184,7 @@ class PairPrior:
 
 def pair_prior(engine: Any, image: np.ndarray, rule: PairRule | None = None) -> PairPrior | None:
     """The prior for ``engine``, or None if its model has no multi-contact search."""
-    if not hasattr(engine, "search_tables"):
+    if engine.search_tables() is None:  # built once here, and kept, for the refit below
         return None
     from skinloc.models.multi_contact.refit import PairRefit
 

@@ -89,6 +89,8 @@ def main() -> None:
             and all(str(i.topic_type_hash) == str(mine[0].topic_type_hash) for i in pubs),
         }
     out["topics"] = hashes
+    # /tf_static comes from a DDS participant beside the node: discovered on its own time
+    spin_until(lambda: "/tf_static" in dict(me.get_topic_names_and_types()), 60.0)
     graph = dict(me.get_topic_names_and_types())
     out["tf_static"] = {
         "types": graph.get("/tf_static", []),

@@ -239,7 +239,9 @@ def test_a_skins_file_value_of_the_wrong_type_is_one_line_naming_file_key_and_va
 
     cfg = tmp_path / "skins.toml"
     cfg.write_text(f'[[skin]]\nmodel = "{model_path("map")}"\nsource = "sim"\n{line}\n')
-    one_line_error(run("run", "--config", cfg), str(cfg), *needles)
+    sink = f"jsonl:{tmp_path / 'o.jsonl'}"
+    res = run("run", "--config", cfg, "--sink", sink, "--duration", "2")  # before: it ran
+    one_line_error(res, str(cfg), *needles)
 
 
 def test_fast_and_loop_apply_to_every_skin_of_a_skins_file(tmp_path, monkeypatch):

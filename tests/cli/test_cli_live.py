@@ -267,3 +267,22 @@ def test_fast_and_loop_apply_to_every_skin_of_a_skins_file(tmp_path, monkeypatch
     res = run("run", "--config", cfg, "--sink", sink, "--fast", "--loop")
     assert res.exit_code == 0, res.output
     assert seen == [("a", False, True), ("b", False, True)]
+
+
+def test_run_ends_when_the_reader_of_its_stdout_goes_away():
+    """``skinloc run ... | head``: a sink's closed stdout ends the run (no sink back-off)."""
+    import subprocess
+
+    from tests._helpers import start_skinloc, wait_until
+
+    proc = start_skinloc("run", "--model", model_path("map"), "--source", "sim",
+                         stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)  # fmt: skip
+    try:
+        assert proc.stdout.readline().startswith(b"{")  # a contact line
+        proc.stdout.close()  # the reader goes away
+        wait_until(lambda: proc.poll() is not None, "skinloc run to end", 60.0)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0

@@ -330,6 +330,8 @@ class Runner:
                     sink.emit_contacts(name, ts, contacts)
                 for g in gestures:
                     sink.emit_gesture(name, g["timestamp_s"], g)
+            except BrokenPipeError:  # stdout closed by its reader (| head): the run ends there
+                raise
             except Exception as exc:  # noqa: BLE001 - one sink must not stop the others
                 route.failed(exc, time.monotonic())
             else:

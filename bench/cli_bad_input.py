@@ -144,8 +144,13 @@ CASES: list[tuple[str, str, str, int | None]] = [
         None,
     ),
     ("run", "--sink jsonl:MODEL", "run --model {dir}/model.h5 --sink jsonl:{dir}/model.h5", None),
-    ("run", "--sink nonsense", "run --model {dir}/model.h5 --sink nonsense --duration 1", None),
-    ("run", "--duration -1", "run --model {dir}/model.h5 --duration -1", None),
+    (
+        "run",
+        "--sink nonsense",
+        "run --model {dir}/model.h5 --source sim --sink nonsense --duration 1",
+        None,
+    ),
+    ("run", "--duration -1", "run --model {dir}/model.h5 --source sim --duration -1", None),
     # hardware
     ("monitor", "no --port", "monitor --seconds 1", None),
     ("monitor", "--port missing", "monitor --port {dir}/ttyNOPE --seconds 1", None),

@@ -114,7 +114,8 @@ def test_run_with_a_skins_file(tmp_path):
     [
         (("run",), "give --model"),
         (("run", "--model", "nope.h5"), "model not found"),
-        (("run", "--model", "MAP", "--sink", "pigeon"), "unknown sink"),
+        (("run", "--model", "MAP", "--source", "sim", "--sink", "pigeon"), "unknown sink"),
+        (("run", "--model", "MAP"), "--source sim"),
         (
             ("run", "--model", "MAP", "--source", "/dev/ttyNOPE0", "--no-wait"),
             "cannot open serial port /dev/ttyNOPE0: no such device",
@@ -196,3 +197,92 @@ def test_one_ctrl_c_stops_run_even_where_python_drops_exceptions(tmp_path, monke
     assert res.exit_code == 0, res.output
     assert "went on after" not in res.output and "skin: " in res.output  # the summary
     assert 20 <= len(emitted) <= 20 + 500
+
+
+def test_run_needs_a_source_the_simulator_only_when_asked(tmp_path):
+    """No --source (or a skins file's skin without one) fed the simulator to the sinks."""
+    from tests._helpers import one_line_error
+
+    out = tmp_path / "c.jsonl"
+    stop = ("--duration", "2")  # before, each ran the simulator; now none starts
+    res = run("run", "--model", model_path("map"), "--sink", f"jsonl:{out}", *stop)
+    one_line_error(res, "give --source", "--source sim")
+    cfg = tmp_path / "skins.toml"
+    cfg.write_text(f'[[skin]]\nname = "arm"\nmodel = "{model_path("map")}"\n')
+    res = run("run", "--config", cfg, "--sink", f"jsonl:{out}", *stop)
+    one_line_error(res, str(cfg), "skin 'arm' has no source", 'source = "sim"', "--source sim")
+    assert not out.exists()  # nothing reached a sink
+    res = run("run", "--config", cfg, "--source", "sim", "--sink", f"jsonl:{out}", *stop)
+    one_line_error(res, "--source", "--config")
+
+
+@pytest.mark.parametrize(
+    ("line", "needles"),
+    [
+        ('realtime = "no"', ("realtime must be true or false", "'no'")),
+        ('loop = "yes"', ("loop must be true or false", "'yes'")),
+        ('baud = "fast"', ("baud must be a whole number", "'fast'")),
+        ("baud = 12.5", ("baud must be a whole number", "12.5")),
+        ('wire_format = "morse"', ("wire_format must be one of auto, binary, text", "'morse'")),
+        ("rate_hz = -1", ("rate_hz must be a number", "-1")),
+        ('n_tx = "8"', ("n_tx must be a whole number", "'8'")),
+        ('pipeline = { drift_tracking = "no" }', ("drift_tracking must be true or false", "'no'")),
+        ("pipeline = { touch_on_z = true }", ("touch_on_z must be a number", "True")),
+        ("name = 3", ("name must be a non-empty text", "3")),
+        ('sinks = ["jsonl", 3]', ("sinks must be a list of strings",)),
+    ],
+)
+def test_a_skins_file_value_of_the_wrong_type_is_one_line_naming_file_key_and_value(
+    tmp_path, line, needles
+):
+    from tests._helpers import one_line_error
+
+    cfg = tmp_path / "skins.toml"
+    cfg.write_text(f'[[skin]]\nmodel = "{model_path("map")}"\nsource = "sim"\n{line}\n')
+    sink = f"jsonl:{tmp_path / 'o.jsonl'}"
+    res = run("run", "--config", cfg, "--sink", sink, "--duration", "2")  # before: it ran
+    one_line_error(res, str(cfg), *needles)
+
+
+def test_fast_and_loop_apply_to_every_skin_of_a_skins_file(tmp_path, monkeypatch):
+    """``--fast`` (and ``--loop``) were ignored with ``--config``: the replays kept real time."""
+    from skinloc.live.runner import Runner
+
+    seen: list[tuple[str, bool, bool]] = []
+
+    def fake_run(self, duration_s=None) -> int:
+        seen.extend((s.name, s.realtime, s.loop) for s in self.skins)
+        return 0
+
+    monkeypatch.setattr(Runner, "run", fake_run)
+    cfg = tmp_path / "skins.toml"
+    cfg.write_text(
+        f'[defaults]\nmodel = "{model_path("map")}"\nsource = "{stream_recording()}"\n'
+        '[[skin]]\nname = "a"\n[[skin]]\nname = "b"\nrealtime = false\n'
+    )
+    sink = f"jsonl:{tmp_path / 'o.jsonl'}"
+    assert run("run", "--config", cfg, "--sink", sink).exit_code == 0
+    assert seen == [("a", True, False), ("b", False, False)]  # the file's own settings
+    seen.clear()
+    res = run("run", "--config", cfg, "--sink", sink, "--fast", "--loop")
+    assert res.exit_code == 0, res.output
+    assert seen == [("a", False, True), ("b", False, True)]
+
+
+def test_run_ends_when_the_reader_of_its_stdout_goes_away():
+    """``skinloc run ... | head``: a sink's closed stdout ends the run (no sink back-off)."""
+    import subprocess
+
+    from tests._helpers import start_skinloc, wait_until
+
+    proc = start_skinloc("run", "--model", model_path("map"), "--source", "sim",
+                         stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)  # fmt: skip
+    try:
+        assert proc.stdout.readline().startswith(b"{")  # a contact line
+        proc.stdout.close()  # the reader goes away
+        wait_until(lambda: proc.poll() is not None, "skinloc run to end", 60.0)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0

@@ -63,21 +63,23 @@ def plain(tmp_path_factory) -> Path:
 
 LIVE = "pip install 'skinloc[live]'"
 
+#: ``skinloc run`` on the simulated skin (the simulator only when asked for)
+RUN = ["run", "--model", "{model}", "--source", "sim"]
 #: (arguments, text the one line must hold); {name} are the ``inputs`` files.
 CASES = [
     # every sink spec whose extra is missing, and bad ones
-    (["run", "--model", "{model}", "--sink", "lsl"], LIVE),
-    (["run", "--model", "{model}", "--sink", "lsl:skin"], LIVE),
-    (["run", "--model", "{model}", "--sink", "mcap:{out}/c.mcap"], LIVE),
-    (["run", "--model", "{model}", "--sink", "foxglove://127.0.0.1:0"], LIVE),
-    (["run", "--model", "{model}", "--sink", "foxglove://127.0.0.1:0?mcap={out}/f.mcap"], LIVE),
-    (["run", "--model", "{model}", "--sink", "mcap-ros2:{out}/b.mcap"], LIVE),
-    (["run", "--model", "{model}", "--sink", "ros2"], LIVE),
-    (["run", "--model", "{model}", "--sink", "ros2:node"], LIVE),
-    (["run", "--model", "{model}", "--sink", "mcap:"], "needs a file name"),
-    (["run", "--model", "{model}", "--sink", "bogus"], "unknown sink"),
-    (["run", "--model", "{model}", "--sink", "ws://127.0.0.1:99999"], "bad port"),
-    (["run", "--model", "{model}", "--sink", "udp://nohost.invalid:9870"], "cannot resolve"),
+    ([*RUN, "--sink", "lsl"], LIVE),
+    ([*RUN, "--sink", "lsl:skin"], LIVE),
+    ([*RUN, "--sink", "mcap:{out}/c.mcap"], LIVE),
+    ([*RUN, "--sink", "foxglove://127.0.0.1:0"], LIVE),
+    ([*RUN, "--sink", "foxglove://127.0.0.1:0?mcap={out}/f.mcap"], LIVE),
+    ([*RUN, "--sink", "mcap-ros2:{out}/b.mcap"], LIVE),
+    ([*RUN, "--sink", "ros2"], LIVE),
+    ([*RUN, "--sink", "ros2:node"], LIVE),
+    ([*RUN, "--sink", "mcap:"], "needs a file name"),
+    ([*RUN, "--sink", "bogus"], "unknown sink"),
+    ([*RUN, "--sink", "ws://127.0.0.1:99999"], "bad port"),
+    ([*RUN, "--sink", "udp://nohost.invalid:9870"], "cannot resolve"),
     (["run", "--model", "{model}", "--source", "{bag}"], LIVE),
     # commands whose extra is missing
     (["train", "{rec}", "--arch", "paper", "--out", "{out}/m.h5"], "pip install 'skinloc[nets]'"),

@@ -218,7 +218,7 @@ def test_a_recording_of_gestures_gives_each_gesture_once_to_sinks_and_callback()
 def test_skins_file_up_and_max_contacts(tmp_path):
     cfg = tmp_path / "skins.toml"
     cfg.write_text(
-        f'[[skin]]\nmodel = "{model_path("map")}"\nup = [0.0, 0.0, 1.0]\n'
+        f'[[skin]]\nmodel = "{model_path("map")}"\nsource = "sim"\nup = [0.0, 0.0, 1.0]\n'
         "pipeline = { max_contacts = 2 }\n"
     )
     specs, _ = load_skins(cfg)

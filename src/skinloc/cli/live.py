@@ -129,14 +129,14 @@ def register(app: typer.Typer) -> None:
             Path | None, typer.Option("--model", "-m", help="Model file ('skinloc train').")
         ] = None,
         source: Annotated[
-            str,
+            str | None,
             typer.Option(
                 "--source",
                 "-s",
-                help="'sim' (simulated skin, scripted finger), a serial port, or a "
-                "recording (.h5/.mat) to replay; a pyserial URL needs --allow-url.",
+                help="A serial port, a recording (.h5/.mat/.mcap) to replay, or 'sim' (the "
+                "simulated skin, a scripted finger); a pyserial URL needs --allow-url.",
             ),
-        ] = "sim",
+        ] = None,
         sink: Annotated[
             list[str] | None,
             typer.Option(
@@ -151,9 +151,15 @@ def register(app: typer.Typer) -> None:
             typer.Option("--config", help="Skins file (TOML) for many skins; see docs/live.md."),
         ] = None,
         fast: Annotated[
-            bool, typer.Option("--fast", help="Replay a recording as fast as possible.")
+            bool,
+            typer.Option(
+                "--fast", help="Replay recordings as fast as possible (every skin of --config)."
+            ),
         ] = False,
-        loop: Annotated[bool, typer.Option("--loop", help="Replay a recording forever.")] = False,
+        loop: Annotated[
+            bool,
+            typer.Option("--loop", help="Replay recordings forever (every skin of --config)."),
+        ] = False,
         baud: Annotated[
             int | None,
             typer.Option(
@@ -237,7 +243,7 @@ def register(app: typer.Typer) -> None:
         from skinloc.live.runner import Runner, SkinConfig
 
         sinks = list(sink) if sink else ["jsonl"]
-        inputs = [model, baseline, config, Path(source)]
+        inputs = [model, baseline, config, *([Path(source)] if source else [])]
         for spec_text in sinks:
             for path in _sink_files(spec_text):
                 # Sink files are logs that may be appended to; only an input is off limits.
@@ -249,7 +255,12 @@ def register(app: typer.Typer) -> None:
                 raise ValueError("give either --config (many skins) or --model, not both")
             if gain is not None or lines is not None:
                 raise ValueError("--gain and --lines set one board: use them without --config")
+            if source is not None:
+                raise ValueError("--source is one skin's: give each skin's source in --config")
             skin_cfgs, global_sinks = load_skins(config)
+            for skin_cfg in skin_cfgs:  # the replay options apply to every skin of the file
+                skin_cfg.realtime = skin_cfg.realtime and not fast
+                skin_cfg.loop = skin_cfg.loop or loop
             _check_sources(skin_cfgs, allow_url, wait)
             runner = Runner(skin_cfgs, sinks=[*global_sinks, *(sink or [])] or ["jsonl"])
         else:
@@ -257,6 +268,11 @@ def register(app: typer.Typer) -> None:
                 raise ValueError("give --model MODEL (from 'skinloc train') or --config SKINS.toml")
             if not model.is_file():
                 raise ValueError(f"model not found: {model}")
+            if source is None:
+                raise ValueError(
+                    "give --source: a serial port (see 'skinloc ports'), a recording, or "
+                    "--source sim for the simulated skin"
+                )
             cfg = PipelineConfig(
                 drift_tracking=drift,
                 filter=filter_.value,
@@ -319,7 +335,9 @@ def register(app: typer.Typer) -> None:
             err_console.print(
                 f"{c['skin']}: {c['frames']} frames, {c['touches']} touches, "
                 f"{c['contacts']} contacts, {c.get('gestures', 0)} gestures in {elapsed:.1f} s"
-                + (f", {c['reconnects']} reconnects" if "reconnects" in c else ""),
+                + (f", {c['reconnects']} reconnects" if "reconnects" in c else "")
+                + (f", {c['errors']} frames dropped by errors" if c["errors"] else "")
+                + (f", {c['sink_errors']} sink errors" if c["sink_errors"] else ""),
                 highlight=False,
             )
         if stats:

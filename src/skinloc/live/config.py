@@ -142,19 +142,25 @@ class PipelineConfig:
             "track_gate_mm",
         ):
             v = getattr(self, name)
-            need(name, isinstance(v, int | float) and math.isfinite(v) and v > 0, "a number > 0")
-        need("beta", isinstance(self.beta, int | float) and self.beta >= 0, "a number >= 0")
+            need(name, _number(v) and math.isfinite(v) and v > 0, "a number > 0")
+        beta = self.beta
+        need("beta", _number(beta) and math.isfinite(beta) and beta >= 0, "a number >= 0")
         need("touch_off_z", self.touch_off_z <= self.touch_on_z, "<= touch_on_z")
         rf = self.release_fraction
-        need("release_fraction", isinstance(rf, int | float) and 0 <= rf < 1, "in [0, 1)")
+        need("release_fraction", _number(rf) and 0 <= rf < 1, "in [0, 1)")
         need("filter", self.filter in ("one-euro", "none"), "one of one-euro, none")
-        need("gestures", isinstance(self.gestures, bool), "true or false")
-        need("footprint_gestures", isinstance(self.footprint_gestures, bool), "true or false")
+        for name in ("drift_tracking", "emit_idle", "gestures", "footprint_gestures"):
+            need(name, isinstance(getattr(self, name), bool), "true or false")
 
     @classmethod
     def from_dict(cls, d: dict[str, Any], where: str = "pipeline settings") -> PipelineConfig:
         """Build from a dict (a config file section); unknown keys raise, naming them."""
         return settings_from_dict(cls, d, where)
+
+
+def _number(v: Any) -> bool:
+    """A real number, not a flag (``true`` in a TOML file is no threshold)."""
+    return isinstance(v, int | float) and not isinstance(v, bool)
 
 
 def settings_from_dict(cls: type[_T], d: Any, where: str) -> _T:

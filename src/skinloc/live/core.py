@@ -31,7 +31,7 @@ import dataclasses
 import logging
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -124,6 +124,9 @@ class SkinCore:
         self._decoder: Any = None  # the wire decoder, built on the first ``feed``
         #: Sinks that record raw frames (``emit_frame``), handed every frame before processing.
         self.frame_sinks: list[Any] = []
+        #: Called with the exception of a frame whose processing raised (the frame is then
+        #: dropped); None: the exception propagates. The runner counts and logs them.
+        self.on_frame_error: Callable[[Exception], Any] | None = None
         self._baseline = np.zeros(n, dtype=np.float64)
         self._inv_sigma = np.ones(n, dtype=np.float64)
         self._acc = np.zeros(n, dtype=np.float64)
@@ -422,8 +425,20 @@ class SkinCore:
         One ``Contact`` per track (``start``, ``move`` or ``end``), none while nothing touches
         (one ``idle`` record with ``emit_idle``). Gesture events due at this frame are appended
         to ``gestures``. ``t_in`` is when the frame's bytes arrived (``time.monotonic()``), for
-        the latency; by default now.
+        the latency; by default now. With ``on_frame_error`` set, a frame that raises is handed
+        to it and gives no contact.
         """
+        if self.on_frame_error is None:
+            return self._process_frame(values, timestamp_s, index, t_in)
+        try:
+            return self._process_frame(values, timestamp_s, index, t_in)
+        except Exception as exc:  # noqa: BLE001 - one frame must not stop the skin
+            self.on_frame_error(exc)
+            return ()
+
+    def _process_frame(
+        self, values: np.ndarray, timestamp_s: float, index: int, t_in: float | None
+    ) -> Sequence[Contact]:
         for sink in self.frame_sinks:
             sink.emit_frame(self.name, values, timestamp_s, index)
         out = self._frame(values, timestamp_s, index, t_in)

@@ -33,6 +33,7 @@ from skinloc.live.config import PipelineConfig
 from skinloc.live.control import SkinControl
 from skinloc.live.core import Contact, SkinCore
 from skinloc.live.feeds import PortFeed, ThreadFeed, open_port_feed
+from skinloc.live.guard import ErrorLog, GuardedFrameSink, SinkRoute
 from skinloc.live.scripted import ScriptedFinger
 from skinloc.live.sinks.base import Sink, SkinInfo, make_sink
 from skinloc.live.skin_config import SkinConfig, skin_info
@@ -87,6 +88,12 @@ class Runner:
     ``run()`` (or iterating) drives the loop in the calling thread; ``start()`` drives it on a
     background thread; ``close()`` stops it and joins every thread the runner started. The loop
     ends by itself when every source has ended (recordings played to the end).
+
+    No exception of a skin's processing (the model included), a sink or a callback stops the
+    loop (``skinloc.live.guard``): the frame is dropped, or the sink misses that delivery, and
+    the rest goes on; each is logged once with its traceback and counted in ``stats`` (a skin's
+    ``errors``, each sink's ``errors`` and ``skipped`` under ``sinks``), and a sink that keeps
+    failing is tried again after a wait that doubles up to ``guard.BACKOFF_MAX_S``.
     """
 
     def __init__(
@@ -131,6 +138,33 @@ class Runner:
             self.cores.append(core)
         self.global_sinks = [make_sink(s) for s in sinks]
         self.skin_sinks = [[make_sink(s) for s in skin.sinks] for skin in self.skins]
+        # what keeps the loop going (skinloc.live.guard): per skin, its frames' errors; per
+        # skin and sink, the route's failures and back-off (a sink's log is shared by its skins)
+        self.frame_errors = [
+            ErrorLog(f"skin {core.name!r}", "the frame is dropped") for core in self.cores
+        ]
+        for core, errors in zip(self.cores, self.frame_errors, strict=True):
+            core.on_frame_error = self._frame_error_handler(errors)
+        sink_logs: dict[int, ErrorLog] = {}
+
+        def route(spec: str | Sink, sink: Sink) -> tuple[Sink, SinkRoute]:
+            label = spec if isinstance(spec, str) else sink.name
+            if id(sink) not in sink_logs:
+                sink_logs[id(sink)] = ErrorLog(f"sink {label}", "that delivery is lost")
+            return sink, SinkRoute(label, sink_logs[id(sink)])
+
+        callback_log = ErrorLog("callback", "that call is lost")
+        #: Per skin: its sinks (its own first, then the global ones), each with its route.
+        self.routes: list[list[tuple[Sink, SinkRoute]]] = []
+        #: Per skin: the route of ``callback`` and ``gesture_callback``.
+        self.callback_routes: list[SinkRoute] = []
+        shared = list(zip(sinks, self.global_sinks, strict=True))
+        for skin, own in zip(self.skins, self.skin_sinks, strict=True):
+            pairs = [*zip(skin.sinks, own, strict=True), *shared]
+            self.routes.append([route(spec, sink) for spec, sink in pairs])
+            self.callback_routes.append(SinkRoute("callback", callback_log))
+        #: Per skin: the routes of its raw-frame recorders (filled when the runner opens).
+        self.frame_routes: list[list[SinkRoute]] = [[] for _ in self.skins]
         self._stop_event = threading.Event()
         self._queue: collections.deque[tuple[int, Frame, float]] = collections.deque()
         self._wake_r, self._wake_w = -1, -1
@@ -177,11 +211,12 @@ class Runner:
                 sink.open([info])
         for slot, core in enumerate(self.cores):
             recorders = [
-                s
-                for s in (*self.skin_sinks[slot], *self.global_sinks)
+                GuardedFrameSink(s, SinkRoute(f"{r.label} (frames)", r.errors), time.monotonic)
+                for s, r in self.routes[slot]
                 if getattr(s, "wants_frames", False)
             ]
             core.frame_sinks = recorders
+            self.frame_routes[slot] = [g.route for g in recorders]
         for slot, (skin, core) in enumerate(zip(self.skins, self.cores, strict=True)):
             src = skin.source
             if isinstance(src, str | Path) and source_kind(str(src)) is SourceKind.SERIAL:
@@ -201,6 +236,15 @@ class Runner:
             self._threads.append(feed_t)
         for feed_t in self._threads:
             feed_t.thread.start()
+
+    @staticmethod
+    def _frame_error_handler(errors: ErrorLog) -> Callable[[Exception], None]:
+        """What a core calls with the exception of a frame it dropped: count and log it."""
+
+        def handle(exc: Exception) -> None:
+            errors.record(exc, time.monotonic())
+
+        return handle
 
     def _skin_info(self, i: int) -> SkinInfo:
         """What the sinks learn of skin ``i`` (``skinloc.live.skin_config.skin_info``)."""
@@ -279,20 +323,47 @@ class Runner:
             return
         name = core.name
         ts = contacts[0].timestamp_s if contacts else gestures[0]["timestamp_s"]
-        for sinks in (self.skin_sinks[slot], self.global_sinks):
-            for sink in sinks:
+        for sink, route in self.routes[slot]:
+            # a failing sink (route.n_failing) waits out its back-off; a healthy one costs
+            # no clock reading
+            if route.n_failing and not route.ready(time.monotonic()):
+                continue
+            try:
                 if contacts:
                     sink.emit_contacts(name, ts, contacts)
                 for g in gestures:
                     sink.emit_gesture(name, g["timestamp_s"], g)
-        if self.callback is not None:
-            for c in contacts:
-                self.callback(c)
-        if self.gesture_callback is not None:
-            for g in gestures:
-                self.gesture_callback(g)
+            except BrokenPipeError:  # stdout closed by its reader (| head): the run ends there
+                raise
+            except Exception as exc:  # noqa: BLE001 - one sink must not stop the others
+                route.failed(exc, time.monotonic())
+            else:
+                if route.n_failing:
+                    route.succeeded()
+        if self.callback is not None or self.gesture_callback is not None:
+            route = self.callback_routes[slot]
+            try:
+                if self.callback is not None:
+                    for c in contacts:
+                        self.callback(c)
+                if self.gesture_callback is not None:
+                    for g in gestures:
+                        self.gesture_callback(g)
+            except Exception as exc:  # noqa: BLE001 - a program's callback must not stop it
+                route.failed(exc, time.monotonic())
+                route.n_failing = 0  # a callback is called again at once: no back-off
         self.n_emitted += len(contacts)
         out += contacts
+
+    def _end_stale(self, slot: int, now: float, out: list[Contact]) -> None:
+        """The ends of skin ``slot``'s touch gone stale (a lost link), if due."""
+        core = self.cores[slot]
+        try:
+            ends = core.end_stale(now)
+        except Exception as exc:  # noqa: BLE001 - one skin must not stop the others
+            self.frame_errors[slot].record(exc, now)
+            return
+        self._emit(slot, ends, out)
 
     def _retry_ports(self, now: float) -> None:
         if not self._stop_event.is_set():
@@ -345,7 +416,7 @@ class Runner:
                 self._retry_ports(now)
             for slot, core in enumerate(cores):
                 if core.touching:
-                    self._emit(slot, core.end_stale(now), out)
+                    self._end_stale(slot, now, out)
             self.control.serve(now)
         return out
 
@@ -365,12 +436,24 @@ class Runner:
 
     def __iter__(self) -> Iterator[Contact]:
         """Run the loop in this thread, yielding every contact, until closed or finished."""
+        for contacts in self._turns(math.inf):
+            yield from contacts
+
+    def _turns(self, deadline: float) -> Iterator[list[Contact]]:
+        """Turn the loop until closed, finished, or ``deadline`` (``time.monotonic()`` s).
+
+        Yields each turn's contacts, none included: the deadline holds whether contacts come or
+        not. At the deadline the touches stay open (``close`` ends them).
+        """
         self.open()
         while not self._stop_event.is_set():
-            yield from self._step(0.05)
+            now = time.monotonic()
+            if now >= deadline:
+                break
+            yield self._step(min(0.05, deadline - now))
             if self.finished:
-                yield from self._step(0.0)
-                yield from self._end_touches(math.inf)
+                yield self._step(0.0)
+                yield self._end_touches(math.inf)
                 break
         self._raise_feed_errors()
 
@@ -388,12 +471,15 @@ class Runner:
             return out
         self._touches_ended = True
         for slot, core in enumerate(self.cores):
-            ends = core.end_open(now)
-            core.flush_gestures()
             try:
-                self._emit(slot, ends, out)
-            except Exception as exc:  # noqa: BLE001 - one skin's sink failing must not keep
-                log.warning("ending the touches of %s: %s", core.name, exc)  # others' ends
+                ends = core.end_open(now)
+                core.flush_gestures()
+            except Exception as exc:  # noqa: BLE001 - one skin must not keep others' ends
+                self.frame_errors[slot].record(exc, time.monotonic())
+                continue
+            for route in (*(r for _, r in self.routes[slot]), self.callback_routes[slot]):
+                route.retry_at = -math.inf  # the last word: every sink gets its chance
+            self._emit(slot, ends, out)
         return out
 
     def _raise_feed_errors(self) -> None:
@@ -402,17 +488,13 @@ class Runner:
             raise errors[0]
 
     def run(self, duration_s: float | None = None) -> int:
-        """Run in this thread for ``duration_s`` (or until finished/closed); returns contacts."""
+        """Run in this thread for ``duration_s`` (or until finished/closed); returns contacts.
+
+        The duration holds whether contacts come or not (the loop checks it every turn, at
+        least every 0.05 s).
+        """
         end = math.inf if duration_s is None else time.monotonic() + duration_s
-        n = 0
-        for _ in self:
-            n += 1
-            if time.monotonic() >= end:
-                break
-        if duration_s is not None:
-            while time.monotonic() < end and not self._stop_event.is_set() and not self.finished:
-                n += len(self._step(min(0.05, max(end - time.monotonic(), 0.0))))
-        return n
+        return sum(len(contacts) for contacts in self._turns(end))
 
     def start(self, callback: Callable[[Contact], Any] | None = None) -> Runner:
         """Run the loop on a background thread (contacts go to the sinks and ``callback``)."""
@@ -446,11 +528,22 @@ class Runner:
 
     # ------------------------------------------------------------------ state
     def stats(self) -> list[dict[str, Any]]:
-        """Per skin: frames, contacts, touches, link state and wire counters."""
+        """Per skin: frames, contacts, touches, errors, sinks' health, link and wire counters.
+
+        ``errors``: frames dropped because their processing raised (``last_error`` the last
+        one); ``sink_errors``: deliveries of this skin that a sink (or callback) refused;
+        ``sinks``: per sink of this skin, ``errors``, ``skipped`` (deliveries not tried while it
+        backed off), ``failing``, ``retry_in_s`` and ``last_error``.
+        """
         out = []
         ports = {f.slot: f for f in self._ports}
         threads = {f.slot: f for f in self._threads}
+        now = time.monotonic()
         for slot, (skin, core) in enumerate(zip(self.skins, self.cores, strict=True)):
+            routes = [*(r for _, r in self.routes[slot]), *self.frame_routes[slot]]
+            if self.callback is not None or self.gesture_callback is not None:
+                routes.append(self.callback_routes[slot])
+            errors = self.frame_errors[slot]
             d: dict[str, Any] = {
                 "skin": skin.name,
                 "frames": core.n_frames,
@@ -459,6 +552,10 @@ class Runner:
                 "touches": core.n_touches,
                 "gestures": core.n_gestures,
                 "calibrated": core.calibrated,
+                "errors": errors.n,
+                "last_error": errors.last,
+                "sink_errors": sum(r.n_errors for r in routes),
+                "sinks": [r.as_dict(now) for r in routes],
             }
             if slot in ports:
                 f = ports[slot]

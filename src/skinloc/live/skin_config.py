@@ -7,6 +7,7 @@ The runner opens the skin's frame source through the one factory
 from __future__ import annotations
 
 import math
+import numbers
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -15,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 from skinloc.live.config import PipelineConfig, settings_from_dict
 from skinloc.live.gestures import GestureConfig
 from skinloc.live.sinks.base import SkinInfo
-from skinloc.sources.base import SourceKind, SourceOptions, source_kind
+from skinloc.sources.base import FrameSource, SourceKind, SourceOptions, source_kind
 
 if TYPE_CHECKING:
     from skinloc.live.core import SkinCore
@@ -104,9 +105,8 @@ class SkinConfig:
     wait: bool | None = None
 
     def __post_init__(self) -> None:
+        _check_settings(self)
         self._mount = _mount_pose(self)
-        if self.wait is not None and not isinstance(self.wait, bool):
-            raise ValueError(f"wait must be true or false, not {self.wait!r}")
         if isinstance(self.gestures, dict):
             self.gestures = settings_from_dict(GestureConfig, self.gestures, "gestures")
         elif self.gestures is not None and not isinstance(self.gestures, GestureConfig):
@@ -172,6 +172,57 @@ def _kept_grid(skin: SkinConfig) -> tuple[int | None, int | None]:
             setattr(skin, f"n_{axis}", n)
         kept.append(int(parse_line_mask(mask, n, f"{axis}_mask").sum()))
     return kept[0], kept[1]
+
+
+#: Wire formats a serial port may be read in (``skinloc.hardware.framing``).
+_WIRE_FORMATS = ("auto", "binary", "text")
+
+
+def _check_settings(skin: SkinConfig) -> None:
+    """Refuse a setting of the wrong type or range, naming it and its value (one line).
+
+    A skins file's ``realtime = "no"`` must not read as true, nor ``baud = "fast"`` reach the
+    port: TOML gives strings, numbers and booleans as written, and a dataclass checks none.
+    """
+
+    def need(name: str, ok: bool, allowed: str) -> None:
+        if not ok:
+            raise ValueError(f"{name} must be {allowed}, not {getattr(skin, name)!r}")
+
+    def whole(v: Any) -> bool:
+        return isinstance(v, numbers.Integral) and not isinstance(v, bool)
+
+    need("name", isinstance(skin.name, str) and bool(skin.name.strip()), "a non-empty text")
+    need(
+        "source",
+        isinstance(skin.source, FrameSource)
+        or (isinstance(skin.source, str | Path) and bool(str(skin.source).strip())),
+        "a serial port, a recording, sim, or a FrameSource",
+    )
+    need("baud", whole(skin.baud) and skin.baud >= 50, "a whole number of bits per second >= 50")
+    need("wire_format", skin.wire_format in _WIRE_FORMATS, f"one of {', '.join(_WIRE_FORMATS)}")
+    for name in ("n_tx", "n_rx"):
+        v = getattr(skin, name)
+        need(name, v is None or (whole(v) and v >= 1), "a whole number >= 1")
+    for name in ("tx_mask", "rx_mask"):
+        need(name, getattr(skin, name) is None or isinstance(getattr(skin, name), str), "a text")
+    for name in ("realtime", "loop"):
+        need(name, isinstance(getattr(skin, name), bool), "true or false")
+    need("wait", skin.wait is None or isinstance(skin.wait, bool), "true or false")
+    rate = skin.rate_hz
+    ok = isinstance(rate, numbers.Real) and not isinstance(rate, bool)
+    need("rate_hz", ok and math.isfinite(rate) and rate > 0, "a number of frames per second > 0")
+    need(
+        "baseline",
+        skin.baseline is None or isinstance(skin.baseline, str | Path),
+        "a recording's path",
+    )
+    need("sinks", isinstance(skin.sinks, list | tuple), "a list of sinks")
+    need(
+        "config",
+        isinstance(skin.config, PipelineConfig),
+        "a PipelineConfig (a skins file's pipeline table)",
+    )
 
 
 def _vector(value: Any, n: int, what: str) -> tuple[float, ...]:

@@ -32,7 +32,10 @@ A TOML file lists the skins of a robot; each becomes a ``SkinConfig`` of one ``R
     up = [0.0, 0.0, 1.0]              # "up" for swipe directions, mesh frame
     gestures = { swipe_min_mm = 40.0 }
 
-Every key is checked: an unknown one is an error naming the skin, the key and the known keys.
+Every key is checked: an unknown one is an error naming the skin, the key and the known keys,
+and a value of the wrong type or range (``realtime = "no"``, ``baud = "fast"``) one naming the
+file, the skin, the key and the value. Every skin names its ``source`` (or ``[defaults]`` does):
+the simulated skin is ``source = "sim"``, never a silent default.
 ``params`` names a ``ros2 param dump`` file of the ROS 2 node (``skinloc.live.sinks.ros2.params``):
 its ``pipeline`` and ``gestures`` values of each skin override the file's, checked alike.
 """
@@ -119,7 +122,9 @@ def load_skins(path: str | Path) -> tuple[list[SkinConfig], list[str]]:
     skins = []
     for k, entry in enumerate(skins_raw):
         merged = {**defaults, **entry}
-        name = str(merged.get("name", f"skin{k}"))
+        name = merged.get("name", f"skin{k}")
+        if not isinstance(name, str) or not name.strip():
+            raise ValueError(f"{path}: skin #{k + 1}: name must be a non-empty text, not {name!r}")
         saved = dumped.get(ros_name(name), {})
         for table in ("pipeline", "gestures"):
             try:
@@ -138,21 +143,26 @@ def load_skins(path: str | Path) -> tuple[list[SkinConfig], list[str]]:
         for key in _PATH_KEYS:
             if key in merged:
                 merged[key] = _resolve(merged[key], base)
-        source = merged.get("source", "sim")
+        source = merged.get("source")
         if isinstance(source, str) and Path(source).suffix.lower() in (".h5", ".hdf5", ".mat"):
             merged["source"] = _resolve(source, base)
-        config = PipelineConfig.from_dict(merged.pop("pipeline"), f"skin {name!r} pipeline")
         sinks = merged.pop("sinks", [])
-        if not isinstance(sinks, list):
+        if not isinstance(sinks, list) or not all(isinstance(s, str) for s in sinks):
             raise ValueError(f"{path}: skin {name!r}: sinks must be a list of strings")
         try:
+            config = PipelineConfig.from_dict(merged.pop("pipeline"), "pipeline")
             skins.append(SkinConfig(config=config, sinks=list(sinks), **merged))
         except (TypeError, ValueError) as exc:
             raise ValueError(f"{path}: skin {name!r}: {exc}") from None
+        if source is None:  # checked last: the other keys' errors come first
+            raise ValueError(
+                f"{path}: skin {name!r} has no source: give a serial port, a recording, or "
+                'source = "sim" for the simulated skin (--source sim on the command line)'
+            )
     sinks = raw.get("sinks", [])
-    if not isinstance(sinks, list):
+    if not isinstance(sinks, list) or not all(isinstance(s, str) for s in sinks):
         raise ValueError(f"{path}: sinks must be a list of strings")
-    return skins, [str(s) for s in sinks]
+    return skins, list(sinks)
 
 
 def runner_from_config(path: str | Path, extra_sinks: list[str] | None = None) -> Runner:

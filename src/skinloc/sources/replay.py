@@ -91,7 +91,10 @@ class ArrayReplaySource(FrameSource):
     Subclasses fill ``_frames (n, n_sensors) float32`` (raw counts), ``_times (n,)`` (s),
     ``_index (n,)`` (frame counters), ``n_tx``, ``n_rx`` and ``loop`` in their ``__init__``.
     ``read`` returns the next frame (a copy), starts again at the end when ``loop`` is set, and
-    raises ``FrameTimeoutError`` at the end otherwise (and always for an empty file).
+    raises ``FrameTimeoutError`` at the end otherwise (and always for an empty file). Each pass
+    of a loop goes on in time: its timestamps are the recorded ones shifted by the passes
+    before (one frame period after the last frame), so time never runs back and a replay paced
+    by its timestamps keeps the recorded rate on every pass; the indices repeat.
     """
 
     #: a file, not a live device: the runner paces it by its timestamps (or runs it ``--fast``)
@@ -104,6 +107,7 @@ class ArrayReplaySource(FrameSource):
     loop: bool = False
     _pos: int = 0
     _connected: bool = False
+    _t_shift: float = 0.0  # s added to the recorded times: the passes of a loop before this one
 
     @property
     def is_connected(self) -> bool:
@@ -121,13 +125,25 @@ class ArrayReplaySource(FrameSource):
             if not self.loop or not len(self._frames):
                 raise FrameTimeoutError(f"{self.name}: the {self._what} has no more frames")
             self._pos = 0
+            self._t_shift += self._pass_s()
         k = self._pos
         self._pos += 1
         return Frame(
             values=np.array(self._frames[k], dtype=np.float32),
-            timestamp_s=float(self._times[k]),
+            timestamp_s=float(self._times[k]) + self._t_shift,
             index=int(self._index[k]),
         )
+
+    def _pass_s(self) -> float:
+        """How long one pass lasts, s: first frame to last plus one mean frame period.
+
+        A single frame's pass lasts 0.01 s.
+        """
+        t = self._times
+        n = len(t)
+        span = float(t[-1] - t[0]) if n > 1 else 0.0
+        period = span / (n - 1) if n > 1 and span > 0 else 0.01
+        return span + period
 
 
 class ReplaySource(ArrayReplaySource):

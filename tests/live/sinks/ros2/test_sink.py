@@ -645,7 +645,7 @@ def test_skins_file_mounts_skins_on_robot_links(tmp_path):
 
     cfg = tmp_path / "robot.toml"
     cfg.write_text(
-        f'[defaults]\nmodel = "{model_path("map")}"\n'
+        f'[defaults]\nmodel = "{model_path("map")}"\nsource = "sim"\n'
         '[[skin]]\nname = "fore"\nparent_frame = "fr3_link6"\ntranslation = [0, 0.05, 0.1]\n'
         "rpy = [0, 0, 1.5707963]\n"
         '[[skin]]\nname = "upper"\nparent_frame = "fr3_link4"\nrotation = [0, 0, 0, 1]\n'

@@ -88,9 +88,10 @@ def test_a_sink_registered_from_a_test_module_runs_end_to_end(toy_sink):
     assert states.count("start") == states.count("end") > 3
     assert sink.closed == 1
     # its form joins the help of an unknown sink; without the registration it is unknown
-    assert "toy[:LABEL]" in one_line_error(run("run", "--model", model_path("map"), "--sink", "x"))
+    sim = ("run", "--model", model_path("map"), "--source", "sim")
+    assert "toy[:LABEL]" in one_line_error(run(*sim, "--sink", "x"))
     unregister_sink("toy")
-    one_line_error(run("run", "--model", model_path("map"), "--sink", "toy"), "unknown sink 'toy'")
+    one_line_error(run(*sim, "--sink", "toy"), "unknown sink 'toy'")
 
 
 def test_a_scheme_is_registered_once():

@@ -158,9 +158,9 @@ def test_a_skins_file_reads_a_param_dump_back(tmp_path):
     )
     cfg = tmp_path / "robot.toml"
     cfg.write_text(
-        'params = "dump.yaml"\n[[skin]]\nname = "left-arm"\nmodel = "m.h5"\n'
+        'params = "dump.yaml"\n[[skin]]\nname = "left-arm"\nmodel = "m.h5"\nsource = "sim"\n'
         "pipeline = { touch_on_z = 7.0, quiet_z = 2.5 }\n"
-        '[[skin]]\nname = "leg"\nmodel = "m.h5"\n'
+        '[[skin]]\nname = "leg"\nmodel = "m.h5"\nsource = "sim"\n'
     )
     (arm, leg), _ = load_skins(cfg)
     assert (arm.config.touch_on_z, arm.config.max_contacts, arm.config.quiet_z) == (9.5, 2, 2.5)

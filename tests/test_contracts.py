@@ -4,7 +4,8 @@ A sink: built from its spec, it opens, takes a frame's contacts (start, move, en
 contact and a gesture, and closes twice without error; a spec it cannot mean is one line of
 ``ValueError``. A model kind: a saved model of it loads, predicts the promised shapes, refuses
 an image of the wrong width with a message naming the width, survives save-load unchanged and
-exports or says why not. Sources have theirs in ``tests/sources/test_factory.py``.
+exports or says why not. A source: built by ``make_source``, it connects once, reads frames of
+its grid (or times out), and disconnects once; reading while closed is refused.
 """
 
 from __future__ import annotations
@@ -108,3 +109,80 @@ def test_model_kind_contract(kind, tmp_path):
             assert export(path) is not None
         except ValueError as why:  # not exportable: it says so in one line
             assert str(why) and "\n" not in str(why)
+
+
+# ------------------------------------------------------------------------------- sources
+def _source_options(kind, tmp_path):
+    """Options that make a working source of ``kind`` here, and whether it sends frames."""
+    from skinloc.sources import SourceKind, SourceOptions
+
+    if kind is SourceKind.SIM:
+        return SourceOptions("sim", seed=0, realtime=False), True
+    if kind is SourceKind.SERIAL:
+        return SourceOptions("loop://", n_tx=8, n_rx=8), False  # a port nobody writes to
+    if kind is SourceKind.REPLAY:
+        from skinloc.geometry.mesh import cone_skin
+        from skinloc.sources.replay import write_stream_recording
+
+        path = tmp_path / "stream.h5"
+        rng = np.random.default_rng(0)
+        write_stream_recording(
+            path,
+            n_tx=8,
+            n_rx=8,
+            mesh=cone_skin(),
+            baseline_frames=rng.normal(1000, 2, (20, 64)),
+            frames=rng.normal(1000, 2, (30, 64)),
+            times_s=np.arange(30) / 100,
+            index=np.arange(30),
+        )
+        return SourceOptions(str(path), realtime=False), True
+    if kind is SourceKind.BAG:
+        if not extra_installed("mcap"):
+            pytest.skip("a ROS 2 bag needs the live extra (mcap), not installed here")
+        path = tmp_path / "frames.mcap"
+        sink = make_sink(f"mcap-ros2:{path}")
+        sink.open([SkinInfo("arm", n_tx=8, n_rx=8)])
+        for k in range(5):
+            sink.emit_frame("arm", np.full(64, 1000.0 + k), 0.01 * k, k)
+        sink.close()
+        return SourceOptions(str(path), realtime=False), True
+    raise AssertionError(f"add a contract case for the source kind {kind!r}")
+
+
+def _source_kinds():
+    from skinloc.sources import SourceKind
+
+    return list(SourceKind)
+
+
+@pytest.mark.parametrize("kind", _source_kinds(), ids=str)
+def test_source_contract(kind, tmp_path):
+    """Every source: connect once, read frames of its grid or time out, disconnect once."""
+    from skinloc.errors import (
+        FrameTimeoutError,
+        SourceAlreadyConnectedError,
+        SourceNotConnectedError,
+    )
+    from skinloc.sources import FrameSource, make_source
+
+    options, sends = _source_options(kind, tmp_path)
+    src = make_source(options)
+    assert isinstance(src, FrameSource) and src.n_sensors == 64
+    with pytest.raises(SourceNotConnectedError):
+        src.read(0.1)
+    with src:
+        assert src.is_connected
+        with pytest.raises(SourceAlreadyConnectedError):
+            src.connect()
+        if sends:
+            frame = src.read(5.0)
+            assert frame.values.shape == (64,) and np.all(np.isfinite(frame.values))
+        else:
+            with pytest.raises(FrameTimeoutError):
+                src.read(0.2)
+    assert not src.is_connected
+    with pytest.raises(SourceNotConnectedError):
+        src.disconnect()
+    with pytest.raises(SourceNotConnectedError):
+        src.read(0.1)

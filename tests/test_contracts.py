@@ -1,4 +1,4 @@
-"""The contracts of the registries, run over every registered sink and every model kind.
+"""The contracts of the registries, run over every registered sink, model kind and source.
 
 A sink: built from its spec, it opens, takes a frame's contacts (start, move, end), a single
 contact and a gesture, and closes twice without error; a spec it cannot mean is one line of

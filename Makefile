@@ -35,14 +35,14 @@ demo: $(VENV)/.demo-installed
 	$(BIN)/skinloc demo --force
 
 # The whole suite in three worker processes (pytest-xdist): many tests wait on real time (a
-# paced skin, a browser, the emulated board), so three keep two cores busy. A module's tests
-# share a worker (tests/conftest.py, xdist_group); `python -m pytest` alone runs them in one.
+# paced skin, a browser, the emulated board), so three keep two cores busy. Which tests share
+# a worker: tests/conftest.py (worker_scope). `python -m pytest` alone runs them in one.
 PYTEST_WORKERS ?= 3
 
 test: $(VENV)/.test-installed
 	@sh scripts/ensure-packages.sh chromium firmware
 	$(BIN)/ruff check src tests bench
-	$(BIN)/python -m pytest -q -n $(PYTEST_WORKERS) --dist loadgroup
+	$(BIN)/python -m pytest -q -n $(PYTEST_WORKERS)
 
 lint: $(VENV)/.test-installed
 	$(BIN)/ruff check src tests bench

@@ -1,40 +1,94 @@
-"""Small trained models and streams for the live-path tests (built once per session)."""
+"""Small trained models and streams for the live-path tests (built once per session).
+
+Under ``pytest -n`` the workers of one run share them: the first to need one builds it into
+a folder of that run (``shared_dir``), the others wait for it and read the file; the run's
+controller removes the folder at its end (``tests/conftest.py``). A test never writes to them.
+"""
 
 from __future__ import annotations
 
 import atexit
+import contextlib
 import functools
+import os
 import shutil
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
-_DIR = Path(tempfile.mkdtemp(prefix="skinloc-live-tests-"))  # per process: runs never share
-atexit.register(shutil.rmtree, _DIR, ignore_errors=True)
+#: Set by pytest-xdist in each worker, the same for every worker of one run.
+RUN_ENV = "PYTEST_XDIST_TESTRUNUID"
+
+
+def shared_dir(run_id: str) -> Path:
+    """The folder the workers of run ``run_id`` build into."""
+    return Path(tempfile.gettempdir()) / f"skinloc-live-tests-{run_id}"
+
+
+if os.environ.get(RUN_ENV) and os.name == "posix":
+    _DIR = shared_dir(os.environ[RUN_ENV])
+    _DIR.mkdir(exist_ok=True)
+else:
+    _DIR = Path(tempfile.mkdtemp(prefix="skinloc-live-tests-"))  # per process: runs never share
+    atexit.register(shutil.rmtree, _DIR, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def _once(path: Path) -> Iterator[bool]:
+    """Held while ``path`` is found or built, one process at a time: yields True when it is
+    not there yet (the caller builds it). A build that fails leaves no file behind."""
+    import fcntl
+
+    with open(path.with_name(path.name + ".lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        build = not path.exists()
+        try:
+            yield build
+        except BaseException:
+            if build:
+                path.unlink(missing_ok=True)
+            raise
 
 
 @functools.lru_cache(maxsize=1)
 def calibration():
     """A simulated calibration: 30 touches x 5 frames on the paper cone."""
     from skinloc.calibration.session import SessionConfig, simulate_session
+    from skinloc.data.recording import read_recording
     from skinloc.geometry.mesh import cone_skin
     from skinloc.sim.skin import SimulatedSkin
 
-    mesh = cone_skin()
-    with SimulatedSkin(mesh, random_state=0) as skin:
-        return simulate_session(
-            skin,
-            mesh,
-            _DIR / "cal.h5",
-            SessionConfig(n_points=30, mode="even", samples_per_touch=5, random_state=0),
-        )
+    path = _DIR / "cal.h5"
+    with _once(path) as build:
+        if not build:
+            return read_recording(path)  # simulate_session returns the file read back too
+        mesh = cone_skin()
+        with SimulatedSkin(mesh, random_state=0) as skin:
+            return simulate_session(
+                skin,
+                mesh,
+                path,
+                SessionConfig(n_points=30, mode="even", samples_per_touch=5, random_state=0),
+            )
 
 
 @functools.cache
 def model_path(kind: str) -> Path:
     """A saved model: ``map`` (the default), ``mlp`` (small relu ensemble), ``paper`` (tanh),
     ``gelu`` (one gelu network, l1 normalised)."""
+    if kind not in ("map", "mlp", "paper", "gelu"):
+        raise ValueError(kind)
+    path = _DIR / f"{kind}.h5"
+    with _once(path) as build:
+        if build:
+            _train(kind).save(path)
+    return path
+
+
+def _train(kind: str):
+    """The model ``kind`` of ``model_path``, trained on ``calibration()``."""
     from skinloc.evaluation.scoring import train_localizer
 
     cal = calibration()
@@ -55,11 +109,7 @@ def model_path(kind: str) -> Path:
             normalise="l1",
             clip_negative=False,
         )
-    else:
-        raise ValueError(kind)
-    path = _DIR / f"{kind}.h5"
-    model.save(path)
-    return path
+    return model
 
 
 @functools.lru_cache(maxsize=1)
@@ -76,18 +126,21 @@ def stream_recording() -> Path:
     from skinloc.geometry.mesh import cone_skin
     from skinloc.sources.replay import write_stream_recording
 
-    frames, _ = stream()
     path = _DIR / "stream.h5"
-    write_stream_recording(
-        path,
-        n_tx=8,
-        n_rx=8,
-        mesh=cone_skin(),
-        baseline_frames=frames[:100],
-        frames=frames,
-        times_s=np.arange(len(frames)) / 100.0,
-        index=np.arange(len(frames)),
-    )
+    with _once(path) as build:
+        if not build:
+            return path
+        frames, _ = stream()
+        write_stream_recording(
+            path,
+            n_tx=8,
+            n_rx=8,
+            mesh=cone_skin(),
+            baseline_frames=frames[:100],
+            frames=frames,
+            times_s=np.arange(len(frames)) / 100.0,
+            index=np.arange(len(frames)),
+        )
     return path
 
 
@@ -98,6 +151,15 @@ def gesture_recording() -> Path:
     Scripted by hand, firm presses: 1.5 s untouched, a 0.12 s tap, a 1.0 s press, a 0.3 s
     swipe along the cone's long axis toward its base (about 50 mm), each 1.2 s apart.
     """
+    path = _DIR / "gestures.h5"
+    with _once(path) as build:
+        if build:
+            _write_gestures(path)
+    return path
+
+
+def _write_gestures(path: Path) -> None:
+    """``gesture_recording``'s stream, written to ``path``."""
     from skinloc.geometry.mesh import cone_skin
     from skinloc.sim.skin import SimulatedSkin
     from skinloc.sources.replay import write_stream_recording
@@ -136,7 +198,6 @@ def gesture_recording() -> Path:
     idle(120)
     skin.disconnect()
     frames = np.asarray(frames)
-    path = _DIR / "gestures.h5"
     write_stream_recording(
         path,
         n_tx=8,
@@ -147,13 +208,21 @@ def gesture_recording() -> Path:
         times_s=np.arange(len(frames)) / 100.0,
         index=np.arange(len(frames)),
     )
-    return path
 
 
 @functools.cache
 def held_recording(held_s: float, rate_hz: float = 100.0) -> Path:
     """A recording of the simulated skin (seed 0) that ends touched: 1.5 s untouched, then a
     firm press held for ``held_s`` up to the last frame (a replay that stops mid-touch)."""
+    path = _DIR / f"held_{held_s:g}s_{rate_hz:g}hz.h5"
+    with _once(path) as build:
+        if build:
+            _write_held(path, held_s, rate_hz)
+    return path
+
+
+def _write_held(path: Path, held_s: float, rate_hz: float) -> None:
+    """``held_recording``'s stream, written to ``path``."""
     from skinloc.geometry.mesh import cone_skin
     from skinloc.sim.skin import SimulatedSkin
     from skinloc.sources.replay import write_stream_recording
@@ -167,7 +236,6 @@ def held_recording(held_s: float, rate_hz: float = 100.0) -> Path:
     skin.disconnect()
     n_held = max(int(round(held_s * rate_hz)), 10)
     frames = np.concatenate([np.asarray(idle), np.resize(pressed, (n_held, pressed.shape[1]))])
-    path = _DIR / f"held_{held_s:g}s_{rate_hz:g}hz.h5"
     write_stream_recording(
         path,
         n_tx=8,
@@ -178,4 +246,3 @@ def held_recording(held_s: float, rate_hz: float = 100.0) -> Path:
         times_s=np.arange(len(frames)) / rate_hz,
         index=np.arange(len(frames)),
     )
-    return path

@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import functools
 import os
+import re
+import shutil
+import uuid
 from pathlib import Path
 
 import numpy as np
@@ -25,36 +29,71 @@ LOUD_SKIPS = ("tests/app/test_app_browser.py",)
 #: Folders whose tests share a session fixture too costly to build in every worker of
 #: ``pytest -n``: each runs in one worker (tests/firmware: the firmware and its emulator).
 ONE_WORKER_DIRS = ("tests/firmware/",)
+_SHARED_SCOPE = re.compile(r"""scope\s*=\s*["'](module|class|package)["']""")
 
 
-def xdist_group(item) -> str | None:
-    """The worker group of a test under ``pytest -n N --dist loadgroup`` (``make test``).
+@functools.cache
+def _has_shared_fixture(module: Path) -> bool:
+    """``module`` defines a module-, class- or package-scoped fixture."""
+    try:
+        return bool(_SHARED_SCOPE.search(module.read_text(encoding="utf-8")))
+    except OSError:
+        return True
 
-    Its folder when in ``ONE_WORKER_DIRS``; its module when it uses a module- (or class-)
-    scoped fixture, so that the fixture is built once; else none: it goes to whichever worker
-    is free. Session fixtures are built once per worker (``tests/_live.py``'s models too).
+
+def worker_scope(nodeid: str, root: Path) -> str:
+    """What ``pytest -n`` (``make test``) sends to one worker with the test ``nodeid``.
+
+    Its folder when in ``ONE_WORKER_DIRS``; its module when the module defines a module-scoped
+    (or class-scoped) fixture, built once so; else the test alone, for whichever worker is free.
+    Session fixtures are built once per worker (``tests/_live.py``'s files once per run).
     """
-    path = item.nodeid.split("::", 1)[0].replace("\\", "/")
-    one = next((d for d in ONE_WORKER_DIRS if path.startswith(d)), None)
-    if one:
-        return one
-    info = getattr(item, "_fixtureinfo", None)  # pytest's own record of the test's fixtures
-    if info is None:
-        return path
-    scopes = {d.scope for defs in info.name2fixturedefs.values() for d in defs}
-    return path if scopes & {"module", "class", "package"} else None
+    path = nodeid.split("::", 1)[0].replace("\\", "/")
+    folder = next((d for d in ONE_WORKER_DIRS if path.startswith(d)), None)
+    if folder:
+        return folder
+    return path if _has_shared_fixture(root / path) else nodeid
+
+
+@pytest.hookimpl(optionalhook=True)  # a hook of pytest-xdist, called with -n only
+def pytest_xdist_make_scheduler(config, log):
+    """Tests sent to the workers by ``worker_scope`` (xdist's own ``--dist loadgroup`` reads
+    no group under pytest 9.2: it renames ``item._nodeid``, which pytest no longer reads)."""
+    from xdist.scheduler import LoadScopeScheduling
+
+    class ByWorkerScope(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return worker_scope(nodeid, config.rootpath)
+
+    return ByWorkerScope(config, log)
+
+
+def _controller(config) -> bool:
+    """This process runs workers of ``pytest -n`` (it runs no test itself)."""
+    return bool(getattr(config.option, "numprocesses", None)) and not hasattr(config, "workerinput")
+
+
+def pytest_configure(config) -> None:
+    """The controller of ``pytest -n`` names the run (xdist's ``--testrunuid``) before it
+    starts its workers, to remove what they shared (``tests/_live.py``) when the run ends."""
+    if _controller(config) and getattr(config.option, "testrunuid", None) is None:
+        config.option.testrunuid = uuid.uuid4().hex
+
+
+def pytest_unconfigure(config) -> None:
+    run = getattr(config.option, "testrunuid", None)
+    if run and _controller(config):
+        from tests._live import shared_dir
+
+        shutil.rmtree(shared_dir(run), ignore_errors=True)
 
 
 def pytest_collection_modifyitems(config, items) -> None:
     """``real`` on every test that reads the real recordings (through ``real_dir``), so
-    ``-m "not real"`` runs without them; a mark on a fixture itself would have no effect.
-    Its ``xdist_group`` on every test that needs one (ignored without ``--dist loadgroup``)."""
+    ``-m "not real"`` runs without them; a mark on a fixture itself would have no effect."""
     for item in items:
         if "real_dir" in getattr(item, "fixturenames", ()):
             item.add_marker(pytest.mark.real)
-        group = xdist_group(item)
-        if group and not item.get_closest_marker("xdist_group"):
-            item.add_marker(pytest.mark.xdist_group(group))
 
 
 def _skip_reason(report) -> str:

@@ -149,6 +149,7 @@ def test_export_writes_both(tmp_path):
     assert "arm_predict" in (tmp_path / "m.h").read_text()
 
 
+@pytest.mark.slow  # a multi-process benchmark
 def test_online_bench_functions_run_small():
     from skinloc.bench.online import many_skins, single_stream
 

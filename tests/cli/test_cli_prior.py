@@ -32,6 +32,7 @@ def test_show_the_package_prior():
     assert data["version"] == 1 and "max_touches" in data
 
 
+@pytest.mark.slow  # simulates skins and fits their maps
 def test_build_a_small_prior_and_train_with_it(tmp_path, rec_path):
     out = tmp_path / "p.json"
     args = ("prior", "build", "--out", out, "--skins", "2", "--eval-skins", "1")

@@ -23,7 +23,10 @@ from skinloc._lazy import EXTRAS
 
 ROOT = Path(__file__).resolve().parents[2]
 
-pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="POSIX venv layout")
+pytestmark = [
+    pytest.mark.skipif(sys.platform == "win32", reason="POSIX venv layout"),
+    pytest.mark.slow,  # a virtual environment built and installed
+]
 
 
 @pytest.fixture(scope="session")
@@ -43,8 +46,11 @@ def plain(tmp_path_factory) -> Path:
     python = venv / "bin" / "python"
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
     t0 = time.monotonic()
+    # --no-compile: the commands below compile the modules they import, not every module of
+    # every dependency (scipy's and sklearn's thousands, tests included) at install time
+    pip = [str(python), "-m", "pip", "install", "--quiet", "--disable-pip-version-check"]
     res = subprocess.run(
-        [str(python), "-m", "pip", "install", "--quiet", "--disable-pip-version-check", str(src)],
+        [*pip, "--no-compile", str(src)],
         capture_output=True,
         text=True,
         env=env,

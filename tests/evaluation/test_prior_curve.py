@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from skinloc.evaluation.scoring import evaluate, prior_curve, train_localizer
 
 
+@pytest.mark.slow  # maps fitted at four sizes, with and without the prior
 def test_the_curve_fits_with_and_without_the_prior_where_it_applies(recording_factory):
     train, test = recording_factory(24, 3, random_state=1), recording_factory(5, 3, random_state=2)
     curve = prior_curve(train, [test], sizes=(5, 10, 20, 40))

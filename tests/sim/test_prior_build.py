@@ -37,6 +37,7 @@ def test_a_small_build(small):
     assert all(np.isfinite(v) for v in small.by_candidate.values())
 
 
+@pytest.mark.slow  # a second build
 def test_the_same_build_on_another_joblib_backend(small):
     from joblib import parallel_config
 

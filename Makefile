@@ -34,10 +34,12 @@ $(VENV)/.test-installed: pyproject.toml | $(BIN)/python
 demo: $(VENV)/.demo-installed
 	$(BIN)/skinloc demo --force
 
-# The whole suite in three worker processes (pytest-xdist): many tests wait on real time (a
-# paced skin, a browser, the emulated board), so three keep two cores busy. Which tests share
-# a worker: tests/conftest.py (worker_scope). `python -m pytest` alone runs them in one.
-PYTEST_WORKERS ?= 3
+# The whole suite in one process by default. `make test PYTEST_WORKERS=3` spreads it over three
+# pytest-xdist workers (tests/conftest.py, worker_scope, says which tests share one): 12.6 min
+# instead of about 15 on this 2-core machine, but with three workers beside each other some
+# browser and live tests that wait on the wall clock failed (docs/reliability.md, "The test
+# suite on a fresh clone"), so the default stays the run that passes.
+PYTEST_WORKERS ?= 0
 
 test: $(VENV)/.test-installed
 	@sh scripts/ensure-packages.sh chromium firmware

@@ -26,4 +26,4 @@ def test_flags_show_no_value_type(command):
 def test_options_with_values_still_show_their_type():
     res = CliRunner().invoke(app, ["run", "--help"], env={"COLUMNS": "200"})
     assert re.search(r"--model\s+-m\s+<path>", res.output), res.output
-    assert re.search(r"--fast\s+Replay a recording", res.output), res.output
+    assert re.search(r"--fast\s+Replay recordings", res.output), res.output

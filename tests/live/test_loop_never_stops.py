@@ -120,10 +120,13 @@ def test_a_sink_that_raises_on_every_frame_leaves_the_other_sinks_and_skins_alon
         assert r["retry_in_s"] <= guard.BACKOFF_MAX_S
     assert "ConnectionError: the robot's bus is down" == routes["failing"]["last_error"]
     assert "No space left on device" in routes["recorder (frames)"]["last_error"]
-    assert routes["callback"]["errors"] == 1 and not routes["callback"]["failing"]
+    # the callback's third contact may be either skin's (the two replays run side by side)
+    calls = [next(s for s in x["sinks"] if s["sink"] == "callback") for x in (a, b)]
+    assert sum(r["errors"] for r in calls) == 1 and not any(r["failing"] for r in calls)
     assert routes["list"]["errors"] == routes["list"]["skipped"] == 0
     assert a["sink_errors"] == sum(r["errors"] for r in routes.values())
-    assert b["sink_errors"] == 0 and all(s["errors"] == 0 for s in b["sinks"])
+    assert b["sink_errors"] == calls[1]["errors"]
+    assert all(s["errors"] == 0 for s in b["sinks"] if s["sink"] != "callback")
     # every contact of both skins reached the sound sink and (but one) the callback
     assert {c.skin for c in everyone.contacts} == {"a", "b"}
     assert len(everyone.contacts) == a["contacts"] + b["contacts"] == len(got)

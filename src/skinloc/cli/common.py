@@ -57,8 +57,10 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
     add_completion=False,
 )
-console = Console()
-err_console = Console(stderr=True)
+# soft_wrap: a message is one line however long its paths are (a log or a script reads it
+# whole); tables still fit the width below.
+console = Console(soft_wrap=True)
+err_console = Console(stderr=True, soft_wrap=True)
 log = logging.getLogger("skinloc")
 
 F = TypeVar("F", bound=Callable[..., Any])
@@ -384,10 +386,12 @@ def _main(
 ) -> None:
     import os
 
-    # Off a terminal rich assumes 80 columns and cuts wide tables (bench): give them room.
+    # Off a terminal rich assumes 80 columns (or COLUMNS) and cuts wide tables (bench, ports
+    # with long paths): a pipe or a log has no width, so give them room, every command anew.
+    columns = os.environ.get("COLUMNS", "")
     for c in (console, err_console):
-        if not c.is_terminal and "COLUMNS" not in os.environ:
-            c.width = 200
+        if not c.is_terminal:
+            c.width = max(200, int(columns) if columns.isdigit() else 0)
     logging.basicConfig(
         level=logging.INFO if verbose else logging.WARNING,
         format="%(levelname)s %(name)s: %(message)s",

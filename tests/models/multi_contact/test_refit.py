@@ -54,4 +54,8 @@ def test_one_finger_gives_little_for_a_second_and_the_engine_scratch_is_untouche
 def test_an_engine_without_the_search_has_no_pair_prior():
     from skinloc.live.pair_prior import pair_prior
 
-    assert pair_prior(object(), np.zeros(64, np.float32)) is None
+    class NoSearch:  # an engine whose kind has no contact search (a network)
+        def search_tables(self):
+            return None
+
+    assert pair_prior(NoSearch(), np.zeros(64, np.float32)) is None

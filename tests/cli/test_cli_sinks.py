@@ -21,7 +21,7 @@ def run(*args):
 @pytest.mark.parametrize(
     ("spec", "needles"),
     [
-        # used to send to 127.0.0.1:9870 without a word
+        # used to send to 127.0.0.1:9870 without a word  # any-port-ok: never bound
         ("udp:host:notaport", ("bad port 'notaport'", "udp:host:notaport", "0-65535")),
         ("udp://host:", ("bad port", "0-65535")),
         # used to write to stdout without a word
@@ -31,7 +31,7 @@ def run(*args):
         ("ros2:9bad", ("must not start with a digit",)),
         ("ros2:", ("name after ':' is empty",)),
         ("foxglove://127.0.0.1:0?mcp=x.mcap", ("unknown option(s) mcp", "known: mcap, live")),
-        ("ws://127.0.0.1:8767/path", ("unexpected path '/path'",)),
+        ("ws://127.0.0.1:8767/path", ("unexpected path '/path'",)),  # any-port-ok: refused
         ("pigeon", ("unknown sink 'pigeon'", "udp://HOST:PORT")),
     ],
 )

@@ -22,7 +22,7 @@ CASES = [
     (["export", "{rec}", "--c-header", "{out}/m.h"], "is a recording, not a model"),
     (["predict", "{rec}", "{rec}"], "is a recording, not a model"),
     (["train", "{rec}", "--init", "{rec}", "--out", "{out}/m.h5"], "is a recording, not a model"),
-    (["info", "{model}"], "is a model, not a recording"),
+    (["info", "{bag}"], "cannot read the MCAP file"),
     (["snr", "{model}"], "is a model, not a recording"),
     (["convert", "{model}", "{out}/x.mat"], "is a model, not a recording"),
     (["run", "--model", "{model}", "--source", "{model}"], "is a model, not a recording"),

@@ -93,7 +93,7 @@ CASES = [
     # the wrong kind of file (tests/cli/test_cli_file_kinds.py has them all, in process)
     (["coverage", "{stream}"], "raw stream"),
     (["evaluate", "{rec}", "{rec}"], "is a recording, not a model"),
-    (["info", "{model}"], "is a model, not a recording"),
+    (["info", "{bag}"], LIVE),
     (["predict", "{model}", "{text}"], "notes.h5"),
     (["bench", "--sizes", "abc", "--out", "{out}/bench"], "--sizes"),
 ]

@@ -15,6 +15,7 @@ import typer
 
 from skinloc.cli.board_setup import GainOpt, LinesOpt
 from skinloc.cli.common import WireChoice
+from skinloc.live.sinks.base import SINK_SPECS
 
 log = logging.getLogger(__name__)
 
@@ -141,9 +142,9 @@ def register(app: typer.Typer) -> None:
             list[str] | None,
             typer.Option(
                 "--sink",
-                help="Where contacts go, repeatable: jsonl, jsonl:FILE, ws://HOST:PORT, "
-                "udp://HOST:PORT, foxglove://HOST:PORT[?mcap=FILE], mcap:FILE, lsl[:NAME], "
-                "ros2. Default: jsonl (stdout).",
+                help="Where contacts go, repeatable: "
+                + ", ".join(form.split(" (")[0] for form in SINK_SPECS)
+                + ". Default: jsonl (stdout).",
             ),
         ] = None,
         config: Annotated[

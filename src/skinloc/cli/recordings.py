@@ -33,6 +33,36 @@ def _finite_round(value: float, ndigits: int = 2) -> float | None:
     return round(float(value), ndigits) if math.isfinite(value) else None
 
 
+def _show(
+    summary: dict[str, Any],
+    as_json: bool,
+    skip: tuple[str, ...] = (),
+    rows: Any = None,
+) -> None:
+    """Print ``summary`` as JSON, or as a two-column table: nested dicts flattened a level."""
+    if as_json:
+        print_json(summary)
+        return
+    table = Table(title=summary["file"], show_header=False)
+    for k, v in summary.items():
+        if k in skip and isinstance(v, dict):
+            for kk, vv in v.items():
+                table.add_row(f"{k}.{kk}", str(vv))
+        elif k not in skip:
+            table.add_row(k, f"{v:.3f}" if isinstance(v, float) else str(v))
+    console.print(table)
+    if rows is not None:
+        console.print(rows(summary))
+
+
+def _channel_rows(summary: dict[str, Any]) -> Table:
+    """An MCAP file's channels as a table."""
+    table = Table("topic", "schema", "encoding", "messages", title="channels")
+    for ch in summary["channels"]:
+        table.add_row(ch["topic"], str(ch["schema"]), ch["encoding"], str(ch["n_messages"]))
+    return table
+
+
 def _history_info(path: Path, history: list, as_json: bool) -> None:
     """``info`` of an app session's ``history.h5``: each touch taken back or baseline replaced."""
     from skinloc.h5layout import HISTORY
@@ -173,7 +203,11 @@ def register(app: typer.Typer) -> None:
         data: Annotated[Path, typer.Argument(help="A recording.")],
         as_json: Annotated[bool, typer.Option("--json", help="Print JSON.")] = False,
     ) -> None:
-        """Describe a recording: grid, point logs, frames, baseline, noise, SNR.
+        """Describe a file skinloc wrote: a recording, a model, a session history, an MCAP bag.
+
+        A recording: grid, point logs, frames, baseline, noise, SNR (and its raw stream, live
+        output and truth when it has them). A model: kind, sensors, what it was trained on.
+        An MCAP file ('run --sink mcap:' or foxglove's): topics, schemas, counts, duration.
 
         Example: skinloc info cal.h5 --json
         """
@@ -183,9 +217,19 @@ def register(app: typer.Typer) -> None:
         from skinloc.sim.gesture_stream import read_gesture_truth
         from skinloc.sources.replay import stream_summary
 
-        if data.suffix.lower() in (".h5", ".hdf5") and data.is_file():
-            from skinloc.h5layout import read_history
+        if data.suffix.lower() == ".mcap" and data.is_file():
+            from skinloc.sources.mcap_ros2 import bag_summary
 
+            _show(bag_summary(data), as_json, skip=("channels",), rows=_channel_rows)
+            return
+        if data.suffix.lower() in (".h5", ".hdf5") and data.is_file():
+            from skinloc.h5layout import MODEL, is_kind, read_history
+
+            if is_kind(data, MODEL):
+                from skinloc.models.model_file import model_summary
+
+                _show(model_summary(data), as_json, skip=("config", "training", "meta"))
+                return
             history = read_history(data)
             if history is not None:  # an app session's history.h5: what was taken back
                 _history_info(data, history, as_json)

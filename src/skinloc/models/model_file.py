@@ -24,7 +24,7 @@ from skinloc.errors import ModelFileError
 from skinloc.h5layout import MODEL, check_kind, set_kind
 from skinloc.models.kinds import model_kind
 
-__all__ = ["MODEL_FORMAT_VERSION", "read_model", "write_model"]
+__all__ = ["MODEL_FORMAT_VERSION", "model_summary", "read_model", "write_model"]
 
 #: 2 added response-map models; version 1 files (networks) still load.
 MODEL_FORMAT_VERSION = 2
@@ -123,3 +123,51 @@ def read_model(cls: type, path: Path) -> Any:
     except (OSError, KeyError, ValueError, TypeError) as exc:
         raise ModelFileError(f"cannot read model {path}: {exc}") from exc
     return model
+
+
+def model_summary(path: Path) -> dict[str, Any]:
+    """What a model file holds, read from its attributes and group sizes (``skinloc info``).
+
+    No engine is built, so a model of a kind this install cannot run is still described.
+    Keys: ``file``, ``format``, ``format_version``, ``kind``, ``n_sensors``, ``config``,
+    ``training`` (recordings, point logs, grid), ``created``, ``skinloc_version``,
+    ``mesh_vertices``/``mesh_faces``/``surface_points`` (counts), ``multi_contact`` (whether a
+    count rule is stored), ``description``, ``meta`` (the rest). ``ModelFileError`` when
+    ``path`` is not a readable skinloc model.
+    """
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            check_kind(f, path, MODEL, ModelFileError)
+            cfg = json.loads(f.attrs["config"])
+            meta = json.loads(f.attrs.get("meta", "{}"))
+            surf = f.get("surface")
+
+            def rows(name: str) -> int:
+                return int(len(surf[name])) if surf is not None and name in surf else 0
+
+            contacts = f.get("contacts")
+            summary = {
+                "file": str(path),
+                "format": MODEL,
+                "format_version": int(f.attrs["format_version"]),
+                "kind": cfg.get("kind", "network"),
+                "n_sensors": int(f.attrs["n_features_in"]),
+                "config": cfg,
+                "training": meta.pop("training", None),
+                "created": meta.pop("created", None),
+                "skinloc_version": meta.pop("skinloc_version", None),
+                "mesh_vertices": rows("vertices"),
+                "mesh_faces": rows("faces"),
+                "surface_points": rows("points"),
+                "multi_contact": contacts is not None
+                and json.loads(contacts.attrs.get("rule", "null")) is not None,
+                "description": str(f.attrs.get("description", "")),
+                "meta": meta,
+            }
+    except ModelFileError:
+        raise
+    except (OSError, KeyError, ValueError, TypeError) as exc:
+        raise ModelFileError(f"cannot read model {path}: {exc}") from None
+    return summary

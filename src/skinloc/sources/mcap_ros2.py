@@ -19,7 +19,7 @@ from skinloc.errors import RecordingError
 from skinloc.sources.base import SourceOptions
 from skinloc.sources.replay import ArrayReplaySource
 
-__all__ = ["McapReplaySource", "image_topics"]
+__all__ = ["McapReplaySource", "bag_summary", "image_topics"]
 
 _IMAGE = "sensor_msgs/msg/Image"
 _DTYPES = {
@@ -52,6 +52,54 @@ def image_topics(path: str | Path) -> list[str]:
         and summary.schemas[ch.schema_id].name == _IMAGE
         and ch.message_encoding == "cdr"
     )
+
+
+def bag_summary(path: str | Path) -> dict[str, Any]:
+    """What an MCAP file holds, from its summary section (``skinloc info``).
+
+    Keys: ``file``, ``format`` ("mcap"), ``profile`` (``ros2`` for a ROS 2 bag), ``library``
+    (the writer), ``n_messages``, ``start_s``/``end_s`` (log times, s since the epoch),
+    ``duration_s``, ``channels`` (one entry per channel: ``topic``, ``schema``, ``encoding``,
+    ``n_messages``) and ``replayable`` (the image topics ``skinloc run --source FILE`` plays).
+    ``RecordingError`` when the file is not a finished MCAP file.
+    """
+    path = Path(path)
+    make_reader = require_extra("mcap.reader", "reading an MCAP file").make_reader
+    try:
+        with open(path, "rb") as fh:
+            reader = make_reader(fh)
+            header = reader.get_header()
+            summary = reader.get_summary()
+    except Exception as exc:  # noqa: BLE001 - mcap raises many kinds on a broken file
+        raise RecordingError(f"cannot read the MCAP file {path}: {exc}") from None
+    if summary is None or summary.statistics is None:
+        raise RecordingError(f"{path} has no MCAP summary (not finished? a writer was stopped)")
+    stats = summary.statistics
+    counts = stats.channel_message_counts
+    channels = []
+    for cid, ch in sorted(summary.channels.items()):
+        schema = summary.schemas.get(ch.schema_id)
+        channels.append(
+            {
+                "topic": ch.topic,
+                "schema": None if schema is None else schema.name,
+                "encoding": ch.message_encoding,
+                "n_messages": int(counts.get(cid, 0)),
+            }
+        )
+    start, end = stats.message_start_time * 1e-9, stats.message_end_time * 1e-9
+    return {
+        "file": str(path),
+        "format": "mcap",
+        "profile": header.profile,
+        "library": header.library,
+        "n_messages": int(stats.message_count),
+        "start_s": round(start, 6) if stats.message_count else None,
+        "end_s": round(end, 6) if stats.message_count else None,
+        "duration_s": round(end - start, 6) if stats.message_count else 0.0,
+        "channels": channels,
+        "replayable": image_topics(path),
+    }
 
 
 class McapReplaySource(ArrayReplaySource):

@@ -347,7 +347,7 @@ _BUILTIN: tuple[SinkType, ...] = (
     SinkType(
         "jsonl",
         "skinloc.live.sinks.jsonl:JsonLinesSink.from_spec",
-        "jsonl (stdout) | jsonl:FILE",
+        "jsonl[:FILE] (JSON lines on stdout, or to FILE)",
     ),
     SinkType(
         "ws",

@@ -181,6 +181,11 @@ def test_record_the_live_stream_from_the_page(chromium, server, tmp_path):
         panel.locator(".rec-format").select_option("mcap")
         panel.locator(".rec-start").click()
         _wait(lambda: ws.recorder is not None and ws.recorder.n_frames > 100, "mcap frames")
+        # its size grows on the page while it runs (it stayed at the 36-byte header)
+        page.wait_for_function(
+            "() => / [0-9.]+ (kB|MB): /.test("
+            "document.querySelector('#record-panel .rec-state').textContent)"
+        )
         name = ws.recorder.path.name
         page.click("#nav button[data-page=connect]")
         page.click("#disconnect-btn")

@@ -93,8 +93,10 @@ def _record_a_touch(client, ws, fmt: str) -> dict:
     _wait(lambda: client.get("/api/record").json()["contacts"] > 20, "contacts recorded")
     client.post("/api/sim/touch", json={"point": None})
     _wait(lambda: client.get("/api/record").json()["seconds"] > 1.5, "a recording of 1.5 s")
+    # the size is the file's as it grows, not its header until the end
+    _wait(lambda: client.get("/api/record").json()["bytes"] > 1000, "the file growing")
     running = client.get("/api/record").json()
-    assert running["running"] and running["bytes"] > 0 and running["frames"] > 100
+    assert running["running"] and running["frames"] > 100
     r = client.post("/api/record/stop")
     assert r.status_code == 200, r.text
     last = r.json()["last"]
@@ -184,6 +186,22 @@ def test_bad_requests_say_so_in_one_line(live):
         assert r.status_code == 403
     assert client.get("/api/record").json()["running"]
     assert client.post("/api/record/stop").status_code == 200
+
+
+def test_the_page_offers_only_the_formats_this_install_writes(live, monkeypatch):
+    """Without the live extra MCAP is not offered, and asking for it says what to install
+    (once, both packages at once) and leaves no file behind."""
+    from skinloc.app.workspace import record
+
+    client, ws = live
+    assert set(client.get("/api/record").json()["formats"]) == {"h5", "mcap"}
+    why = "MCAP recording needs mcap and cyclonedds: pip install 'skinloc[live]'"
+    monkeypatch.setattr(record, "missing_format", lambda fmt: why if fmt == "mcap" else None)
+    assert set(client.get("/api/record").json()["formats"]) == {"h5"}
+    before = sorted(p.name for p in ws.active.folder.path.iterdir())
+    r = client.post("/api/record/start", json={"format": "mcap"})
+    assert r.status_code == 400 and r.json()["detail"] == why
+    assert sorted(p.name for p in ws.active.folder.path.iterdir()) == before
 
 
 def test_no_session_or_no_skin_is_refused(tmp_path):

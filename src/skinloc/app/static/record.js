@@ -15,7 +15,6 @@ export class RecordPanel {
       <div class="buttons">
         <select class="rec-format" title="File format">
           <option value="h5">HDF5 (skinloc info, replay)</option>
-          <option value="mcap">MCAP (Foxglove, ROS 2 bag)</option>
         </select>
         <button type="button" class="rec-start">Record</button>
         <button type="button" class="rec-stop" disabled>Stop recording</button>
@@ -29,10 +28,24 @@ export class RecordPanel {
       const out = await act("/api/record/stop");
       if (out) this.render(out);
     });
+    this.poll(); // the formats this install can write
+  }
+
+  // formats: {value: label} the server can write; only those are offered.
+  offer(formats) {
+    const select = this.el.querySelector(".rec-format");
+    const have = [...select.options].map((o) => o.value).join(",");
+    if (have === Object.keys(formats).join(",")) return;
+    const keep = select.value;
+    select.innerHTML = Object.entries(formats)
+      .map(([k, label]) => `<option value="${this.esc(k)}">${this.esc(label)}</option>`)
+      .join("");
+    if (keep in formats) select.value = keep;
   }
 
   // status: the state message's ``recording`` (null when none runs) or /api/record's answer.
   render(status) {
+    if (status?.formats) this.offer(status.formats);
     const on = !!status?.running;
     this.el.querySelector(".rec-start").disabled = on;
     this.el.querySelector(".rec-stop").disabled = !on;

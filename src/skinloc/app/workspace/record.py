@@ -18,6 +18,7 @@ the session and closing the app end the file (``stop_recording``).
 
 from __future__ import annotations
 
+import functools
 import logging
 import threading
 import time
@@ -38,7 +39,29 @@ log = logging.getLogger(__name__)
 __all__ = ["FORMATS", "LiveRecorder", "LiveRecording", "RecordTee", "read_live_events"]
 
 #: What ``start_recording`` writes, by format.
-FORMATS = {"h5": "HDF5 (skinloc record layout)", "mcap": "MCAP (ROS 2 bag, Foxglove)"}
+FORMATS = {"h5": "HDF5 (skinloc info, replay)", "mcap": "MCAP (Foxglove, ROS 2 bag)"}
+
+
+@functools.cache
+def missing_format(fmt: str) -> str | None:
+    """Why ``fmt`` cannot be recorded in this install (the extra to install), None when it can."""
+    if fmt != "mcap":
+        return None
+    from skinloc.errors import MissingExtraError
+    from skinloc.live.sinks.ros2.bag import bag_requirements
+
+    try:
+        bag_requirements()
+    except MissingExtraError as exc:
+        return str(exc)
+    return None
+
+
+def offered_formats() -> dict[str, str]:
+    """The formats the page offers: those this install can write."""
+    return {k: v for k, v in FORMATS.items() if missing_format(k) is None}
+
+
 #: Frames kept in memory before they are appended to an HDF5 recording (also at least once a s).
 CHUNK = 64
 
@@ -273,6 +296,9 @@ class LiveRecording(WorkspaceState):
         """Record the stream (and the live view's contacts and gestures) to ``fmt``."""
         if fmt not in FORMATS:
             raise ValueError(f"record to {' or '.join(FORMATS)}, not {fmt[:20]!r}")
+        why = missing_format(fmt)
+        if why is not None:
+            raise ValueError(why)
         with self._lock:
             a = self._need_session()
             device = self._need_device()
@@ -322,7 +348,7 @@ class LiveRecording(WorkspaceState):
         with self._lock:
             if self.recorder is not None:
                 return self.recorder.status()
-            return {"running": False, "last": self.last_recording, "formats": FORMATS}
+            return {"running": False, "last": self.last_recording, "formats": offered_formats()}
 
     def stop_recording(self) -> dict[str, Any]:
         """End the recording (nothing recorded is lost); its summary."""

@@ -19,9 +19,9 @@ from typing import Any
 
 from skinloc._lazy import require_extra
 from skinloc.live.sinks.base import SinkSpec, SkinInfo
-from skinloc.live.sinks.ros2.topics import Ros2Topics
+from skinloc.live.sinks.ros2.topics import Ros2Topics, require_msgs
 
-__all__ = ["Ros2BagSink", "offered_qos"]
+__all__ = ["CHUNK_BYTES", "Ros2BagSink", "bag_requirements", "offered_qos"]
 
 
 def offered_qos(latched: bool, depth: int) -> str:
@@ -42,9 +42,26 @@ def offered_qos(latched: bool, depth: int) -> str:
     )
 
 
+#: Uncompressed bytes per MCAP chunk: small, so the file on disk (and the size the app shows)
+#: grows every second or two of raw frames, and a killed writer loses little (mcap's default is
+#: 1 MiB, half a minute of one skin's frames).
+CHUNK_BYTES = 64 * 1024
+
+
 def _require_mcap() -> Any:
     writer = require_extra("mcap.writer", "the ROS 2 bag sink")
     return writer.Writer, writer.CompressionType
+
+
+def bag_requirements() -> Any:
+    """The MCAP writer and its compression types, once the ROS 2 messages import too.
+
+    Raises one ``MissingExtraError`` naming the extra (``live``) when either is missing, so a
+    user installs once rather than learning of ``mcap`` and then of ``cyclonedds``.
+    """
+    found = _require_mcap()
+    require_msgs()
+    return found
 
 
 class Ros2BagSink(Ros2Topics):
@@ -83,7 +100,7 @@ class Ros2BagSink(Ros2Topics):
                 if s.name not in self._skins:
                     self._add_skin(s)
             return
-        writer_cls, compression = _require_mcap()
+        writer_cls, compression = bag_requirements()  # before any file exists
         if self.path.exists():
             raise FileExistsError(f"{self.path} exists; the ROS 2 bag sink never overwrites a file")
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -92,9 +109,17 @@ class Ros2BagSink(Ros2Topics):
         )
         self._tmp = Path(tmp)
         self._fh = os.fdopen(fd, "wb")
-        self._writer = writer_cls(self._fh, compression=compression.ZSTD)
-        self._writer.start(profile="ros2", library="skinloc")
-        self._open_topics(skins)
+        try:
+            self._writer = writer_cls(
+                self._fh, chunk_size=CHUNK_BYTES, compression=compression.ZSTD
+            )
+            self._writer.start(profile="ros2", library="skinloc")
+            self._open_topics(skins)
+        except BaseException:  # nothing was recorded yet: leave no file behind
+            self._fh.close()
+            self._tmp.unlink(missing_ok=True)
+            self._writer = self._fh = None
+            raise
 
     def _advertise(self, topic: str, cls: type, latched: bool) -> None:
         if topic in self._channels:

@@ -87,6 +87,41 @@ def test_the_session_files_are_listed_and_download_whole(done, tmp_path):
     assert '"n_point_logs": 8' in out.stdout
 
 
+def test_every_command_the_page_prints_runs_as_printed(done, tmp_path):
+    """Each file's "open with" command, run in the folder the files were downloaded to under
+    their download names, exits 0; the skins file names the downloaded model and runs live."""
+    import shlex
+
+    client, folder = done
+    files = client.get("/api/export").json()["files"]
+    names = {f["name"] for f in files}
+    assert {"calibration.h5", "validation.h5", "model.h5", "skins.toml"} <= names
+    for f in files:
+        r = client.get(f"/api/export/files/{f['name']}")
+        assert r.status_code == 200, r.text
+        assert r.headers["content-disposition"] == f'attachment; filename="{f["download"]}"'
+        (tmp_path / f["download"]).write_bytes(r.content)
+    skins = (tmp_path / f"{folder.id}-skins.toml").read_text()
+    assert f'model = "{folder.id}-model.h5"' in skins
+    assert not (folder.path / "skins.toml").exists()  # offered, not written, until saved
+    commands = {f["name"]: f["command"] for f in files}
+    assert commands["validation.h5"].startswith("skinloc evaluate ")
+    assert commands["skins.toml"].startswith("skinloc run --config ")
+    for command in commands.values():
+        argv = shlex.split(command)
+        assert argv[0] == "skinloc", command
+        out = subprocess.run(
+            [sys.executable, "-m", "skinloc", *argv[1:]],
+            cwd=tmp_path,
+            capture_output=True,
+            text=True,
+            timeout=600,
+            stdin=subprocess.DEVNULL,
+        )
+        assert out.returncode == 0, f"{command}: {out.stderr}"
+        assert "Traceback" not in out.stderr, command
+
+
 def test_validation_errors_as_csv(done):
     client, folder = done
     r = client.get("/api/export/validation.csv")

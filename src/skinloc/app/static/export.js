@@ -152,13 +152,13 @@ export class ExportPage {
     const r = await fetch("/api/export");
     const data = await r.json().catch(() => ({}));
     if (!r.ok) {
-      body.innerHTML = `<tr><td colspan="3" class="hint">${esc(data.detail || "nothing to export")}</td></tr>`;
+      body.innerHTML = `<tr><td colspan="4" class="hint">${esc(data.detail || "nothing to export")}</td></tr>`;
       this.el.querySelector(".export-derived").classList.add("hidden");
       return;
     }
     body.innerHTML = data.files.length
-      ? data.files.map((f) => `<tr><td><a href="/api/export/files/${encodeURIComponent(f.name)}" download>${esc(f.name)}</a></td><td>${esc(f.kind)}</td><td class="num">${fmtBytes(f.bytes)}</td></tr>`).join("")
-      : `<tr><td colspan="3" class="hint">No files yet: calibrate first.</td></tr>`;
+      ? data.files.map((f) => `<tr><td><a href="/api/export/files/${encodeURIComponent(f.name)}" download="${esc(f.download)}">${esc(f.name)}</a></td><td>${esc(f.kind)}</td><td class="num">${fmtBytes(f.bytes)}</td><td><code class="open-with">${esc(f.command)}</code></td></tr>`).join("")
+      : `<tr><td colspan="4" class="hint">No files yet: calibrate first.</td></tr>`;
     const derived = this.el.querySelector(".export-derived");
     derived.classList.remove("hidden");
     for (const a of derived.querySelectorAll("a")) a.classList.toggle("disabled", !data.validation);

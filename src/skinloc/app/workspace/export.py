@@ -18,11 +18,12 @@ from typing import Any
 
 import numpy as np
 
+from skinloc.app.workspace.settings import SKINS_FILE
 from skinloc.app.workspace.state import ActiveSession, WorkspaceState, app_meta
 from skinloc.data.recording import Recording, read_recording
 from skinloc.errors import RecordingError
 
-__all__ = ["EXPORTABLE", "ExportFiles", "NoSuchExport", "validation_csv"]
+__all__ = ["EXPORTABLE", "ExportFiles", "NoSuchExport", "open_command", "validation_csv"]
 
 #: Names of the session's files that may be downloaded, and what each is.
 EXPORTABLE: tuple[tuple[re.Pattern[str], str], ...] = (
@@ -31,6 +32,7 @@ EXPORTABLE: tuple[tuple[re.Pattern[str], str], ...] = (
     (re.compile(r"validation-[0-9]{8}-[0-9]{6}\.h5"), "earlier validation recording"),
     (re.compile(r"history\.h5"), "touches taken back and replaced baselines"),
     (re.compile(r"model\.h5"), "trained model"),
+    (re.compile(r"skins\.toml"), "live settings: the skins file 'skinloc run --config' reads"),
     (re.compile(r"live-[0-9]{8}-[0-9]{6}(-[0-9]+)?\.(h5|mcap)"), "live recording"),
     # what an HDF5 live recording holds when the app stopped without finishing it (a crash)
     (
@@ -59,6 +61,24 @@ _PLOT_LOCK = threading.Lock()
 
 class NoSuchExport(RecordingError):
     """A file the open session does not have (or may not be downloaded): HTTP 404."""
+
+
+def open_command(name: str, session: str, names: set[str]) -> str:
+    """A skinloc command that opens the session's file ``name`` once downloaded.
+
+    It names the files as they download (``{session}-{name}``) and runs as printed in the
+    folder they were downloaded to: a validation is scored by the model when there is one, the
+    skins file runs the live pipeline for 5 s, anything else is described by ``skinloc info``.
+    """
+
+    def dl(n: str) -> str:
+        return f"{session}-{n}"
+
+    if name == SKINS_FILE:
+        return f"skinloc run --config {dl(name)} --duration 5"
+    if name.startswith("validation") and "model.h5" in names:
+        return f"skinloc evaluate {dl('model.h5')} {dl(name)}"
+    return f"skinloc info {dl(name)}"
 
 
 def _kind(name: str) -> str | None:
@@ -112,23 +132,44 @@ class ExportFiles(WorkspaceState):
     """Part of ``Workspace``: what the Export page downloads."""
 
     def export_list(self) -> dict[str, Any]:
-        """The open session's files to download (name, what it is, bytes) and what else is ready.
+        """The open session's files to download and what else is ready.
 
+        Each file: ``name``, ``download`` (the name it downloads as), ``kind`` (what it is),
+        ``bytes`` and ``command`` (a skinloc command that opens it, run as printed in the
+        folder the files were downloaded to). ``skins.toml`` is offered once there is a model,
+        saved or not (the settings the live view would use); it names the downloaded model.
         ``validation`` says whether the CSV and the error view can be made.
         """
         with self._lock:
             a = self._need_session()
-            files = []
+            found: dict[str, int] = {}
             recorder = self.recorder
             writing = None if recorder is None else recorder.side  # not until it is finished
             for p in sorted(a.folder.path.iterdir()):
                 kind = _kind(p.name)
                 if kind is None or p.is_symlink() or not p.is_file() or p == writing:
                     continue
-                files.append({"name": p.name, "kind": kind, "bytes": p.stat().st_size})
+                found[p.name] = p.stat().st_size
+            found.pop(SKINS_FILE, None)
+            if "model.h5" in found:
+                found[SKINS_FILE] = len(self._skins_export(a).encode())
+            files = [
+                {
+                    "name": name,
+                    "download": f"{a.folder.id}-{name}",
+                    "kind": _kind(name),
+                    "bytes": size,
+                    "command": open_command(name, a.folder.id, set(found)),
+                }
+                for name, size in sorted(found.items())
+            ]
             rec = self._validation_recording(a)
             scored = rec is not None and bool(app_meta(rec).get("errors_mm"))
             return {"session": a.folder.id, "files": files, "validation": scored}
+
+    def _skins_export(self, a: ActiveSession) -> str:
+        """The skins file as downloaded: its model is the downloaded model."""
+        return self.skins_text(model=f"{a.folder.id}-model.h5")
 
     def export_file(self, name: str) -> tuple[str, bytes]:
         """``(download name, content)`` of the session's file ``name`` (one ``export_list`` lists).
@@ -141,6 +182,8 @@ class ExportFiles(WorkspaceState):
             if name not in listed:
                 shown = name if len(name) <= 80 else name[:77] + "..."
                 raise NoSuchExport(f"session {a.folder.id} has no file {shown!r} to export")
+            if name == SKINS_FILE:
+                return f"{a.folder.id}-{name}", self._skins_export(a).encode()
             return f"{a.folder.id}-{name}", (a.folder.path / name).read_bytes()
 
     def export_validation_csv(self) -> tuple[str, str]:

@@ -136,6 +136,38 @@ class LiveSettings(WorkspaceState):
             "command": f"skinloc run --config {path.parent.name}/{path.name}",
         }
 
+    def skins_text(self, values: dict[str, Any] | None = None, model: str | None = None) -> str:
+        """The session's skins file with ``values`` set (checked), as TOML text.
+
+        The file as saved (other keys kept) or, when none is, the one saving would write: the
+        session's model and the connected skin. ``model`` names the model file in it instead of
+        the session's ``model.h5`` (the Export page's download name). Call with the lock held.
+        """
+        a = self._need_session()
+        raw = self._read_skins(self._skins_path())
+        current = dataclasses.asdict(self._live_config())
+        new = PipelineConfig(**{**current, **(values or {})})  # checks every field
+        skins = raw.get("skin") or [{}]
+        entry = dict(skins[0])
+        entry.setdefault("name", "skin")
+        entry.setdefault("model", a.folder.model.name)
+        if model is not None and entry["model"] == a.folder.model.name:
+            entry["model"] = model
+        if self.device is not None:
+            entry.setdefault("source", self.device.options.source)
+            entry.setdefault("n_tx", self.device.source.n_tx)
+            entry.setdefault("n_rx", self.device.source.n_rx)
+        table = dict(entry.get("pipeline", {}))
+        table.update({k: getattr(new, k) for k in EDITABLE})
+        entry["pipeline"] = table
+        raw["skin"] = [entry, *skins[1:]]
+        name = SKINS_FILE if model is None else f"{a.folder.id}-{SKINS_FILE}"
+        return toml_text(
+            raw,
+            header=f"The live pipeline of session {a.folder.id}, saved by skinloc app.\n"
+            f"Run it outside the app with: skinloc run --config {name}",
+        )
+
     def set_live_settings(self, values: dict[str, Any]) -> dict[str, Any]:
         """Check ``values`` (``EDITABLE`` fields), write them to the skins file, apply them.
 
@@ -146,28 +178,8 @@ class LiveSettings(WorkspaceState):
         if bad:
             raise ValueError(f"unknown setting(s) {', '.join(bad)}; known: {', '.join(EDITABLE)}")
         with self._lock:
-            a = self._need_session()
             path = self._skins_path()
-            raw = self._read_skins(path)
-            current = dataclasses.asdict(self._live_config())
-            new = PipelineConfig(**{**current, **values})  # checks every field
-            skins = raw.get("skin") or [{}]
-            entry = dict(skins[0])
-            entry.setdefault("name", "skin")
-            entry.setdefault("model", a.folder.model.name)
-            if self.device is not None:
-                entry.setdefault("source", self.device.options.source)
-                entry.setdefault("n_tx", self.device.source.n_tx)
-                entry.setdefault("n_rx", self.device.source.n_rx)
-            table = dict(entry.get("pipeline", {}))
-            table.update({k: getattr(new, k) for k in EDITABLE})
-            entry["pipeline"] = table
-            raw["skin"] = [entry, *skins[1:]]
-            text = toml_text(
-                raw,
-                header=f"The live pipeline of session {a.folder.id}, saved by skinloc app.\n"
-                "Run it outside the app with: skinloc run --config skins.toml",
-            )
+            text = self.skins_text(values)
             atomic_write(path, lambda tmp: tmp.write_text(text, encoding="utf-8"))
             live = self.live_running
             if live:

@@ -94,6 +94,13 @@ def test_export_downloads_every_file_and_view(chromium, server, tmp_path):
         page.click("#nav button[data-page=export]")
         card = page.locator("#export-card")
         expect(card.locator(".export-files tbody")).to_contain_text("live-")
+        # The view the Export page saves is the Live page's, as last seen (it was the
+        # calibration's dots whatever page came last)
+        shown = page.evaluate(
+            "() => Object.fromEntries(Object.entries(window.skinloc.viewer.groups)"
+            ".map(([k, g]) => [k, g.visible]))"
+        )
+        assert shown["live"] and not shown["done"] and not shown["planned"], shown
         names = card.locator(".export-files tbody a").all_inner_texts()
         assert {"calibration.h5", "validation.h5", "model.h5"} <= set(names)
         live = [n for n in names if n.startswith("live-")]

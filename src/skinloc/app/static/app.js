@@ -265,11 +265,12 @@ function showPage(page) {
   if (slot) {
     slot.appendChild($("#viewer"));
     app.viewer.resize();
+    app.viewPage = page; // the 3D view the Export page saves is this page's, as last seen
   }
   if (page === "sessions") loadSessions();
   if (page === "connect") loadPorts();
   if (page === "export") app.exporter.refresh();
-  app.evidence.setVisible(page === "train");
+  app.evidence.setVisible((slot ? page : app.viewPage) === "train");
   // What the message line said belongs to the page it was said on, not the next one.
   app.dismissed = app.state?.message ?? "";
   showMessage("");
@@ -848,19 +849,22 @@ function renderSession() {
   }
   if (page === "validate" && s.validation.error) {
     showMessage(s.validation.error, true);
-  } else if (page === "validate") {
+  } else if (!["validate", "live", "train"].includes(page) && s.calibration.error) {
+    showMessage(s.calibration.error, true);
+  }
+  // The 3D view shows what the last page with a view showed (the Export page saves that view).
+  const view = app.viewPage || "calibrate";
+  if (view === "validate" && !s.validation.error) {
     const val = s.validation;
     const pred = val.predicted || [];
     v.setErrors(val.done.slice(0, pred.length), pred, val.errors_mm || []);
     v.setPlanned(val.planned.slice(val.done.length), val.done.length);
     v.show(["errors", "planned", "target", ...(app.coverageOn ? ["coverage"] : [])]);
-  } else if (page === "live") {
+  } else if (view === "live") {
     v.show(["live"]);
-  } else if (page === "train") {
+  } else if (view === "train") {
     v.show([]); // the touches' errors only (evidence.js)
-  } else if (s.calibration.error) {
-    showMessage(s.calibration.error, true);
-  } else {
+  } else if (view === "calibrate" && !s.calibration.error) {
     const cal = s.calibration;
     v.setPlanned(cal.planned.slice(cal.done.length), cal.done.length);
     v.setDone(cal.done, cal.flags || []);

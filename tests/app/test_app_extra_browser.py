@@ -320,6 +320,8 @@ def test_traces_of_a_sensor_a_live_track_and_a_touch(chromium, server):
         )
         page.screenshot(path=str(base.ARTIFACTS / "06c-live-plot.png"))
         ws.sim_touch(None)
+        # Once nothing touches (no contacts come) the plot goes on: the track scrolls out.
+        page.wait_for_function("() => document.querySelector('.live-plot').dataset.tracks === '0'")
         page.set_viewport_size({"width": 800, "height": 900})
         assert page.evaluate("document.documentElement.scrollWidth") <= 800
         page.screenshot(path=str(base.ARTIFACTS / "narrow-live-plot.png"))

@@ -177,12 +177,28 @@ export class LivePlot {
     this.tracks = new Map(); // track id -> {colour, t: [], s: [], x: [], y: [], z: []}
     this.now = null;
     this.pending = false;
+    // Contacts come only while something touches: between them the plot keeps moving on the
+    // page's clock (stream time = page time - offset), so old tracks scroll out, not freeze.
+    this.offset = null;
+    this.ticker = null;
+  }
+
+  tick() {
+    if (!this.tracks.size || this.offset === null) {
+      clearInterval(this.ticker);
+      this.ticker = null;
+      return;
+    }
+    this.now = Math.max(this.now, performance.now() / 1000 - this.offset);
+    this.draw();
   }
 
   add(msg) {
     const t = msg.timestamp_s;
     if (!Number.isFinite(t)) return;
     this.now = t;
+    this.offset = performance.now() / 1000 - t;
+    if (!this.ticker) this.ticker = setInterval(() => this.tick(), 250);
     for (const c of msg.contacts || []) {
       if (c.state === "idle" || !c.position_m || c.position_m[0] == null) continue;
       const id = c.track_id >= 0 ? c.track_id : c.touch_id;
@@ -206,6 +222,7 @@ export class LivePlot {
   clear() {
     this.tracks.clear();
     this.now = null;
+    this.offset = null;
     this.draw();
   }
 

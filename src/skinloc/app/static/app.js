@@ -110,6 +110,8 @@ const handlers = {
   state(msg) {
     const prev = app.state;
     app.state = msg;
+    // A page opened (or reloaded) while a capture or the live view runs shows it.
+    if (!prev && ["calibrate", "validate", "live"].includes(msg.mode) && app.page !== msg.mode) showPage(msg.mode);
     if (msg.device?.link_up) link.aliveAt = performance.now();
     if (msg.session?.id) localStorage.setItem("skinloc-last-session", msg.session.id);
     renderState(prev);
@@ -256,6 +258,8 @@ async function refreshSession() {
 // ------------------------------------------------------------------ pages
 function showPage(page) {
   app.page = page;
+  // The page is in the address, so a reload comes back to it.
+  if (location.hash !== `#${page}`) history.replaceState(null, "", `#${page}`);
   for (const b of $$("#nav button")) b.classList.toggle("active", b.dataset.page === page);
   for (const s of $$(".page")) s.classList.toggle("active", s.id === `page-${page}`);
   const slot = $(`.viewer-slot[data-for="${page}"]`);
@@ -341,7 +345,18 @@ $("#mesh-upload").addEventListener("change", async (ev) => {
 });
 $("#new-session").addEventListener("submit", async (ev) => {
   ev.preventDefault();
-  const f = new FormData(ev.target);
+  // One session per click: a double click (or Enter then a click) sends one request.
+  const button = ev.target.querySelector("button[type=submit]");
+  if (button.disabled) return;
+  button.disabled = true;
+  try {
+    await createSession(ev.target);
+  } finally {
+    button.disabled = false;
+  }
+});
+async function createSession(form) {
+  const f = new FormData(form);
   const body = Object.fromEntries(f.entries());
   for (const k of ["n_points", "samples", "baseline_frames", "seed", "n_validation"]) body[k] = Number(body[k]);
   if (!body.mesh_file) delete body.mesh_file;
@@ -349,7 +364,7 @@ $("#new-session").addEventListener("submit", async (ev) => {
   if (!(await act("/api/sessions", body))) return;
   await refreshSession();
   showPage(app.state?.device ? "calibrate" : "connect");
-});
+}
 
 // ------------------------------------------------------------------ connect page
 async function loadPorts() {
@@ -929,4 +944,5 @@ $("#takeover").addEventListener("click", async () => {
 });
 connectStream();
 refreshSession();
-showPage("sessions");
+const asked = location.hash.slice(1);
+showPage($$("#nav button").some((b) => b.dataset.page === asked) ? asked : "sessions");

@@ -83,6 +83,7 @@ class LinkActions(WorkspaceState):
     def connect(self, options: SourceOptions) -> None:
         """Open the skin ``options`` name (closing the one before)."""
         with self._lock:
+            stopped = self._what_stops()
             self._stop_device(self._detach_device())
             mesh = self.active.mesh if self.active is not None else self.default_mesh
             is_sim = options.kind is SourceKind.SIM
@@ -92,15 +93,37 @@ class LinkActions(WorkspaceState):
             link.start()
             self.device = link
             self._update_session_snr()
-            self.message = f"connected to {link.name}"
+            self.message = f"connected to {link.name}" + (f"; {stopped}" if stopped else "")
             self._publish_state()
 
     def disconnect(self) -> None:
-        """Close the skin."""
+        """Close the skin; the message says what that stopped and what was kept."""
         with self._lock:
+            stopped = self._what_stops()
             old = self._detach_device()
+            self.message = "disconnected" + (f": {stopped}" if stopped else "")
             self._publish_state()
         self._stop_device(old)
+
+    def _what_stops(self) -> str:
+        """What closing the skin now stops, and what of it is kept (for the message)."""
+        parts = []
+        if self.mode in (Mode.CALIBRATE, Mode.VALIDATE) and self.active is not None:
+            what = "calibration" if self.mode is Mode.CALIBRATE else "validation"
+            sess = self._session_of(self.mode)
+            n = sess.n_done
+            parts.append(
+                f"{what} paused at target {n + 1} of {len(sess.targets)} ({n} touch"
+                f"{'' if n == 1 else 'es'} kept; the one under way is not); connect and "
+                f"start the {what} again to go on"
+            )
+        elif self.mode is Mode.LIVE:
+            parts.append("the live view stopped")
+        elif self.mode is Mode.BASELINE:
+            parts.append("the baseline capture was cancelled; capture it again once connected")
+        if self.recorder is not None:
+            parts.append(f"the recording {self.recorder.path.name} ended with every frame so far")
+        return "; ".join(parts)
 
     def _detach_device(self) -> DeviceLink | None:
         """Forget the device (its reader keeps running until ``_stop_device``)."""

@@ -134,7 +134,7 @@ def test_a_toy_kind_trains_saves_loads_and_predicts(toy, tmp_path):
 
     core = SkinCore(path)
     core.set_baseline(np.zeros((10, 64)))
-    core.process(X[0].astype(np.float32), timestamp_s=0.0, index=0)
+    core.process_frame(X[0].astype(np.float32), timestamp_s=0.0, index=0)
     # the kind's typed config refuses what it cannot take
     with pytest.raises(ValueError, match="normalise='none'"):
         ContactLocalizer(arch="toy", normalise="l2").fit(X, y)

@@ -62,6 +62,9 @@ class ToyKind:
     config_type = ToyConfig
     fitted_attrs = ("toy_table_", "toy_points_")
     needs_surface_points = False
+    train_extra = None
+    quick_fit = True
+    summary = "the nearest stored image"
 
     def fit(self, model, X, y, frames, groups, progress) -> None:
         model.toy_table_, model.toy_points_ = np.array(X), np.array(y)

@@ -41,7 +41,12 @@ from skinloc.data.recording import read_recording
 from skinloc.evaluation.scoring import train_localizer
 from skinloc.models import map_engine as me
 from skinloc.models.multi_contact import refit as new_refit
-from skinloc.models.multi_contact.search import SearchMemory, search_into
+from skinloc.models.multi_contact.search import (
+    SearchArrays,
+    SearchMemory,
+    SearchScratch,
+    search_into,
+)
 
 MODULES = ("pairs", "search", "refit")
 PKG = "multi_contact_old"
@@ -76,6 +81,8 @@ def old_engine(eng, old):
     s = eng.spec
     unit = np.asarray(s.table if s.unit_table is None else s.unit_table)
     ot = old.SearchTables(unit, s.surface_points, s.coarse, s.cells, s.sensor_noise, eng.rule)
+    # this tree's engine (its warm-up, the peel) reads the tables by name: the same arrays
+    ot.arrays, ot.scratch = SearchArrays(*ot.arrays), SearchScratch(*ot.scratch)
 
     class OldEngine(type(eng)):
         def search_tables(self):

@@ -32,6 +32,7 @@ import numpy as np
 
 from skinloc.bench.online import baseline_fn, touch_stream, train_bench_models
 from skinloc.models.localizer import ContactLocalizer
+from skinloc.models.map_engine import MapSpec
 
 
 def _module(path: Path, name: str) -> ModuleType:
@@ -74,8 +75,9 @@ def main() -> None:
         if old_mod is not None:
             old = old_mod.FastLocalizer(old_mod.InferenceSpec.from_localizer(model)).warm_up()
             runs["before"] = per_frame["before"] = old
-        if old_map is not None and model.spec().kind == "map":
-            runs["before"] = per_frame["before"] = old_map.MapEngine(model.spec()).warm_up()
+        spec = model.spec()
+        if old_map is not None and isinstance(spec, MapSpec):  # an earlier map engine: maps
+            runs["before"] = per_frame["before"] = old_map.MapEngine(spec).warm_up()
         runs = {k: getattr(v, "predict_batch", v) for k, v in runs.items()}
         load0 = _load()
         secs: dict[str, list[float]] = {k: [] for k in runs}

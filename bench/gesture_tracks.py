@@ -34,6 +34,7 @@ from live_soak import gesture_hand
 
 from skinloc.live.config import PipelineConfig
 from skinloc.live.core import SkinCore
+from skinloc.models.multi_contact.search import MEM_FRAMES, MEM_VALID
 
 
 def replay(
@@ -117,7 +118,7 @@ def _trace_frame(t: float, fingers, core: SkinCore, out) -> None:
     fs = " ".join(f"{_mm(f.position_m)}p{f.pressure:.2f}" for f in fingers or [])
     pp = tr.pair
     mem = core.search_memory
-    memo = "-" if mem is None else f"{mem.state[0]:.0f}/{mem.state[3]:.0f}"
+    memo = "-" if mem is None else f"{mem.state[MEM_VALID]:.0f}/{mem.state[MEM_FRAMES]:.0f}"
     tracks = " ".join(
         f"#{c.track_id}/{c.slot}:{c.state[0]}{_mm(c.raw_m)}->{_mm(c.position_m)}" for c in out
     )

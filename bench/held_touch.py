@@ -53,9 +53,7 @@ def main() -> int:
         out = []
         for _ in range(n):
             f = skin.read()
-            c = core.process(f.values, f.timestamp_s, f.index)
-            if c is not None:
-                out.append(c)
+            out += core.process_frame(f.values, f.timestamp_s, f.index)[:1]
         return out
 
     # 2 min untouched: baseline capture, then drift tracking while idle

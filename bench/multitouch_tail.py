@@ -36,7 +36,7 @@ def main() -> None:
     from skinloc.hardware.protocol import encode_binary
     from skinloc.live.core import PipelineConfig, SkinCore
     from skinloc.models.engine import load_engine
-    from skinloc.models.multi_contact.search import REFRESH_FRAMES
+    from skinloc.models.multi_contact.search import MEM_FRAMES, REFRESH_FRAMES
 
     engine = load_engine(train_bench_models(args.models, ("default",))["default"])
     frames, _ = touch_stream(args.frames, random_state=0)
@@ -51,7 +51,7 @@ def main() -> None:
         if not core.process_frame(f, 0.01 * i, i):
             continue
         touched += 1
-        if mem.state[3] != 0.0:
+        if mem.state[MEM_FRAMES] != 0.0:
             causes["answered by the memory"] += 1
         elif core.n_touches != n_touches:
             causes["full search: a touch's first frame"] += 1
@@ -82,7 +82,7 @@ def main() -> None:
                     continue
                 lat[k].append(dt * 1e6)
                 if k == 3:
-                    full = mem is not None and mem.state[3] == 0.0
+                    full = mem is not None and mem.state[MEM_FRAMES] == 0.0
                     fit = pair is not None and pair.fits != fits
                     what.append((full, fit, core.n_touches != n_touches))
     k1, k3 = np.asarray(lat[1]), np.asarray(lat[3])

@@ -33,7 +33,7 @@ import numpy as np
 
 from skinloc.data.recording import read_recording
 from skinloc.evaluation.scoring import train_localizer
-from skinloc.models.multi_contact.search import SearchMemory
+from skinloc.models.multi_contact.search import MEM_FRAMES, MEM_VALID, SearchMemory
 
 
 def real_streams(rec, rng: np.random.Generator) -> dict[str, list[tuple[np.ndarray, np.ndarray]]]:
@@ -65,10 +65,10 @@ def compare(eng, streams) -> dict[str, float]:
         mem = SearchMemory()
         for x, tr in zip(X, truth, strict=True):
             a = eng.contacts(x, 3).rows.copy()
-            since = mem.state[3]
+            since = mem.state[MEM_FRAMES]
             b = eng.contacts(x, 3, mem).rows
             n += 1
-            n_memory += mem.state[0] == 1.0 and mem.state[3] == since + 1
+            n_memory += mem.state[MEM_VALID] == 1.0 and mem.state[MEM_FRAMES] == since + 1
             if len(a) != len(b):
                 n_count += 1
                 old_right += int(len(a) == tr)
@@ -129,11 +129,15 @@ def timing(eng, X: np.ndarray, rounds: int) -> dict[str, dict[str, float]]:
             mem = SearchMemory() if label == "K=3 memory" else None
             n_memory = 0
             for x in X:
-                since = -1.0 if mem is None else mem.state[3]
+                since = -1.0 if mem is None else mem.state[MEM_FRAMES]
                 t0 = pc()
                 eng.contacts(x, k, mem)
                 lat[label].append(pc() - t0)
-                n_memory += mem is not None and mem.state[0] == 1.0 and mem.state[3] == since + 1
+                n_memory += (
+                    mem is not None
+                    and mem.state[MEM_VALID] == 1.0
+                    and mem.state[MEM_FRAMES] == since + 1
+                )
     res: dict = {"answered_by_the_memory_share": n_memory / max(len(X), 1)}
     base = np.array(lat["K=1"]) * 1e6
     for label, v in lat.items():

@@ -184,3 +184,68 @@ def test_the_decorator_registers_and_names_are_checked(tmp_path):
         AppPage("toy", routes, static=tmp_path, scripts=("../a.js",))
     with pytest.raises(ValueError, match="no added app page"):
         unregister_page("stream")
+
+
+PLUGIN = """
+from skinloc.app.pages import AppPage
+from skinloc.app.routes.common import actions_router
+
+
+def routes(ctx):
+    router = actions_router()
+
+    @router.post("/api/plugged/ping")
+    def ping() -> dict:
+        return {"pong": True}
+
+    ctx.app.include_router(router)
+
+
+PAGE = AppPage("plugged", routes, title="Plugged")
+STREAM = AppPage("stream", routes)  # a built-in page's name
+"""
+
+
+def test_an_installed_package_adds_a_page_by_entry_point(tmp_path, monkeypatch, caplog):
+    """A package on the path that declares ``skinloc.app_pages`` entry points: the good one is
+    served (its action behind the token), the broken ones are logged and left out."""
+    import sys
+
+    from skinloc.app import pages
+
+    site = tmp_path / "site"
+    site.mkdir()
+    (site / "skinloc_plugin_pages.py").write_text(PLUGIN, encoding="utf-8")
+    info = site / "skinloc_plugin_pages-0.1.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text(
+        "Metadata-Version: 2.1\nName: skinloc-plugin-pages\nVersion: 0.1\n", encoding="utf-8"
+    )
+    (info / "entry_points.txt").write_text(
+        "[skinloc.app_pages]\n"
+        "plugged = skinloc_plugin_pages:PAGE\n"
+        "misnamed = skinloc_plugin_pages:PAGE\n"
+        "missing = skinloc_plugin_pages_nowhere:PAGE\n"
+        "stream = skinloc_plugin_pages:STREAM\n",
+        encoding="utf-8",
+    )
+    monkeypatch.syspath_prepend(str(site))
+    monkeypatch.setattr(pages, "_entry_points_loaded", False)
+    try:
+        app = create_app(AppConfig(data_dir=tmp_path / "data"))
+        assert [p.name for p in app_pages()] == [p.name for p in builtin_pages()] + ["plugged"]
+        with TestClient(app) as client:
+            assert '<button data-page="plugged">Plugged</button>' in client.get("/").text
+            refused = client.post("/api/plugged/ping", headers=A)
+            assert refused.status_code == 403
+            headers = {**A, "X-Skinloc-Token": app.state.token}
+            assert client.post("/api/plugged/ping", headers=headers).json() == {"pong": True}
+    finally:
+        if "plugged" in [p.name for p in app_pages()]:
+            unregister_page("plugged")
+        sys.modules.pop("skinloc_plugin_pages", None)
+    left_out = [r.getMessage() for r in caplog.records if "left out" in r.getMessage()]
+    assert len(left_out) == 3, left_out
+    assert any("'misnamed'" in m and "AppPage named 'misnamed'" in m for m in left_out)
+    assert any("'missing'" in m for m in left_out)
+    assert any("'stream'" in m and "registered already" in m for m in left_out)

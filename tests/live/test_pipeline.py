@@ -20,9 +20,7 @@ def _core(**cfg) -> SkinCore:
 def _run(core: SkinCore, frames: np.ndarray, dt: float = 0.01) -> list[Contact]:
     out = []
     for k, f in enumerate(frames):
-        c = core.process(f, k * dt, k)
-        if c is not None:
-            out.append(c)
+        out += core.process_frame(f, k * dt, k)[:1]  # K = 1: at most one
     return out
 
 
@@ -107,11 +105,11 @@ def test_link_lost_ends_a_touch_after_stale_s():
     core = _core(stale_s=0.5)
     first = script[0][0]
     for k in range(first + 20):
-        core.process(frames[k], k * 0.01, k, t_in=100.0 + k * 0.01)
+        core.process_frame(frames[k], k * 0.01, k, t_in=100.0 + k * 0.01)
     assert core.touching
-    assert core.link_lost(now=100.0 + (first + 20) * 0.01 + 0.1) is None
-    end = core.link_lost(now=100.0 + (first + 20) * 0.01 + 1.0)
-    assert end is not None and end.state == "end" and not core.touching
+    assert core.end_stale(now=100.0 + (first + 20) * 0.01 + 0.1) == []
+    (end,) = core.end_stale(now=100.0 + (first + 20) * 0.01 + 1.0)
+    assert end.state == "end" and not core.touching
 
 
 @pytest.mark.parametrize("fmt", ["binary", "text"])
@@ -156,7 +154,7 @@ def test_contact_json_and_config_errors():
         PipelineConfig.from_dict({"touch_on": 3})
     assert PipelineConfig.from_dict({"touch-on-z": 9.0}).touch_on_z == 9.0
     with pytest.raises(ValueError, match="sensors"):
-        _core().process(np.zeros(10), 0.0)
+        _core().process_frame(np.zeros(10), 0.0)
 
 
 def test_a_model_the_engine_cannot_run_is_an_error_not_a_silent_fallback():

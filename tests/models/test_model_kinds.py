@@ -62,6 +62,9 @@ class ToyKind:
     config_type = ToyConfig
     fitted_attrs = ("toy_table_", "toy_points_")
     needs_surface_points = False
+    train_extra = None
+    quick_fit = True
+    summary = "the nearest stored image"
 
     def fit(self, model, X, y, frames, groups, progress) -> None:
         model.toy_table_, model.toy_points_ = np.array(X), np.array(y)
@@ -134,7 +137,7 @@ def test_a_toy_kind_trains_saves_loads_and_predicts(toy, tmp_path):
 
     core = SkinCore(path)
     core.set_baseline(np.zeros((10, 64)))
-    core.process(X[0].astype(np.float32), timestamp_s=0.0, index=0)
+    core.process_frame(X[0].astype(np.float32), timestamp_s=0.0, index=0)
     # the kind's typed config refuses what it cannot take
     with pytest.raises(ValueError, match="normalise='none'"):
         ContactLocalizer(arch="toy", normalise="l2").fit(X, y)

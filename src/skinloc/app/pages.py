@@ -4,7 +4,9 @@ A page (or a concern of one, such as the live stream) is one ``AppPage``: the fu
 its routes, the state it keeps (built once per app from the workspace, handed to its routes), and,
 for a page that is not part of ``static/index.html``, its tab (``title`` and ``section``) and its
 own static files and scripts. The built-in pages are the table of ``builtin_pages``; another module
-(a plug-in, a test) adds one with ``register_page`` or the ``app_page`` decorator.
+(a plug-in, a test) adds one with ``register_page`` or the ``app_page`` decorator, and an installed
+package by an entry point in the ``skinloc.app_pages`` group (``toy = "package.module:PAGE"``, an
+``AppPage`` named ``toy``), read when an app is first made, as sinks' ``skinloc.sinks``.
 ``skinloc.app.server.create_app`` only reads the registry (``mount_pages``).
 
 Whatever a page adds sits behind the app's guard (``skinloc.app.guard``): every request other than
@@ -14,6 +16,7 @@ takes control of the skin for its tab.
 
 from __future__ import annotations
 
+import logging
 import re
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -41,7 +44,10 @@ from skinloc.app.routes import (
 from skinloc.app.routes.common import PageContext
 from skinloc.app.workspace import Workspace
 
+log = logging.getLogger(__name__)
+
 __all__ = [
+    "ENTRY_POINT_GROUP",
     "AppPage",
     "PageContext",
     "app_page",
@@ -124,8 +130,36 @@ def builtin_pages() -> tuple[AppPage, ...]:
     )
 
 
-#: Pages added by other modules (``register_page``), after the built-in ones.
+#: Pages added by other modules (``register_page``) and installed packages' entry points, after
+#: the built-in ones.
 _ADDED: dict[str, AppPage] = {}
+
+#: The entry-point group in which an installed package declares its app pages.
+ENTRY_POINT_GROUP = "skinloc.app_pages"
+_entry_points_loaded = False
+
+
+def _load_entry_points() -> None:
+    """Register the pages installed packages declare under ``skinloc.app_pages`` (once).
+
+    An entry point ``toy = "package.module:PAGE"`` names an ``AppPage`` whose name is ``toy``.
+    One that does not load, is not such a page, or whose name is taken is logged and left out:
+    the app starts without it.
+    """
+    global _entry_points_loaded
+    if _entry_points_loaded:
+        return
+    _entry_points_loaded = True
+    from importlib.metadata import entry_points
+
+    for ep in entry_points(group=ENTRY_POINT_GROUP):
+        try:
+            page = ep.load()
+            if not isinstance(page, AppPage) or page.name != ep.name:
+                raise ValueError(f"it is not an AppPage named {ep.name!r}")
+            register_page(page)
+        except Exception as exc:  # noqa: BLE001 - a broken plug-in must not stop the app
+            log.warning("app page %r of entry point %s left out: %s", ep.name, ep.value, exc)
 
 
 def register_page(page: AppPage) -> AppPage:
@@ -166,6 +200,7 @@ def app_page(
 
 def app_pages() -> tuple[AppPage, ...]:
     """Every page of an app made now: the built-in ones, then the added ones."""
+    _load_entry_points()
     return builtin_pages() + tuple(_ADDED.values())
 
 

@@ -36,9 +36,12 @@ from skinloc.bench.stream import touch_stream
 log = logging.getLogger(__name__)
 
 __all__ = [
+    "PLAIN_BASELINES",
+    "baseline_fn",
     "many_skins",
     "model_code_stamp",
     "online_bench",
+    "plain_baseline",
     "single_stream",
     "touch_stream",
     "train_bench_models",
@@ -124,20 +127,12 @@ def train_bench_models(folder: Path, archs: tuple[str, ...], step: Step = _noop)
     return paths
 
 
-def baseline_fn(model: Any) -> Callable[[np.ndarray], np.ndarray]:
-    """The plain NumPy implementation the engine is compared with: rows ``(n, 64)`` to points.
-
-    For a response map, the coarse-to-fine match in NumPy (the library's own prediction
-    before the engine); for a network, a NumPy forward pass over the ensemble and a scipy
-    ``cKDTree`` snap. A benchmark's baseline, not a second engine: nothing else calls it.
-    """
+def _plain_network(spec: Any) -> Callable[[np.ndarray], np.ndarray]:
+    """A NumPy forward pass over the ensemble and a scipy ``cKDTree`` snap."""
     from scipy.spatial import cKDTree
 
     from skinloc.models.network_engine import activate_inplace
 
-    spec = model.spec()
-    if spec.kind == "map":
-        return _plain_map_match(spec)
     pts = spec.surface_points
     tree = cKDTree(pts)
 
@@ -177,6 +172,37 @@ def _plain_map_match(spec: Any) -> Callable[[np.ndarray], np.ndarray]:
         return np.concatenate(out)
 
     return plain
+
+
+#: Each model kind's plain NumPy implementation, the engine's baseline in this benchmark, by
+#: the kind's name: ``(build(spec) -> rows (n, n_sensors) to points (n, 3) m, its label)``.
+#: A response map's is its coarse-to-fine match (the library's own prediction before the
+#: engine). A benchmark's baseline, not a second engine: nothing else calls it.
+PLAIN_BASELINES: dict[str, tuple[Callable[[Any], Callable[[np.ndarray], np.ndarray]], str]] = {
+    "map": (_plain_map_match, "numpy coarse-to-fine match"),
+    "network": (_plain_network, "numpy forward + scipy cKDTree snap"),
+}
+
+
+def plain_baseline(kind: str) -> tuple[Callable[[Any], Callable[[np.ndarray], np.ndarray]], str]:
+    """The entry of ``PLAIN_BASELINES`` for the model kind ``kind``; ValueError when none."""
+    entry = PLAIN_BASELINES.get(kind)
+    if entry is None:
+        raise ValueError(
+            f"no plain baseline for a {kind!r} model; the online benchmark has them for "
+            f"{', '.join(PLAIN_BASELINES)} (skinloc.bench.online.PLAIN_BASELINES)"
+        )
+    return entry
+
+
+def baseline_fn(model: Any) -> Callable[[np.ndarray], np.ndarray]:
+    """The plain NumPy implementation the engine is compared with: rows ``(n, 64)`` to points.
+
+    Its kind's entry of ``PLAIN_BASELINES``.
+    """
+    spec = model.spec()
+    build, _ = plain_baseline(spec.kind)
+    return build(spec)
 
 
 def single_stream(model_path: Path, n_frames: int = 20000, random_state: int = 0) -> dict:
@@ -248,9 +274,7 @@ def single_stream(model_path: Path, n_frames: int = 20000, random_state: int = 0
         "latency_touched_p99_us": float(np.percentile(lat_touch, 99)) * us,
         "latency_all_median_us": float(np.median(lat_all)) * us,
         "latency_all_p99_us": float(np.percentile(lat_all, 99)) * us,
-        "baseline": "numpy coarse-to-fine match"
-        if fast.kind == "map"
-        else "numpy forward + scipy cKDTree snap",
+        "baseline": plain_baseline(fast.kind)[1],
         "baseline_median_us": plain_med,
         "baseline_p99_us": float(np.percentile(lat_plain, 99)) * us,
         "speedup_median": plain_med / med,

@@ -7,6 +7,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -241,6 +242,13 @@ def _torch_predictor(model) -> Callable[[np.ndarray], np.ndarray]:
     return predict
 
 
+#: The obvious implementation each model kind's prediction is timed against, by kind name.
+_NAIVE_PREDICTORS: dict[str, Callable[[Any], Callable[[np.ndarray], np.ndarray]]] = {
+    "map": _naive_map_predictor,
+    "network": _torch_predictor,
+}
+
+
 def _short(name: str) -> str:
     """``ConeSkinData80Points_RND_80PL_1.mat`` -> ``80PL_1``."""
     return name.rsplit("_RND_", 1)[-1].removesuffix(".mat")
@@ -292,10 +300,13 @@ def timing(
     frames = cal.deltas.reshape(-1, cal.n_sensors)
     rng = np.random.default_rng(random_state)
     single = frames[rng.integers(len(frames), size=n_latency)]
-    if model.config_["kind"] == "map":
-        baseline_predict = _naive_map_predictor(model)
-    else:
-        baseline_predict = _torch_predictor(model)
+    baseline = _NAIVE_PREDICTORS.get(model.kind.name)
+    if baseline is None:
+        raise ValueError(
+            f"no naive predictor to time a {model.kind.name!r} model against; the paper's "
+            f"benchmark has them for {', '.join(_NAIVE_PREDICTORS)}"
+        )
+    baseline_predict = baseline(model)
 
     def lat(fn: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
         fn(single[:1])

@@ -29,11 +29,11 @@ def installed_archs(archs: tuple[str, ...]) -> tuple[tuple[str, ...], list[str]]
     and says so.
     """
     from skinloc._lazy import extra_installed, missing_extra_message
-    from skinloc.models.localizer import ARCHITECTURES
+    from skinloc.models.localizer import architecture_kind
 
     if extra_installed("torch"):
         return archs, []
-    nets = [a for a in archs if ARCHITECTURES[a]["kind"] == "network"]
+    nets = [a for a in archs if architecture_kind(a).train_extra == "torch"]
     if not nets:
         return archs, []
     names = " and ".join(repr(a) for a in nets)

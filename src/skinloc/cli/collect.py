@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from pathlib import Path
 from typing import Annotated, Any
@@ -27,6 +28,7 @@ from skinloc.cli.hardware import (
     PortOpt,
     RxMaskOpt,
     RxOpt,
+    SourceArgs,
     SourceChoice,
     SourceOpt,
     TxMaskOpt,
@@ -150,13 +152,16 @@ def register(app: typer.Typer) -> None:
                 f"{out} exists and is resumed with its own mesh: drop --mesh or "
                 "pass --new to start over"
             )
+        args = SourceArgs(
+            port, source, baud, fmt, tx, rx, tx_mask, rx_mask, seed, gain, lines, allow_url
+        )
         if source is SourceChoice.sim:
             from skinloc.data.recording import read_recording
 
             sim_mesh = read_recording(out).mesh if resume else surface
-            src = open_cli_source({**locals(), "port": None}, mesh=sim_mesh)
+            src = open_cli_source(dataclasses.replace(args, port=None), mesh=sim_mesh)
         else:
-            src = open_cli_source(locals())
+            src = open_cli_source(args)
         with src:
             first_frame(src, 1.0)
             if resume:

@@ -83,15 +83,10 @@ def _check_sources(skin_cfgs: list[Any], allow_url: bool, wait: bool) -> None:
 
 
 def _sink_files(sink: str) -> list[Path]:
-    """Files a ``--sink`` writes: ``jsonl:F``, ``mcap:F``, ``mcap-ros2:F``, ``...?mcap=F``."""
-    from urllib.parse import parse_qs, urlsplit
+    """Files a ``--sink`` writes (``jsonl:F``, ``...?mcap=F``): the sink registry says."""
+    from skinloc.live.sinks.base import sink_files
 
-    for scheme in ("jsonl:", "mcap:", "mcap-ros2:"):
-        if sink.startswith(scheme) and len(sink) > len(scheme):
-            return [Path(sink[len(scheme) :])]
-    if "://" in sink:
-        return [Path(p) for p in parse_qs(urlsplit(sink).query).get("mcap", [])]
-    return []
+    return [Path(f) for f in sink_files(sink)]
 
 
 def _prepare_board(

@@ -245,7 +245,6 @@ def _run(cfg: DemoConfig, step: Callable[[str, int, int], None] | None) -> DemoR
     """
     from skinloc import __version__
     from skinloc.evaluation import report
-    from skinloc.models.localizer import ARCHITECTURES
     from skinloc.sim.skin import SimulatedSkin
 
     say = step or (lambda *a: None)
@@ -336,12 +335,11 @@ def _run(cfg: DemoConfig, step: Callable[[str, int, int], None] | None) -> DemoR
         len(seeds),
     )
     real = REAL_SKIN_ERROR_MM.get(cfg.arch, {}).get(cfg.n_points)
-    what = ARCHITECTURES[cfg.arch]
     summary = {
         "skinloc version": __version__,
         "seed": f"{cfg.random_state} (skins {seeds[0]}-{seeds[-1]}; validation sessions "
         f"seed + 1000)",
-        "model": f"{cfg.arch}: {_describe(cfg.arch, what)}; trained in {model.fit_time_s_:.1f} s",
+        "model": f"{cfg.arch}: {_describe(cfg.arch)}; trained in {model.fit_time_s_:.1f} s",
         "skin": "simulated semi-conical skin of the paper (8 TX x 8 RX), physics fitted to the "
         "real recordings (docs/simulator.md)",
         "calibration": f"{cal.n_point_logs} point logs (even), {cal.samples_per_touch} frames "
@@ -398,15 +396,12 @@ def _run(cfg: DemoConfig, step: Callable[[str, int, int], None] | None) -> DemoR
     return res
 
 
-def _describe(arch: str, cfg: dict) -> str:
-    if cfg.get("kind") == "map":
-        return (
-            "a response map (Gaussian-process interpolation of each sensor's normalised "
-            "response over the surface, matched by image shape)"
-        )
+def _describe(arch: str) -> str:
+    from skinloc.models.localizer import architecture_kind
+
     if arch == "paper":
         return "the paper's 64-32-3 tanh network, outputs snapped to the surface"
-    return "an ensemble of fully connected networks, outputs snapped to the surface"
+    return architecture_kind(arch).summary
 
 
 def _figures(cfg, out, mesh, cal, ev, skins, report) -> list[tuple[str, str]]:

@@ -9,12 +9,13 @@ Per skin, ``SkinCore`` runs, for every frame::
                -> ``Contact``
 
 ``SkinCore`` is pure (no I/O, no threads, no clock of its own) and takes either decoded frames
-(``process``) or wire bytes (``feed``). ``skinloc.live.runner.Pipeline`` (one skin) and
-``skinloc.live.runner.Runner`` (many skins, one process; ``skinloc.live.skins_file`` reads its
-configuration file) connect cores to frame sources and to sinks (``skinloc.live.sinks``).
-``Contact`` lives in ``live.contact`` (the sinks import it from there), ``PipelineConfig`` and
-``TouchState`` in ``live.config``; both are re-exported here. The compiled steps are
-``live.baseline`` (baseline subtraction, drift) and ``live.one_euro`` (the filter).
+(``process_frame``) or wire bytes (``feed``); both return every contact of the frames.
+``skinloc.live.runner.Pipeline`` (one skin) and ``skinloc.live.runner.Runner`` (many skins, one
+process; ``skinloc.live.skins_file`` reads its configuration file) connect cores to frame
+sources and to sinks (``skinloc.live.sinks``). ``Contact`` lives in ``live.contact`` (the sinks
+import it from there), ``PipelineConfig`` and ``TouchState`` in ``live.config``; both are
+re-exported here. The compiled steps are ``live.baseline`` (baseline subtraction, drift, and
+``BaselineCapture``, the baseline's capture) and ``live.one_euro`` (the filter).
 
 The touch detection here is deliberately not the calibration touch rule
 (``calibration.capture``: a held press on a fixed baseline, judged by how many sensors it
@@ -37,6 +38,7 @@ from typing import Any
 import numpy as np
 
 from skinloc._jit import all_finite
+from skinloc.live.baseline import BaselineCapture
 from skinloc.live.baseline import subtract_baseline as _prep
 from skinloc.live.config import PipelineConfig, TouchState
 from skinloc.live.contact import Contact
@@ -57,6 +59,30 @@ __all__ = ["Contact", "PipelineConfig", "SkinCore", "TouchState"]
 
 # --------------------------------------------------------------------------------------------
 # one skin
+
+
+def sensor_grid(name: str, n_sensors: int, n_tx: int | None, n_rx: int | None) -> tuple[int, int]:
+    """The wire's ``(n_tx, n_rx)`` for a model of ``n_sensors``.
+
+    By default 8 x 8 when it fits, else ``n x 1``; with one of them given, the other from the
+    sensors.
+
+    Raises
+    ------
+    ValueError
+        When the grid does not hold ``n_sensors`` sensors (naming the skin).
+    """
+    n = n_sensors
+    if n_tx is None and n_rx is None:
+        n_tx, n_rx = (8, 8) if n == 64 else (n, 1)
+    elif n_tx is None or n_rx is None:  # half a grid: the other half from the sensors
+        n_tx, n_rx = (n // n_rx, n_rx) if n_tx is None else (n_tx, n // n_tx)
+    if n_tx * n_rx != n:
+        raise ValueError(
+            f"skin {name!r}: a {n_tx} x {n_rx} grid has {n_tx * n_rx} sensors but the model "
+            f"takes {n}"
+        )
+    return int(n_tx), int(n_rx)
 
 
 class SkinCore:
@@ -90,8 +116,67 @@ class SkinCore:
     --------
     >>> core = SkinCore("model.h5")  # doctest: +SKIP
     >>> core.set_baseline(untouched_frames)  # doctest: +SKIP
-    >>> contact = core.process(frame_values, timestamp_s=0.01, index=1)  # doctest: +SKIP
+    >>> contacts = core.process_frame(frame_values, timestamp_s=0.01, index=1)  # doctest: +SKIP
     """
+
+    # what a core keeps, by concern (set up by the builders ``__init__`` calls)
+    engine: Engine  # the model
+    config: PipelineConfig
+    name: str
+    n_sensors: int
+    n_tx: int  # the wire's grid (``feed``)
+    n_rx: int
+    wire_format: str
+    #: Sinks that record raw frames (``emit_frame``), handed every frame before processing.
+    frame_sinks: list[Any]
+    #: Called with the exception of a frame whose processing raised (the frame is then
+    #: dropped); None: the exception propagates. The runner counts and logs them.
+    on_frame_error: Callable[[Exception], Any] | None
+    # baseline: the capture, its arrays (the same objects, for the per-frame kernel), a tare
+    _capture: BaselineCapture
+    _baseline: np.ndarray
+    _inv_sigma: np.ndarray
+    calibrated: bool
+    _tare_from: np.ndarray | None  # the baseline a tare in progress replaces
+    #: what the last finished ``tare`` changed (None before one ends)
+    last_tare: dict[str, float] | None
+    # touch detection (hysteresis, debouncing) and drift tracking's clock
+    _touching: bool
+    _above: int
+    _below: int
+    _holdoff: int
+    _touch_id: int
+    _level: float  # the touch's smoothed peak z, for the release fraction
+    _level_alpha: float
+    _alpha: float  # drift tracking's step
+    _dt: float
+    _frozen_s: float  # how long drift tracking has been held off by a quiet-but-not-idle skin
+    _last_ts: float | None
+    _last_t_in: float
+    _last_contact: Contact | None
+    # per-frame scratch, allocated once: the hot path allocates nothing
+    _delta: np.ndarray  # (n_sensors,) float32, the frame minus the baseline
+    _out: np.ndarray  # (7,) the localiser's output
+    _filt_state: np.ndarray  # (8,) the One-Euro filter's state
+    _filt_prm: np.ndarray  # (3,) min cutoff Hz, beta, derivative cutoff Hz
+    _pos: np.ndarray
+    _tmp: np.ndarray
+    # multi-contact tracking (None: K = 1)
+    max_contacts: int
+    #: this stream's memory of its last full multi-contact search (None: every frame
+    #: searched in full, the answers' reference)
+    search_memory: SearchMemory | None
+    _tracker: Tracker | None
+    # gestures (None: off)
+    gestures: list[dict[str, Any]]  # events due, collected by ``take_gestures``
+    _recognizer: GestureRecognizer | None
+    _landing: LandingWatch | None  # a second finger in time
+    _footprint: FootprintWatch | None  # a second finger in the image's shape
+    # counters
+    n_frames: int
+    n_nonfinite: int  # frames dropped for a NaN or infinite value
+    n_touches: int
+    n_contacts: int
 
     def __init__(
         self,
@@ -105,101 +190,83 @@ class SkinCore:
         up: Sequence[float] | None = None,
         gesture_config: GestureConfig | None = None,
     ) -> None:
-        self.engine: Engine = load_engine(localizer)
+        self.engine = load_engine(localizer)
         self.config = PipelineConfig() if config is None else config
         self.name = name
-        n = self.engine.n_features
-        self.n_sensors = n
-        if n_tx is None and n_rx is None:
-            n_tx, n_rx = (8, 8) if n == 64 else (n, 1)
-        elif n_tx is None or n_rx is None:  # half a grid: the other half from the sensors
-            n_tx, n_rx = (n // n_rx, n_rx) if n_tx is None else (n_tx, n // n_tx)
-        if n_tx * n_rx != n:
-            raise ValueError(
-                f"skin {name!r}: a {n_tx} x {n_rx} grid has {n_tx * n_rx} sensors but the model "
-                f"takes {n}"
-            )
-        self.n_tx, self.n_rx = int(n_tx), int(n_rx)
+        self.n_sensors = self.engine.n_features
+        self.n_tx, self.n_rx = sensor_grid(name, self.n_sensors, n_tx, n_rx)
         self.wire_format = wire_format
         self._decoder: Any = None  # the wire decoder, built on the first ``feed``
-        #: Sinks that record raw frames (``emit_frame``), handed every frame before processing.
-        self.frame_sinks: list[Any] = []
-        #: Called with the exception of a frame whose processing raised (the frame is then
-        #: dropped); None: the exception propagates. The runner counts and logs them.
-        self.on_frame_error: Callable[[Exception], Any] | None = None
-        self._baseline = np.zeros(n, dtype=np.float64)
-        self._inv_sigma = np.ones(n, dtype=np.float64)
-        self._acc = np.zeros(n, dtype=np.float64)
-        self._acc2 = np.zeros(n, dtype=np.float64)
-        self._n_acc = 0
+        self.frame_sinks = []
+        self.on_frame_error = None
+        self.n_frames = self.n_nonfinite = self.n_touches = self.n_contacts = 0
+        self._init_baseline()
+        self._init_touch()
+        self._init_scratch()
+        self.max_contacts = self.config.max_contacts
+        self.search_memory = SearchMemory()
+        self._tracker = self._make_tracker(self.config)
+        self._init_gestures(up, gesture_config)
+        self._warm_up()
+
+    def _init_baseline(self) -> None:
+        self._capture = BaselineCapture(self.n_sensors)
+        self._baseline = self._capture.baseline
+        self._inv_sigma = self._capture.inv_sigma
         self.calibrated = False
-        self._delta = np.zeros(n, dtype=np.float32)
-        self._out = np.zeros(7, dtype=np.float64)
-        self._filt_state = np.zeros(8, dtype=np.float64)
-        self._filt_prm = np.array(
-            [self.config.min_cutoff_hz, self.config.beta, self.config.d_cutoff_hz]
-        )
-        self._pos = np.zeros(3, dtype=np.float64)
-        self._tmp = np.zeros(3, dtype=np.float64)
+        self._tare_from = None
+        self.last_tare = None
+
+    def _init_touch(self) -> None:
         self._touching = False
-        self._above = 0
-        self._below = 0
-        self._holdoff = 0
-        self._touch_id = 0
-        self._last_contact: Contact | None = None
-        self._last_t_in = -math.inf
-        self.n_frames = 0
-        self.n_nonfinite = 0  # frames dropped for a NaN or infinite value
-        self.n_touches = 0
-        self.n_contacts = 0
+        self._above = self._below = self._holdoff = self._touch_id = 0
+        self._level = 0.0
+        self._level_alpha = 0.02
         self._alpha = 0.0
         self._dt = 0.01
-        self._level_alpha = 0.02
-        self._level = 0.0
         self._frozen_s = 0.0
-        self._last_ts: float | None = None
+        self._last_ts = None
+        self._last_t_in = -math.inf
+        self._last_contact = None
+
+    def _init_scratch(self) -> None:
         cfg = self.config
-        self.max_contacts = cfg.max_contacts
-        #: this stream's memory of its last full multi-contact search (None: every frame
-        #: searched in full, the answers' reference)
-        self.search_memory: SearchMemory | None = SearchMemory()
-        self._tracker: Tracker | None = self._make_tracker(cfg)
-        # the baseline and noise of the last capture (``health``: drift, stuck sensors)
-        self._cal_baseline = np.zeros(n, dtype=np.float64)
-        self._cal_sigma = np.full(n, np.nan)
-        self._tare_from: np.ndarray | None = None  # the baseline a tare in progress replaces
-        #: what the last finished ``tare`` changed (None before one ends)
-        self.last_tare: dict[str, float] | None = None
-        self.gestures: list[dict[str, Any]] = []  # events due, collected by ``take_gestures``
-        self._recognizer: GestureRecognizer | None = None
-        self._landing: LandingWatch | None = None  # a second finger in time, for gestures
-        self._footprint: FootprintWatch | None = None  # a second finger in the image's shape
-        if cfg.gestures:
-            spec, rule = self.engine.spec, self.engine.rule  # what every engine declares
-            if spec.vertices is not None or up is not None:
-                frame = SkinFrame(spec.vertices, spec.faces, up)
-                change = float(rule.landing_change)
-                # the footprint (opt-in) is read off the contact search's scratch: K > 1 only
-                if cfg.footprint_gestures and self._tracker is not None and rule.footprint_on:
-                    tables = self.engine.search_tables()
-                    if tables is not None:
-                        self._footprint = FootprintWatch(tables, rule)
-                # the skin's two-point threshold: tracks closer than it may be one finger
-                two_point_mm, _ = recogniser_mm(two_point_of(spec.contact_rule))
-                self._recognizer = GestureRecognizer(
-                    name,
-                    frame,
-                    gesture_config,
-                    landing_change=change,
-                    landing_hold=float(rule.landing_hold),
-                    two_point_mm=two_point_mm,
-                    footprint_levels=None
-                    if self._footprint is None
-                    else (rule.footprint_two, rule.footprint_hold),
-                )
-                if change > 0:
-                    self._landing = LandingWatch(self.engine.noise_weights())
-        self._warm_up()
+        self._delta = np.zeros(self.n_sensors, dtype=np.float32)
+        self._out = np.zeros(7, dtype=np.float64)
+        self._filt_state = np.zeros(8, dtype=np.float64)
+        self._filt_prm = np.array([cfg.min_cutoff_hz, cfg.beta, cfg.d_cutoff_hz])
+        self._pos = np.zeros(3, dtype=np.float64)
+        self._tmp = np.zeros(3, dtype=np.float64)
+
+    def _init_gestures(self, up: Sequence[float] | None, config: GestureConfig | None) -> None:
+        """The gesture recogniser and its watches, when ``config.gestures`` and a frame exist."""
+        self.gestures = []
+        self._recognizer = self._landing = self._footprint = None
+        cfg = self.config
+        spec, rule = self.engine.spec, self.engine.rule  # what every engine declares
+        if not cfg.gestures or (spec.vertices is None and up is None):
+            return
+        change = float(rule.landing_change)
+        # the footprint (opt-in) is read off the contact search's scratch: K > 1 only
+        if cfg.footprint_gestures and self._tracker is not None and rule.footprint_on:
+            tables = self.engine.search_tables()
+            if tables is not None:
+                self._footprint = FootprintWatch(tables, rule)
+        # the skin's two-point threshold: tracks closer than it may be one finger
+        two_point_mm, _ = recogniser_mm(two_point_of(spec.contact_rule))
+        self._recognizer = GestureRecognizer(
+            self.name,
+            SkinFrame(spec.vertices, spec.faces, up),
+            config,
+            landing_change=change,
+            landing_hold=float(rule.landing_hold),
+            two_point_mm=two_point_mm,
+            footprint_levels=None
+            if self._footprint is None
+            else (rule.footprint_two, rule.footprint_hold),
+        )
+        if change > 0:
+            self._landing = LandingWatch(self.engine.noise_weights())
 
     def _make_tracker(self, cfg: PipelineConfig) -> Tracker | None:
         """The multi-contact tracker of ``cfg`` (None for the single-contact pipeline)."""
@@ -236,21 +303,13 @@ class SkinCore:
     # ------------------------------------------------------------------ baseline
     def set_baseline(self, frames: np.ndarray) -> None:
         """Set the baseline and per-sensor noise from untouched raw frames ``(m, n_sensors)``."""
-        F = np.asarray(frames, dtype=np.float64).reshape(-1, self.n_sensors)
-        if len(F) == 0 or not np.all(np.isfinite(F)):
-            raise ValueError("baseline frames must be a non-empty array of finite counts")
-        self._baseline[:] = F.mean(axis=0)
-        sigma = F.std(axis=0) if len(F) > 1 else np.zeros(self.n_sensors)
-        self._inv_sigma[:] = 1.0 / np.maximum(sigma, self.config.noise_floor_counts)
-        self._captured(sigma)
-        self._n_acc = 0
+        self._capture.set_from(frames, self.config.noise_floor_counts)
+        self._captured()
 
     def recalibrate(self) -> None:
         """Capture a fresh baseline from the next ``baseline_frames`` frames (keep untouched)."""
         self.calibrated = False
-        self._n_acc = 0
-        self._acc[:] = 0.0
-        self._acc2[:] = 0.0
+        self._capture.restart()
         self._touching = False
         self._above = self._below = 0
 
@@ -270,24 +329,13 @@ class SkinCore:
         return self._touching
 
     def _accumulate(self, values: np.ndarray) -> None:
-        v = np.asarray(values, dtype=np.float64)
-        self._acc += v
-        self._acc2 += v * v
-        self._n_acc += 1
-        if self._n_acc >= self.config.baseline_frames:
-            m = self._n_acc
-            mean = self._acc / m
-            var = np.maximum(self._acc2 / m - mean * mean, 0.0) * m / max(m - 1, 1)
-            self._baseline[:] = mean
-            sigma = np.sqrt(var)
-            self._inv_sigma[:] = 1.0 / np.maximum(sigma, self.config.noise_floor_counts)
-            self._captured(sigma)
-            log.info("%s: baseline from %d frames", self.name, m)
+        cfg = self.config
+        if self._capture.add(values, cfg.baseline_frames, cfg.noise_floor_counts):
+            self._captured()
+            log.info("%s: baseline from %d frames", self.name, self._capture.n_frames)
 
-    def _captured(self, sigma: np.ndarray) -> None:
-        """A baseline capture ended: keep it (for ``health``) and close a tare in progress."""
-        self._cal_baseline[:] = self._baseline
-        self._cal_sigma[:] = sigma
+    def _captured(self) -> None:
+        """A baseline capture ended: the skin is calibrated; a tare in progress is closed."""
         self.calibrated = True
         if self._tare_from is not None:
             shift = self._baseline - self._tare_from
@@ -399,24 +447,14 @@ class SkinCore:
             over it; ``drift`` ``(n_sensors,)`` the baseline now minus the one captured (what
             drift tracking moved since).
         """
-        sigma = self._cal_sigma
+        sigma = self._capture.captured_sigma
         return {
             "noise": sigma.copy(),
             "stuck": sigma == 0.0,
-            "drift": self._baseline - self._cal_baseline,
+            "drift": self._baseline - self._capture.captured_baseline,
         }
 
     # ------------------------------------------------------------------ frames
-    def process(
-        self, values: np.ndarray, timestamp_s: float, index: int = -1, t_in: float | None = None
-    ) -> Contact | None:
-        """Process one frame; returns its first contact (lowest slot), if any.
-
-        The single-contact form of ``process_frame`` (which returns them all).
-        """
-        out = self.process_frame(values, timestamp_s, index, t_in)
-        return out[0] if out else None
-
     def process_frame(
         self, values: np.ndarray, timestamp_s: float, index: int = -1, t_in: float | None = None
     ) -> Sequence[Contact]:
@@ -468,30 +506,21 @@ class SkinCore:
     def feed(self, data: bytes, t_in: float | None = None) -> list[Contact]:
         """Parse wire bytes (``skinloc.hardware.framing``) and process every complete frame in them.
 
-        Returns every contact of those frames. The bytes are decoded by the one serial reader
-        (``skinloc.hardware.link.WireDecoder``): the last frame of ``data`` is stamped ``t_in``
-        (arrival, ``time.monotonic()``), earlier ones back by the device counter times the
-        measured frame period; indices are the device's counter, unwrapped (binary) or a
-        running count (text).
+        Returns every contact of those frames, frame after frame (``process_frame`` each). The
+        bytes are decoded by the one serial reader (``skinloc.hardware.link.WireDecoder``): the
+        last frame of ``data`` is stamped ``t_in`` (arrival, ``time.monotonic()``), earlier ones
+        back by the device counter times the measured frame period; indices are the device's
+        counter, unwrapped (binary) or a running count (text).
         """
-        out: list[Contact] = []
-        for contacts in self.feed_frames(data, t_in):
-            out += contacts
-        return out
-
-    def feed_frames(self, data: bytes, t_in: float | None = None) -> list[Sequence[Contact]]:
-        """As ``feed``, the contacts frame by frame (only frames that have some)."""
         if t_in is None:
             t_in = time.monotonic()
         if self._decoder is None:
             from skinloc.hardware.link import WireDecoder
 
             self._decoder = WireDecoder(self.wire_format, self.n_tx, self.n_rx)
-        out: list[Sequence[Contact]] = []
+        out: list[Contact] = []
         for frame in self._decoder.feed(data, t_in):
-            contacts = self.process_frame(frame.values, frame.timestamp_s, frame.index, t_in)
-            if contacts:
-                out.append(contacts)
+            out += self.process_frame(frame.values, frame.timestamp_s, frame.index, t_in)
         return out
 
     def reset_link(self) -> None:
@@ -722,11 +751,6 @@ class SkinCore:
             (time.monotonic() - t_in) * 1e6,
             self._touch_id,
         )
-
-    def link_lost(self, now: float | None = None) -> Contact | None:
-        """The first ``end`` of ``end_stale`` (the single-contact form), if one is due."""
-        out = self.end_stale(now)
-        return out[0] if out else None
 
     def end_stale(self, now: float | None = None) -> list[Contact]:
         """The source stopped delivering; ends a touch whose frames are over ``stale_s`` old.

@@ -17,7 +17,7 @@ import numpy as np
 
 from skinloc.models.multi_contact.contacts import CountRule
 from skinloc.models.multi_contact.footprint import N_FEATURES, footprint_score
-from skinloc.models.multi_contact.search import SearchTables
+from skinloc.models.multi_contact.search import STAT_ROW1, STAT_XX, SearchTables
 
 __all__ = ["FootprintWatch"]
 
@@ -64,9 +64,9 @@ class FootprintWatch:
 
     def warm_up(self) -> FootprintWatch:
         """Compile the score now (numba caches it on disk), not on a touch's frames."""
-        xw = self.tables.scratch[0]
+        xw = self.tables.scratch.xw
         footprint_score(xw, self.tables.Ft[0], self.weights, self._f)
-        self.tables.scratch[-1][5] = 0.0  # the engine's warm-up image is no touch's
+        self.tables.scratch.stats[STAT_XX] = 0.0  # the engine's warm-up image is no touch's
         return self
 
     def start(self) -> None:
@@ -82,14 +82,14 @@ class FootprintWatch:
         its scratch set to 0; the next search sets it again).
         """
         S = self.tables.scratch
-        st = S[-1]
-        if st[5] <= 0.0 or self.n >= MAX_FRAMES:
+        st = S.stats
+        if st[STAT_XX] <= 0.0 or self.n >= MAX_FRAMES:
             return self.mean
         f = self._f
-        score = footprint_score(S[0], self.tables.Ft[int(st[11])], self.weights, f)
+        score = footprint_score(S.xw, self.tables.Ft[int(st[STAT_ROW1])], self.weights, f)
         # read once: a frame that was not searched (none at all, or a stand-in engine's)
         # finds no image here and is not scored again from the last one
-        st[5] = 0.0
+        st[STAT_XX] = 0.0
         if score == score and f[7] >= self._log_z_on:
             n = self.n
             self._scores[n] = score

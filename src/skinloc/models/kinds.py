@@ -42,12 +42,23 @@ class ModelKind(Protocol):
         The attributes ``fit`` sets on the model; a model with all of them is fitted.
     needs_surface_points : bool
         Whether ``fit`` needs the skin's surface points (candidates), whatever the constraint.
+    train_extra : str or None
+        The optional package ``fit`` needs (its import name, as ``skinloc._lazy``'s
+        ``extra_installed`` takes it, e.g. ``"torch"``); None: the core install fits it.
+    quick_fit : bool
+        Whether a fit on a calibration takes seconds, so that callers may fit it again and
+        again (the app's influence of each touch); False leaves such a model out of that.
+    summary : str
+        What a model of the kind is, in one phrase, for reports.
     """
 
     name: str
     config_type: type
     fitted_attrs: tuple[str, ...]
     needs_surface_points: bool
+    train_extra: str | None
+    quick_fit: bool
+    summary: str
 
     def fit(
         self,
@@ -115,8 +126,7 @@ def register_model_kind(kind: Any, *, replace: bool = False) -> Any:
     """
     obj = kind() if isinstance(kind, type) else kind
     missing = [
-        a for a in ("name", "config_type", "fitted_attrs", "needs_surface_points")
-        if not hasattr(obj, a)
+        a for a in ModelKind.__annotations__ if not hasattr(obj, a)
     ]  # fmt: skip
     if missing or not isinstance(obj, ModelKind):
         raise TypeError(f"{obj!r} is not a ModelKind (missing: {', '.join(missing) or 'methods'})")

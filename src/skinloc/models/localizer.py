@@ -35,7 +35,13 @@ from skinloc.models.multi_contact.rule_calibration import sensor_noise_from_fram
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ARCHITECTURES", "ContactLocalizer", "MODEL_FORMAT_VERSION", "Prediction"]
+__all__ = [
+    "ARCHITECTURES",
+    "ContactLocalizer",
+    "MODEL_FORMAT_VERSION",
+    "Prediction",
+    "architecture_kind",
+]
 
 
 #: Named configurations. ``paper`` is the paper's network exactly (64-32-3, one hidden layer);
@@ -95,6 +101,12 @@ _TUNABLE = (
     "weight_decay",
     "noise_std",
 )
+
+
+def architecture_kind(arch: str) -> ModelKind | None:
+    """The kind of the configuration ``arch`` of ``ARCHITECTURES``; None when there is none."""
+    cfg = ARCHITECTURES.get(arch)
+    return None if cfg is None else model_kind(cfg["kind"])
 
 
 def group_means(X: np.ndarray, y: np.ndarray, groups: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

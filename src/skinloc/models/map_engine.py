@@ -25,7 +25,10 @@ from skinloc.models.map_match import (
     match_rows,
     new_scratch,
 )
+from skinloc.models.multi_contact.contacts import PRM_MIN2
 from skinloc.models.multi_contact.search import (
+    STAT_ROWS,
+    SearchArrays,
     SearchMemory,
     SearchTables,
     recall_into,
@@ -108,7 +111,7 @@ def _peel(
     x: np.ndarray,
     n: int,
     rows: np.ndarray,
-    arrays: tuple,
+    arrays: SearchArrays,
     min2: float,
     clip: int,
     groups: tuple,
@@ -126,7 +129,7 @@ def _peel(
     its uncertainty. A place within the minimum separation of another contact keeps the
     search's own place and spread.
     """
-    w, Ft = arrays[0], arrays[6]
+    w, Ft = arrays.w, arrays.Ft
     for i in range(n):
         for j in range(x.shape[0]):
             v = float(x[j])
@@ -209,7 +212,7 @@ class MapEngine(Engine):
         """
         super().warm_up()
         t = self.search_tables()
-        w, Ft, Fpos = t.arrays[0], t.arrays[6], t.arrays[7]
+        w, Ft, Fpos = t.arrays.w, t.arrays.Ft, t.arrays.Fpos
         far = int(np.argmax(np.linalg.norm(Fpos - Fpos[0], axis=1)))
         x = (1e3 * (Ft[0] + Ft[far]) / w).astype(np.float32)
         self.contacts(x, 3)
@@ -252,9 +255,9 @@ class MapEngine(Engine):
                 _peel(
                     x,
                     n,
-                    t.scratch[-1][8:],
+                    t.scratch.stats[STAT_ROWS:],
                     t.arrays,
-                    t.prm[1],
+                    t.prm[PRM_MIN2],
                     self._clip,
                     self._groups,
                     self._fine,

@@ -59,6 +59,12 @@ class MapKind:
     config_type = MapConfig
     fitted_attrs = ("map_",)
     needs_surface_points = True
+    train_extra = None
+    quick_fit = True  # a map fits in seconds
+    summary = (
+        "a response map (Gaussian-process interpolation of each sensor's normalised "
+        "response over the surface, matched by image shape)"
+    )
 
     def fit(
         self,

@@ -74,6 +74,9 @@ class NetworkKind:
     config_type = NetworkConfig
     fitted_attrs = ("coefs_", "intercepts_")
     needs_surface_points = False
+    train_extra = "torch"  # the nets extra
+    quick_fit = False  # an ensemble trains for minutes
+    summary = "an ensemble of fully connected networks, outputs snapped to the surface"
 
     def fit(
         self,

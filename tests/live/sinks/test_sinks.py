@@ -323,3 +323,22 @@ def test_make_sink_errors_and_callback():
     sink = make_sink(CallbackSink(got.append))
     sink.emit(_contact())
     assert len(got) == 1
+
+
+def test_the_registry_names_the_files_a_spec_writes():
+    """What ``skinloc run`` checks before it starts: the files, as each sink's entry says."""
+    from skinloc.live.sinks.base import register_sink, sink_files, unregister_sink
+
+    assert sink_files("jsonl:out.jsonl") == ["out.jsonl"]
+    assert sink_files("mcap:run.mcap") == sink_files("mcap-ros2:run.mcap") == ["run.mcap"]
+    assert sink_files("foxglove://127.0.0.1:0?mcap=a.mcap&live=1") == ["a.mcap"]
+    for spec in ("jsonl", "jsonl:-", "jsonl:", "ws://127.0.0.1:0?mcap=a.mcap", "lsl:skin"):
+        assert sink_files(spec) == [], spec
+    assert sink_files("nosuch:x") == []  # make_sink refuses it, with the known forms
+    register_sink("toyname", CallbackSink, form="toyname:NAME")
+    register_sink("toyfile", CallbackSink, form="toyfile:FILE", file_argument=True)
+    try:  # a sink's files are what its entry declares
+        assert sink_files("toyname:x") == [] and sink_files("toyfile:x") == ["x"]
+    finally:
+        unregister_sink("toyname")
+        unregister_sink("toyfile")

@@ -56,7 +56,7 @@ def test_interior_nnls_keeps_exactly_the_all_positive_answers():
 def test_a_settled_polish_then_one_round_with_spreads_is_the_polish_with_spreads(engine):
     t = engine.search_tables()
     w, Ft = t.arrays[0], t.arrays[6]
-    S = tuple(np.zeros_like(a) for a in t.scratch)
+    S = t.scratch.fresh()
     rng = np.random.default_rng(1)
     min2 = float(t.prm[1])
     settled_seen = 0

@@ -84,12 +84,13 @@ class TrainingJobs(WorkspaceState):
 
     def _train(self, a: ActiveSession, rec: Recording, inputs: dict[str, Any]) -> None:
         from skinloc.errors import MissingExtraError
-        from skinloc.models.localizer import ARCHITECTURES
+        from skinloc.models.localizer import architecture_kind
         from skinloc.models.network_training import import_torch
 
         arch = self.config.train_options.get("arch", "default")
+        kind = architecture_kind(arch)
         torch = None
-        if ARCHITECTURES.get(arch, {}).get("kind") == "network":  # a map needs no PyTorch
+        if kind is not None and kind.train_extra == "torch":  # a map needs no PyTorch
             try:
                 torch = import_torch(f"training the {arch!r} network")
             except MissingExtraError:
@@ -112,7 +113,6 @@ class TrainingJobs(WorkspaceState):
         """
         from skinloc.evaluation.influence import touch_influence
         from skinloc.evaluation.scoring import evaluate, prior_curve, train_localizer
-        from skinloc.models.localizer import ARCHITECTURES
 
         opts = self.config.train_options
         n = rec.n_point_logs
@@ -141,7 +141,7 @@ class TrainingJobs(WorkspaceState):
             # The Train page's curve: this session's held-out error against calibration
             # touches, with the map prior and without (a few map fits: seconds).
             curve = None
-            if check.config_["kind"] == "map" and check.map_prior() is not None:
+            if check.map_prior() is not None:  # a response map's (no other kind has one)
                 progress("with and without the map prior")(0, 1)
                 curve = prior_curve(rec.subset(fit), [rec.subset(test)], mesh=a.mesh, **opts)
             model = train_localizer([rec], mesh=a.mesh, progress=progress("final model"), **opts)
@@ -154,8 +154,7 @@ class TrainingJobs(WorkspaceState):
             }
             influence = None
             # Ten more fits: seconds for a response map, far too long for a network.
-            network = ARCHITECTURES.get(opts.get("arch", "default"), {}).get("kind") == "network"
-            if self.config.influence_suspects > 0 and not network:
+            if self.config.influence_suspects > 0 and model.kind.quick_fit:
                 where = {int(k): j for j, k in enumerate(kept)}
                 flagged = [where[f["index"]] for f in inputs["flagged_kept"]]
                 infl = touch_influence(

@@ -38,7 +38,9 @@ __all__ = [
     "gesture_json",
     "make_sink",
     "register_sink",
+    "sink_files",
     "sink_forms",
+    "sink_type",
     "sink_types",
     "unregister_sink",
 ]
@@ -299,6 +301,11 @@ class SinkSpec:
             raise self.error("the name after ':' is empty (leave out the ':' for the default)")
         return self.argument
 
+    def option_values(self, key: str) -> list[str]:
+        """Every value of ``?key=`` in an address spec, unchecked (``query`` checks them all)."""
+        _, query = self._split()
+        return parse_qs(query).get(key, [])
+
     def no_argument(self) -> None:
         """Refuse an argument, for sinks that take none."""
         if self.argument is not None:
@@ -327,6 +334,10 @@ class SinkType:
         Other schemes that mean this sink (``websocket`` for ``ws``).
     requires : str or None
         The optional dependency the sink needs (a top-level module in ``_lazy.EXTRAS``).
+    file_argument : bool
+        Whether the argument of ``scheme:ARG`` is a file the sink writes (``jsonl:FILE``).
+    file_options : tuple of str
+        Options of an address spec that name files the sink writes (``?mcap=FILE``).
     """
 
     scheme: str
@@ -334,6 +345,16 @@ class SinkType:
     form: str
     aliases: tuple[str, ...] = ()
     requires: str | None = None
+    file_argument: bool = False
+    file_options: tuple[str, ...] = ()
+
+    def files(self, spec: SinkSpec) -> list[str]:
+        """The files a sink of ``spec`` writes (stdout's ``-`` is none), for checks up front."""
+        out = [v for key in self.file_options for v in spec.option_values(key)]
+        arg = spec.argument
+        if self.file_argument and arg and arg.strip() and arg != "-":
+            out.insert(0, arg)
+        return out
 
     def build(self, spec: SinkSpec) -> Sink:
         """The sink ``spec`` describes, importing the backend now."""
@@ -348,6 +369,7 @@ _BUILTIN: tuple[SinkType, ...] = (
         "jsonl",
         "skinloc.live.sinks.jsonl:JsonLinesSink.from_spec",
         "jsonl[:FILE] (JSON lines on stdout, or to FILE)",
+        file_argument=True,
     ),
     SinkType(
         "ws",
@@ -365,12 +387,14 @@ _BUILTIN: tuple[SinkType, ...] = (
         "skinloc.live.sinks.foxglove:FoxgloveSink.from_spec",
         "foxglove://HOST:PORT[?mcap=FILE] (Foxglove live 3D scene, port 0: any free port; MCAP)",
         requires="foxglove",
+        file_options=("mcap",),
     ),
     SinkType(
         "mcap",
         "skinloc.live.sinks.foxglove:FoxgloveSink.from_mcap_spec",
         "mcap:FILE (Foxglove MCAP recording only)",
         requires="foxglove",
+        file_argument=True,
     ),
     SinkType(
         "lsl",
@@ -389,6 +413,7 @@ _BUILTIN: tuple[SinkType, ...] = (
         "skinloc.live.sinks.ros2.bag:Ros2BagSink.from_spec",
         "mcap-ros2:FILE (the ROS 2 topics and raw frames as a ROS 2 bag, MCAP)",
         requires="mcap",
+        file_argument=True,
     ),
 )
 
@@ -441,6 +466,8 @@ def register_sink(
     form: str | None = None,
     aliases: Sequence[str] = (),
     requires: str | None = None,
+    file_argument: bool = False,
+    file_options: Sequence[str] = (),
     replace: bool = False,
 ) -> Any:
     """Register a sink under ``scheme``: the one step that adds a sink.
@@ -458,6 +485,10 @@ def register_sink(
         Other schemes meaning the same sink.
     requires : str, optional
         The optional dependency it needs (a module name), for tests that skip without it.
+    file_argument : bool, default False
+        The argument of ``scheme:ARG`` is a file the sink writes (checked before a run).
+    file_options : sequence of str
+        Options of an address spec (``?mcap=FILE``) that name files the sink writes.
     replace : bool, default False
         Replace a sink already registered under the scheme (otherwise ``ValueError``).
 
@@ -472,7 +503,15 @@ def register_sink(
         raise ValueError(f"a sink scheme is letters, digits, '-' and '_', got {scheme!r}")
 
     def add(target: str | SinkFactory) -> None:
-        entry = SinkType(scheme, target, form or f"{scheme}[:...]", tuple(aliases), requires)
+        entry = SinkType(
+            scheme,
+            target,
+            form or f"{scheme}[:...]",
+            tuple(aliases),
+            requires,
+            file_argument,
+            tuple(file_options),
+        )
         _add(entry, replace=replace)
 
     if factory is not None:
@@ -505,6 +544,28 @@ def sink_forms() -> list[str]:
     return [e.form for e in sink_types()]
 
 
+def sink_type(scheme: str) -> SinkType | None:
+    """The sink registered as ``scheme`` (an alias too), None when there is none."""
+    entry = _REGISTRY.get(scheme.lower())
+    if entry is None:
+        _load_entry_points()
+        entry = _REGISTRY.get(scheme.lower())
+    return entry
+
+
+def sink_files(spec: str) -> list[str]:
+    """The files the sink of ``spec`` writes (``SinkType.files``); none for an unknown scheme.
+
+    Examples
+    --------
+    >>> sink_files("jsonl:out.jsonl"), sink_files("udp://127.0.0.1:9870")
+    (['out.jsonl'], [])
+    """
+    parsed = SinkSpec.parse(spec)
+    entry = sink_type(parsed.scheme)
+    return [] if entry is None else entry.files(parsed)
+
+
 def make_sink(spec: str | Sink) -> Sink:
     """Build a sink from a spec string (a ``Sink`` is returned as is).
 
@@ -529,10 +590,7 @@ def make_sink(spec: str | Sink) -> Sink:
     if isinstance(spec, Sink):
         return spec
     parsed = SinkSpec.parse(spec)
-    entry = _REGISTRY.get(parsed.scheme)
-    if entry is None:
-        _load_entry_points()
-        entry = _REGISTRY.get(parsed.scheme)
+    entry = sink_type(parsed.scheme)
     if entry is None:
         raise ValueError(f"unknown sink {parsed.text!r}; use one of: {'; '.join(sink_forms())}")
     return entry.build(parsed)

@@ -12,7 +12,20 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["ContactSet", "CountRule", "noise_weights"]
+__all__ = [
+    "PRM_MIN2",
+    "PRM_MISFIT",
+    "PRM_N_TOP",
+    "PRM_TAU2",
+    "PRM_TAU3",
+    "PRM_Z2_MIN",
+    "PRM_Z3_MIN",
+    "PRM_Z_ON",
+    "PRM_Z_POWER",
+    "ContactSet",
+    "CountRule",
+    "noise_weights",
+]
 
 #: Noise per sensor assumed when a model does not know its skin's (counts; the paper skin's
 #: median no-touch std is 4.8).
@@ -34,6 +47,11 @@ def noise_weights(sensor_noise: np.ndarray | None, k: int) -> np.ndarray:
         raise ValueError(f"sensor noise must have shape ({k},), got {noise.shape}")
     sigma = np.maximum(noise, max(float(np.median(noise)), 1.0))
     return (1.0 / sigma).astype(np.float32)
+
+
+# The compiled search's parameters (``CountRule.params``), by slot.
+PRM_Z_ON, PRM_MIN2, PRM_TAU2, PRM_TAU3, PRM_N_TOP = 0, 1, 2, 3, 4
+PRM_Z2_MIN, PRM_Z3_MIN, PRM_MISFIT, PRM_Z_POWER = 5, 6, 7, 8
 
 
 @dataclass(frozen=True)
@@ -124,7 +142,7 @@ class CountRule:
         return cls(**{k: v for k, v in d.items() if k in names})
 
     def params(self) -> np.ndarray:
-        """The kernels' parameters.
+        """The kernels' parameters, by the ``PRM_*`` slots.
 
         z_on, min separation^2 (m^2), tau2, tau3, n_top, z2_min, z3_min, misfit, z_power.
         """

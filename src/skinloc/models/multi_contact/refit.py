@@ -24,8 +24,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from skinloc._jit import jit
+from skinloc.models.multi_contact.contacts import PRM_MIN2
 from skinloc.models.multi_contact.pairs import far_apart
-from skinloc.models.multi_contact.search import nnls2_interior, polish, weakest_z
+from skinloc.models.multi_contact.search import (
+    SearchArrays,
+    SearchScratch,
+    nnls2_interior,
+    polish,
+    weakest_z,
+)
 
 __all__ = ["AnchoredPair", "PairRefit"]
 
@@ -56,14 +63,14 @@ class AnchoredPair:
 def _anchored_pair(
     x: np.ndarray,
     anchor: np.ndarray,
-    arrays: tuple,
+    arrays: SearchArrays,
     min2: float,
-    S: tuple,
+    S: SearchScratch,
     out: np.ndarray,
 ) -> int:  # pragma: no cover - compiled
-    """The fit into ``out (3,)``: ratio, z2, found (1.0) or not; rows of ``S[4][:2]``."""
+    """The fit into ``out (3,)``: ratio, z2, found (1.0) or not; rows of ``S.fi[:2]``."""
     w, Ct, Cg, Cd, Cpos, nbr, Ft, Fpos, Fpk, Fcell, off, cfine, _ = arrays
-    xw, fi, s = S[0], S[4], S[8]
+    xw, fi, s = S.xw, S.fi, S.s
     k = x.shape[0]
     xx = 0.0
     for j in range(k):
@@ -126,9 +133,9 @@ class PairRefit:
     def __init__(self, engine: object) -> None:
         tables = engine.search_tables()  # type: ignore[attr-defined]
         self._arrays = tables.arrays
-        self._min2 = float(tables.prm[1])
+        self._min2 = float(tables.prm[PRM_MIN2])
         # scratch of our own: the engine's is the live search's
-        self._S = tuple(np.zeros_like(a) for a in tables.scratch)
+        self._S = tables.scratch.fresh()
         self._out = np.zeros(3)
         self._anchor = np.zeros(3)
 
@@ -139,8 +146,8 @@ class PairRefit:
         loop for seconds (up to 3 s on a cold cache), and the frames read after it all carried
         one late arrival time.
         """
-        x = np.zeros(self._arrays[0].shape[0], dtype=np.float32)  # w: one weight per sensor
-        self.fit(x, self._arrays[7][0])
+        x = np.zeros(self._arrays.w.shape[0], dtype=np.float32)  # one weight per sensor
+        self.fit(x, self._arrays.Fpos[0])
         return self
 
     def fit(self, x: np.ndarray, anchor_m: np.ndarray) -> AnchoredPair | None:
@@ -157,8 +164,8 @@ class PairRefit:
         self._anchor[:] = anchor_m
         if not _anchored_pair(xs, self._anchor, self._arrays, self._min2, self._S, self._out):
             return None
-        fpos = self._arrays[7]
-        fi = self._S[4]
+        fpos = self._arrays.Fpos
+        fi = self._S.fi
         ratio, z2 = float(self._out[0]), float(self._out[1])
         if not (math.isfinite(ratio) and math.isfinite(z2)):
             return None

@@ -32,7 +32,12 @@ from skinloc.models.multi_contact.footprint import (
     footprint_features,
 )
 from skinloc.models.multi_contact.landing import calibrate_landing
-from skinloc.models.multi_contact.search import SearchTables, search_into
+from skinloc.models.multi_contact.search import (
+    STAT_G2,
+    STAT_ROW1,
+    SearchTables,
+    search_into,
+)
 from skinloc.models.multi_contact.two_point import placed_both, threshold_from_pairs
 from skinloc.models.response_map import AmplitudeMap
 
@@ -97,7 +102,7 @@ def search_statistics(
     (``multi_contact.footprint``; nan where there are none).
     """
     out = np.zeros((3, N_COLS))
-    st, xw, Ft = tables.scratch[-1], tables.scratch[0], tables.Ft
+    st, xw, Ft = tables.scratch.stats, tables.scratch.xw, tables.Ft
     res = np.zeros((len(images), 7))
     X = np.ascontiguousarray(images, dtype=np.float32)
     f = np.zeros(N_FEATURES)
@@ -112,11 +117,11 @@ def search_statistics(
             out,
             *tables.pair.kernel_args,
         )
-        res[i, :6] = st[:6]
+        res[i, :6] = st[:6]  # g1, g2, g3, z2, z3, |xw|^2: the STAT_* slots 0-5
         res[i, 6] = float(np.max(x * tables.w))
         if footprint is not None:
             # the one-contact fit's row (``max_contacts`` >= 2: it comes with the pair stage)
-            ok = max_contacts >= 2 and footprint_features(xw, Ft[int(st[11])], f)
+            ok = max_contacts >= 2 and footprint_features(xw, Ft[int(st[STAT_ROW1])], f)
             footprint[i] = f if ok else np.nan
     return res
 
@@ -127,16 +132,16 @@ def pair_statistics(tables: SearchTables, images: np.ndarray) -> tuple[np.ndarra
     Returns ``(raw (n, 7), positions (n, 2, 3) m)``; positions are nan where no pair was found.
     """
     out = np.zeros((3, N_COLS))
-    st, keep, fpos = tables.scratch[-1], tables.scratch[5], tables.arrays[7]
+    st, keep, fpos = tables.scratch.stats, tables.scratch.keep, tables.arrays.Fpos
     raw = np.zeros((len(images), 7))
     pos = np.full((len(images), 2, 3), np.nan)
     for i, x in enumerate(np.ascontiguousarray(images, dtype=np.float32)):
         search_into(
             x, 2, tables.arrays, tables.prm, tables.scratch, True, out, *tables.pair.kernel_args
         )
-        raw[i, :6] = st[:6]
+        raw[i, :6] = st[:6]  # the STAT_* slots 0-5
         raw[i, 6] = float(np.max(x * tables.w))
-        if st[1] > 0:  # a pair was fitted (calibration mode keeps its rows whatever the rule)
+        if st[STAT_G2] > 0:  # a pair was fitted (calibration mode keeps its rows whatever the rule)
             pos[i] = fpos[keep[:2].astype(np.int64)]
     return raw, pos
 

@@ -3,19 +3,48 @@
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
 from skinloc._jit import jit
-from skinloc.models.multi_contact.contacts import N_COLS, CountRule, noise_weights
+from skinloc.models.multi_contact.contacts import (
+    N_COLS,
+    PRM_MIN2,
+    PRM_MISFIT,
+    PRM_TAU2,
+    PRM_TAU3,
+    PRM_Z2_MIN,
+    PRM_Z3_MIN,
+    PRM_Z_ON,
+    PRM_Z_POWER,
+    CountRule,
+    noise_weights,
+)
 from skinloc.models.multi_contact.pairs import PairTables, far_apart, seeds_and_pair
 
 __all__ = [
+    "MEM_FRAMES",
+    "MEM_PAIR",
+    "MEM_PEAK",
+    "MEM_RESIDUAL",
+    "MEM_ROW1",
+    "MEM_VALID",
     "PEAK_GROWTH",
     "REFRESH_FRAMES",
     "RESIDUAL_GROWTH",
     "SAFE_SCORE",
+    "STAT_G1",
+    "STAT_G2",
+    "STAT_G3",
+    "STAT_ROW1",
+    "STAT_ROWS",
+    "STAT_XX",
+    "STAT_Z2",
+    "STAT_Z3",
+    "SearchArrays",
     "SearchMemory",
+    "SearchScratch",
     "SearchTables",
     "nnls",
     "nnls2",
@@ -46,9 +75,64 @@ PEAK_GROWTH = 1.3
 #: start from: a frame near the threshold is searched in full every time.
 SAFE_SCORE = 0.3
 
+# The search's statistics (``SearchScratch.stats``, (12,) float64), by slot: the gains of the
+# one-, two- and three-contact fits (whitened counts^2), the weakest contact's peak z of the
+# pair and of the triple, the image's energy ``|xw|^2``; the reported contacts' fine rows from
+# ``STAT_ROWS`` (three slots, strongest first), and the one-contact fit's fine row.
+STAT_G1, STAT_G2, STAT_G3, STAT_Z2, STAT_Z3, STAT_XX = 0, 1, 2, 3, 4, 5
+STAT_ROWS = 8
+STAT_ROW1 = 11
+
+# A stream's memory (``SearchMemory.state``, (7,) float64), by slot: valid (1.0 or 0.0), the
+# one-contact fit's fine row, its relative residual at the full search, frames answered since,
+# the pair's two fine rows from ``MEM_PAIR`` (-1: none), the fit's largest residual (z).
+MEM_VALID, MEM_ROW1, MEM_RESIDUAL, MEM_FRAMES, MEM_PAIR, MEM_PEAK = 0, 1, 2, 3, 4, 6
+
 
 # --------------------------------------------------------------------------------------------
 # the search tables
+
+
+class SearchArrays(NamedTuple):
+    """The compiled kernels' tables (a tuple, as numba takes it; read by name).
+
+    ``C`` coarse candidates, ``P`` fine rows (candidates ordered cell by cell), ``k`` sensors;
+    images are whitened (counts times ``w``).
+    """
+
+    w: np.ndarray  # (k,) float32, noise weights (1 / noise)
+    Ct: np.ndarray  # (C, k) float32, the coarse candidates' unit images
+    Cg: np.ndarray  # (C, C) float32, their Gram matrix
+    Cd: np.ndarray  # (C,) float64, its diagonal
+    Cpos: np.ndarray  # (C, 3) float64, the coarse candidates, m
+    nbr: np.ndarray  # (C, n_nb) int64, each cell's nearest cells (itself first)
+    Ft: np.ndarray  # (P, k) float32, the fine rows' unit images
+    Fpos: np.ndarray  # (P, 3) float64, the fine rows' points, m
+    Fpk: np.ndarray  # (P,) float64, each fine row's peak
+    Fcell: np.ndarray  # (P,) int64, each fine row's cell
+    off: np.ndarray  # (C + 1,) int64, each cell's first fine row
+    cfine: np.ndarray  # (C,) int64, each coarse candidate's fine row
+    Fn: np.ndarray  # (P,) float64, each fine row's ``_dot(row, row)``
+
+
+class SearchScratch(NamedTuple):
+    """The search's work arrays, allocated once per table (a tuple, as numba takes it)."""
+
+    xw: np.ndarray  # (k,) float32, the whitened image
+    bC: np.ndarray  # (C,) coarse correlations
+    g1: np.ndarray  # (C,) one-contact gains (then suppressed)
+    top: np.ndarray  # (n_top,) int64, seeds
+    fi: np.ndarray  # (3,) int64, the contacts' fine rows
+    keep: np.ndarray  # (3,) int64, the reported contacts' rows, kept while a third is tried
+    gq: np.ndarray  # (widest,) gains of one contact's candidates
+    qq: np.ndarray  # (widest,) int64, those candidates
+    s: np.ndarray  # (3,) strengths
+    spread: np.ndarray  # (3,) spreads, mm
+    stats: np.ndarray  # (12,) the statistics, by the ``STAT_*`` slots
+
+    def fresh(self) -> SearchScratch:
+        """A scratch of the same shapes, of its own (zeros)."""
+        return SearchScratch(*(np.zeros_like(a) for a in self))
 
 
 class SearchTables:
@@ -71,13 +155,12 @@ class SearchTables:
 
     Attributes
     ----------
-    arrays : tuple
-        The kernels' tables: ``w, Ct, Cg, Cd, Cpos, nbr, Ft, Fpos, Fpk, Fcell, off, cfine`` and
-        ``Fn (P,)`` float64, each fine row's ``_dot(row, row)`` (whitened counts^2).
+    arrays : SearchArrays
+        The kernels' tables.
     pair : PairTables
         The pruned seed and pair stages' tables (``skinloc.models.multi_contact.pairs``).
-    scratch : tuple
-        The search's work arrays; ``scratch[-1]`` its statistics.
+    scratch : SearchScratch
+        The search's work arrays; ``scratch.stats`` its statistics (``STAT_*`` slots).
     """
 
     def __init__(
@@ -121,7 +204,7 @@ class SearchTables:
         self.pair = PairTables(self.Cg, self.Cpos, float(self.prm[1]))
         widest = int(np.diff(self.off).max()) * n_nb
         n_top = max(1, min(int(rule.n_top), len(coarse)))
-        self.arrays = (
+        self.arrays = SearchArrays(
             self.w,
             self.Ct,
             self.Cg,
@@ -136,18 +219,18 @@ class SearchTables:
             self.cfine,
             _row_norms(self.Ft),
         )
-        self.scratch = (
-            np.zeros(k, dtype=np.float32),  # whitened image
-            np.zeros(len(coarse)),  # coarse correlations
-            np.zeros(len(coarse)),  # one-contact gains (then suppressed)
-            np.zeros(n_top, dtype=np.int64),  # seeds
-            np.zeros(3, dtype=np.int64),  # the contacts' fine rows
-            np.zeros(3, dtype=np.int64),  # the pair's, kept while a third is tried
-            np.zeros(widest),  # gains of one contact's candidates
-            np.zeros(widest, dtype=np.int64),  # those candidates
-            np.zeros(3),  # strengths
-            np.zeros(3),  # spreads, mm
-            np.zeros(12),  # stats: g1, g2, g3, weakest z of 2, of 3, |xw|^2; 8..10: rows
+        self.scratch = SearchScratch(
+            xw=np.zeros(k, dtype=np.float32),
+            bC=np.zeros(len(coarse)),
+            g1=np.zeros(len(coarse)),
+            top=np.zeros(n_top, dtype=np.int64),
+            fi=np.zeros(3, dtype=np.int64),
+            keep=np.zeros(3, dtype=np.int64),
+            gq=np.zeros(widest),
+            qq=np.zeros(widest, dtype=np.int64),
+            s=np.zeros(3),
+            spread=np.zeros(3),
+            stats=np.zeros(12),
         )
 
 
@@ -167,9 +250,10 @@ class SearchMemory:
     Attributes
     ----------
     state : (7,) float64
-        Valid (1.0 or 0.0), the one-contact fit's fine row, its relative residual
-        ``R_1 / |xw|^2`` at the full search, frames answered since, the pair's two fine rows
-        (-1: no pair), the fit's largest whitened residual at the full search (noise levels).
+        By the ``MEM_*`` slots: valid (1.0 or 0.0), the one-contact fit's fine row, its
+        relative residual ``R_1 / |xw|^2`` at the full search, frames answered since, the pair's
+        two fine rows (-1: no pair), the fit's largest whitened residual at the full search
+        (noise levels).
     """
 
     __slots__ = ("state",)
@@ -332,7 +416,7 @@ def _refine(
     fi: np.ndarray,
     xw: np.ndarray,
     xx: float,
-    arrays: tuple,
+    arrays: SearchArrays,
     min2: float,
     gq: np.ndarray,
     qq: np.ndarray,
@@ -416,16 +500,16 @@ def polish(
     fi: np.ndarray,
     xw: np.ndarray,
     xx: float,
-    arrays: tuple,
+    arrays: SearchArrays,
     min2: float,
-    S: tuple,
+    S: SearchScratch,
     rounds: int = 2,
     spread_on: bool = True,
 ) -> float:  # pragma: no cover - compiled
     """``rounds`` rounds of ``_refine`` over the ``m`` contacts; returns the gain.
 
     A round that moves no contact ends the polish: the next would repeat it exactly. The
-    contacts' spreads (``S[9]``) only with ``spread_on`` (the reported contacts need them; a
+    contacts' spreads (``S.spread``) only with ``spread_on`` (the reported contacts need them; a
     fit that only weighs the count does not).
     """
     return _rounds(m, fi, xw, xx, arrays, min2, S, rounds, spread_on)[0]
@@ -437,9 +521,9 @@ def _rounds(
     fi: np.ndarray,
     xw: np.ndarray,
     xx: float,
-    arrays: tuple,
+    arrays: SearchArrays,
     min2: float,
-    S: tuple,
+    S: SearchScratch,
     rounds: int,
     spread_on: bool,
 ) -> tuple:  # pragma: no cover - compiled
@@ -448,7 +532,7 @@ def _rounds(
     Settled: its last round moved no contact and every contact had somewhere to go (one more
     round then repeats it exactly).
     """
-    gq, qq, s, spread = S[6], S[7], S[8], S[9]
+    gq, qq, s, spread = S.gq, S.qq, S.s, S.spread
     g = 0.0
     settled = False
     for _ in range(rounds):
@@ -492,9 +576,9 @@ def weakest_z(m: int, fi: np.ndarray, s: np.ndarray, Fpk: np.ndarray) -> float: 
 def search_into(
     x: np.ndarray,
     K: int,
-    arrays: tuple,
+    arrays: SearchArrays,
     prm: np.ndarray,
-    S: tuple,
+    S: SearchScratch,
     calib: bool,
     out: np.ndarray,
     pair: tuple,
@@ -502,16 +586,18 @@ def search_into(
 ) -> int:  # pragma: no cover - compiled
     """The contacts of one image ``x (k,)`` float32 counts into ``out (K, 5)``; returns their count.
 
-    ``arrays``, ``prm``, ``S``: ``SearchTables.arrays``, ``.prm``, ``.scratch``; ``pair``,
+    ``arrays``, ``prm``, ``S``: ``SearchTables.arrays``, ``.prm`` (the ``PRM_*`` slots of
+    ``CountRule.params``), ``.scratch``; ``pair``,
     ``pair_s``: ``SearchTables.pair.arrays`` and ``.scratch`` (the pruned seed and pair stages).
 
     A count of 1 leaves ``out`` to the caller (the model's single-contact answer). With
     ``calib`` every stage up to ``K`` runs whatever the rule says (for its calibration); the
-    statistics go to ``S[-1]``: g1, g2, g3, weakest z of 2 and of 3 contacts, ``|xw|^2``.
+    statistics go to ``S.stats`` (the ``STAT_*`` slots).
     """
     w, Ct, Cg, Cd, Cpos, nbr, Ft, Fpos, Fpk, Fcell, off, cfine, Fn = arrays
     xw, bC, g1, top, fi, keep, gq, qq, s, spread, st = S
-    z_on, min2, tau2, tau3, z2_min, z3_min = prm[0], prm[1], prm[2], prm[3], prm[5], prm[6]
+    z_on, min2, tau2, tau3 = prm[PRM_Z_ON], prm[PRM_MIN2], prm[PRM_TAU2], prm[PRM_TAU3]
+    z2_min, z3_min = prm[PRM_Z2_MIN], prm[PRM_Z3_MIN]
     k = x.shape[0]
     xx = 0.0
     zmax = 0.0
@@ -521,9 +607,9 @@ def search_into(
         xx += float(v) * float(v)
         zmax = max(zmax, float(v))
     st[:] = 0.0
-    st[5] = xx
+    st[STAT_XX] = xx
     # the model's typical misfit of one touch: a reduction within it is no second finger
-    floor = prm[7] * xx
+    floor = prm[PRM_MISFIT] * xx
     if zmax < z_on and not calib:
         return 0
     if K <= 1:
@@ -540,8 +626,8 @@ def search_into(
     # never reported: one contact is the model's single-contact answer)
     fi[0] = cfine[top[0]]
     gain1 = polish(1, fi, xw, xx, arrays, 0.0, S, 2, False)
-    st[0] = gain1
-    st[11] = fi[0]
+    st[STAT_G1] = gain1
+    st[STAT_ROW1] = fi[0]
     if pa < 0:
         return 1
     fi[0] = cfine[pa]
@@ -549,11 +635,11 @@ def search_into(
     # the pair's spreads only matter if it is reported: polished without them first
     gain2, settled = _rounds(2, fi, xw, xx, arrays, min2, S, 2, False)
     z2 = weakest_z(2, fi, s, Fpk)
-    st[1] = gain2
-    st[3] = z2
+    st[STAT_G2] = gain2
+    st[STAT_Z2] = z2
     r1 = max(xx - gain1, 1.0)
     r2 = max(xx - gain2, 1.0)
-    zp = prm[8]
+    zp = prm[PRM_Z_POWER]
     two = relative_gain(r1, r2, floor) * max(z2, 0.0) ** zp >= tau2 and z2 >= z2_min
     if not two and not calib:
         return 1
@@ -600,8 +686,8 @@ def search_into(
             fi[2] = cfine[pc]
             gain3 = polish(3, fi, xw, xx, arrays, min2, S)
             z3 = weakest_z(3, fi, s, Fpk)
-            st[2] = gain3
-            st[4] = z3
+            st[STAT_G3] = gain3
+            st[STAT_Z3] = z3
             r3 = max(xx - gain3, 1.0)
             rho3 = relative_gain(r2, r3, floor) * max(z3, 0.0) ** zp
             if two and rho3 >= tau3 and z3 >= z3_min:
@@ -613,7 +699,7 @@ def search_into(
     if count == 1:
         return 1
     for j in range(count):
-        st[8 + j] = keep[j]  # the contacts' fine rows, for the caller's polish
+        st[STAT_ROWS + j] = keep[j]  # the contacts' fine rows, for the caller's polish
         for t in range(3):
             out[j, t] = Fpos[keep[j], t]
     # strongest first (at most 3 rows: insertion sort)
@@ -622,7 +708,8 @@ def search_into(
         while t > 0 and out[t, 3] > out[t - 1, 3]:
             for col in range(N_COLS):
                 out[t, col], out[t - 1, col] = out[t - 1, col], out[t, col]
-            st[8 + t], st[7 + t] = st[7 + t], st[8 + t]
+            a, b_ = STAT_ROWS + t, STAT_ROWS + t - 1
+            st[a], st[b_] = st[b_], st[a]
             t -= 1
     return count
 
@@ -653,9 +740,9 @@ def single_into(
 
 
 @jit()
-def _residual_peak(xw: np.ndarray, row: int, arrays: tuple) -> float:  # pragma: no cover
+def _residual_peak(xw: np.ndarray, row: int, arrays: SearchArrays) -> float:  # pragma: no cover
     """The largest whitened residual of the one-contact fit at fine row ``row`` (noise levels)."""
-    Ft, Fn = arrays[6], arrays[12]
+    Ft, Fn = arrays.Ft, arrays.Fn
     b = _dot(Ft[row], xw)
     sc = b / Fn[row] if b > 0.0 and Fn[row] > 0.0 else 0.0
     e = -np.inf
@@ -673,40 +760,42 @@ def _score(
         return 0.0
     r1 = max(xx - g1, 1.0)
     r2 = max(xx - g2, 1.0)
-    rho = relative_gain(r1, r2, prm[7] * xx) * max(z2, 0.0) ** prm[8]
-    if prm[2] <= 0.0:
+    rho = relative_gain(r1, r2, prm[PRM_MISFIT] * xx) * max(z2, 0.0) ** prm[PRM_Z_POWER]
+    if prm[PRM_TAU2] <= 0.0:
         # tau2 0: no held-out single touch reached z2_min at calibration (a small session), so
         # any pair counts; its share of tau2 is unbounded, never safe
         return math.inf if rho > 0.0 else 0.0
-    return rho / prm[2]
+    return rho / prm[PRM_TAU2]
 
 
 @jit()
 def remember(
-    K: int, n: int, arrays: tuple, prm: np.ndarray, S: tuple, mem: np.ndarray
+    K: int, n: int, arrays: SearchArrays, prm: np.ndarray, S: SearchScratch, mem: np.ndarray
 ) -> None:  # pragma: no cover - compiled
     """Record a full search's answer ``n`` (scratch ``S``, ``SearchTables.scratch``) in ``mem``.
 
     Only a count of one whose rule score is at most ``SAFE_SCORE`` of ``tau2`` starts a
     memory (``SearchMemory``): its one-contact fit's row and the pair's rows (-1: none).
     """
-    st, fi = S[-1], S[4]
-    mem[0] = 0.0
-    xx = st[5]
-    if K <= 1 or n != 1 or xx <= 0.0 or _score(xx, st[0], st[1], st[3], prm) > SAFE_SCORE:
+    st, fi = S.stats, S.fi
+    mem[MEM_VALID] = 0.0
+    xx = st[STAT_XX]
+    g1, g2 = st[STAT_G1], st[STAT_G2]
+    if K <= 1 or n != 1 or xx <= 0.0 or _score(xx, g1, g2, st[STAT_Z2], prm) > SAFE_SCORE:
         return
-    mem[0] = 1.0
-    mem[1] = st[11]
-    mem[2] = max(xx - st[0], 1.0) / xx
-    mem[3] = 0.0
-    mem[4] = fi[0] if st[1] > 0.0 else -1.0  # a count of one leaves the polished pair in fi
-    mem[5] = fi[1] if st[1] > 0.0 else -1.0
-    mem[6] = _residual_peak(S[0], int(st[11]), arrays)
+    mem[MEM_VALID] = 1.0
+    mem[MEM_ROW1] = st[STAT_ROW1]
+    mem[MEM_RESIDUAL] = max(xx - g1, 1.0) / xx
+    mem[MEM_FRAMES] = 0.0
+    # a count of one leaves the polished pair in fi
+    mem[MEM_PAIR] = fi[0] if g2 > 0.0 else -1.0
+    mem[MEM_PAIR + 1] = fi[1] if g2 > 0.0 else -1.0
+    mem[MEM_PEAK] = _residual_peak(S.xw, int(st[STAT_ROW1]), arrays)
 
 
 @jit()
 def recall_into(
-    x: np.ndarray, arrays: tuple, prm: np.ndarray, S: tuple, mem: np.ndarray
+    x: np.ndarray, arrays: SearchArrays, prm: np.ndarray, S: SearchScratch, mem: np.ndarray
 ) -> int:  # pragma: no cover - compiled
     """One frame answered from a stream's memory: -1 (search in full), 0 or 1 contacts.
 
@@ -715,12 +804,12 @@ def recall_into(
     the full search refines its best seed (``polish``, two rounds), the pair from the
     memory's pair (one round); their rule score must stay at most ``SAFE_SCORE`` of ``tau2``
     and the one-contact residual within ``RESIDUAL_GROWTH`` of the remembered one. The
-    statistics go to ``S[-1]`` as the full search's (g1, g2, weakest z of 2, ``|xw|^2``).
+    statistics go to ``S.stats`` as the full search's (g1, g2, weakest z of 2, ``|xw|^2``).
     """
-    if mem[0] == 0.0 or mem[3] >= REFRESH_FRAMES:
+    if mem[MEM_VALID] == 0.0 or mem[MEM_FRAMES] >= REFRESH_FRAMES:
         return -1
-    w = arrays[0]
-    xw, fi, s, st = S[0], S[4], S[8], S[-1]
+    w = arrays.w
+    xw, fi, s, st = S.xw, S.fi, S.s, S.stats
     xx = 0.0
     zmax = 0.0
     for j in range(x.shape[0]):
@@ -729,33 +818,33 @@ def recall_into(
         xx += float(v) * float(v)
         zmax = max(zmax, float(v))
     st[:] = 0.0
-    st[5] = xx
-    if zmax < prm[0]:
-        mem[0] = 0.0
+    st[STAT_XX] = xx
+    if zmax < prm[PRM_Z_ON]:
+        mem[MEM_VALID] = 0.0
         return 0
-    fi[0] = int(mem[1])
+    fi[0] = int(mem[MEM_ROW1])
     gain1 = polish(1, fi, xw, xx, arrays, 0.0, S, 2, False)
-    if max(xx - gain1, 1.0) > RESIDUAL_GROWTH * mem[2] * xx:
+    if max(xx - gain1, 1.0) > RESIDUAL_GROWTH * mem[MEM_RESIDUAL] * xx:
         return -1
     peak = _residual_peak(xw, fi[0], arrays)
-    if peak > PEAK_GROWTH * mem[6] and peak > 0.5 * prm[5]:
+    if peak > PEAK_GROWTH * mem[MEM_PEAK] and peak > 0.5 * prm[PRM_Z2_MIN]:
         return -2
-    st[0] = gain1
-    st[11] = fi[0]
+    st[STAT_G1] = gain1
+    st[STAT_ROW1] = fi[0]
     row1 = fi[0]
-    if mem[4] >= 0.0:
-        fi[0] = int(mem[4])
-        fi[1] = int(mem[5])
-        gain2 = polish(2, fi, xw, xx, arrays, prm[1], S, 1, False)
-        z2 = weakest_z(2, fi, s, arrays[8])
+    if mem[MEM_PAIR] >= 0.0:
+        fi[0] = int(mem[MEM_PAIR])
+        fi[1] = int(mem[MEM_PAIR + 1])
+        gain2 = polish(2, fi, xw, xx, arrays, prm[PRM_MIN2], S, 1, False)
+        z2 = weakest_z(2, fi, s, arrays.Fpk)
         if _score(xx, gain1, gain2, z2, prm) > SAFE_SCORE:
             return -3
-        st[1] = gain2
-        st[3] = z2
-        mem[4] = fi[0]
-        mem[5] = fi[1]
-    mem[1] = row1
-    mem[3] += 1.0
+        st[STAT_G2] = gain2
+        st[STAT_Z2] = z2
+        mem[MEM_PAIR] = fi[0]
+        mem[MEM_PAIR + 1] = fi[1]
+    mem[MEM_ROW1] = row1
+    mem[MEM_FRAMES] += 1.0
     return 1
 
 
@@ -763,9 +852,9 @@ def recall_into(
 def search_remember(
     x: np.ndarray,
     K: int,
-    arrays: tuple,
+    arrays: SearchArrays,
     prm: np.ndarray,
-    S: tuple,
+    S: SearchScratch,
     out: np.ndarray,
     pair: tuple,
     pair_s: tuple,

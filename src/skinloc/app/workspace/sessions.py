@@ -11,7 +11,15 @@ import trimesh
 
 from skinloc.app.device import DeviceLink
 from skinloc.app.store import SessionFolder
-from skinloc.app.workspace.state import ActiveSession, Mode, WorkspaceState, app_meta, same_mesh
+from skinloc.app.workspace.state import (
+    ActiveSession,
+    Mode,
+    WorkspaceState,
+    app_meta,
+    left_out_touches,
+    same_mesh,
+    touch_numbers,
+)
 from skinloc.calibration.session import CalibrationSession, SessionConfig
 from skinloc.data.recording import read_recording, write_recording
 from skinloc.errors import RecordingError, SkinlocError
@@ -311,6 +319,8 @@ class SessionActions(WorkspaceState):
                 "planned": plan if plan is not None else np.zeros((0, 3)),
                 "done": np.zeros((0, 3)),
                 "flags": [],
+                "numbers": [],
+                "left_out": [],
                 "peaks": [],
                 "predicted": [],
                 "errors_mm": [],
@@ -324,6 +334,9 @@ class SessionActions(WorkspaceState):
             "planned": rec.planned_targets if rec.planned_targets is not None else rec.targets,
             "done": rec.targets,
             "flags": meta.get("flags", [[] for _ in range(rec.n_point_logs)]),
+            # each touch's target number for life, its attempt, and whether it is left out
+            "numbers": [[k, t] for k, t in touch_numbers(rec)],
+            "left_out": left_out_touches(rec),
             "peaks": meta.get("peaks", []),
             "predicted": meta.get("predicted", []),
             "errors_mm": meta.get("errors_mm", []),

@@ -542,7 +542,7 @@ async function toggleCoverage(on) {
     <div class="hint">predicted by the model at each place; the dots are the validation touches</div>`;
   const m = c.measured || {};
   const measured = [
-    m.holdout ? `${m.holdout.ci95_mm ? "cross-validated" : "held-out"} touches: mean ${m.holdout.mean_mm.toFixed(1)}, p95 ${m.holdout.p95_mm.toFixed(1)} mm` : "",
+    m.holdout ? `${m.holdout.how ? "cross-validated" : "held-out"} touches: mean ${m.holdout.mean_mm.toFixed(1)}, p95 ${m.holdout.p95_mm.toFixed(1)} mm` : "",
     m.validation ? `validation: mean ${m.validation.mean_mm.toFixed(1)}, p95 ${m.validation.p95_mm.toFixed(1)} mm` : "",
   ].filter(Boolean);
   const worst = Math.max(...[m.holdout, m.validation].filter(Boolean).map((x) => x.p95_mm));

@@ -432,10 +432,7 @@ class GuidedCapture(WorkspaceState):
         rec = sess.recording
         fill_per_touch(rec)
         meta = app_meta(rec)
-        cfg = sess.config
-        flags, _ = check_recording(
-            rec, threshold_sigma=cfg.threshold_sigma, min_active=cfg.min_active
-        )
+        flags, _ = check_recording(rec)  # the session's detector settings are in its meta
         meta["flags"] = [
             f + (["forced"] if "forced" in own else [])
             for f, own in zip(flags, meta["touch_flags"], strict=True)

@@ -241,8 +241,8 @@ class SessionActions(WorkspaceState):
 
         ``points`` ``(E, 3)`` m and ``expected_mm`` ``(E,)`` mm (``skinloc.sensors.coverage``), plus
         the summary of ``skinloc coverage``, the colour scale's range (the map's 5th to 95th
-        percentile), mm, and ``measured``: the session's held-out and validation errors, mm, to
-        compare with. Computed once per model (about a second), outside the lock.
+        percentile), mm, and ``measured``: the session's cross-validated and validation errors,
+        mm, to compare with. Computed once per model (about a second), outside the lock.
         """
         from skinloc.sensors.coverage import coverage_map
 
@@ -273,10 +273,13 @@ class SessionActions(WorkspaceState):
         return {**out, "measured": self._measured_errors()}
 
     def _measured_errors(self) -> dict[str, Any]:
-        """The errors measured on touches, to set the coverage map beside: held-out, validation."""
+        """The errors measured on touches, to set the coverage map beside.
+
+        The training's (cross-validated: its ``how`` says so) and the validation's.
+        """
         with self._lock:
             info = self.active.info if self.active is not None else {}
-        keys = ("n", "mean_mm", "median_mm", "p95_mm")
+        keys = ("n", "mean_mm", "median_mm", "p95_mm", "how", "ci95_mm")
         return {
             k: {key: v[key] for key in keys if key in v}
             for k, v in (("holdout", info.get("holdout")), ("validation", info.get("validation")))

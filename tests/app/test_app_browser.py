@@ -160,7 +160,7 @@ def test_full_session_in_the_browser(chromium, server, tmp_path):
         vpanel.locator(".coverage").click()
         COVERAGE_DRAWN.wait(page)
         legend = vpanel.locator(".coverage-legend")
-        for words in ("expected", "not measured", "validation: mean", "held-out touches"):
+        for words in ("expected", "not measured", "validation: mean", "cross-validated touches"):
             expect(legend).to_contain_text(words)
         expect(page.locator("#viewer-legend")).to_contain_text("Coverage map")
         shot("05b-coverage")
@@ -599,8 +599,9 @@ def _calibrate(ws, off_target_at: int | None = None) -> None:
 def test_sessions_own_their_state_and_flagged_touches_are_gated(chromium, server):
     """Issue 22, section 1: a new session shows nothing of the last one (training result,
     scripted finger); Live and Validate without a model say so without a page error; the
-    Train page lists the flagged touches, leaves the off-target one out and says so, and names
-    the touch that hurts most; Z and Retake work after "Complete"; Backspace undoes nothing."""
+    Train page lists the flagged touches first (nothing left out unless asked), names the
+    touch that hurts most, leaves it out when asked and says so; Z and Retake work after
+    "Complete"; Backspace undoes nothing."""
     url, app = server
     from skinloc.sources.base import SourceOptions
 
@@ -654,28 +655,26 @@ def test_sessions_own_their_state_and_flagged_touches_are_gated(chromium, server
         expect(page.locator("#message")).to_be_empty()  # that message was the Live page's
 
         # Twenty touches (the off-target check needs about 20), the seventh made elsewhere:
-        # flagged, listed before training, left out.
+        # flagged and listed first before training; in until the researcher leaves it out.
         _calibrate(ws, off_target_at=6)
-        assert "off-target" in ws.session_detail()["calibration"]["flags"][6]
+        assert "off_target" in ws.session_detail()["calibration"]["flags"][6]
         page.click("#nav button[data-page=train]")
         gate = page.locator("#train-gate")
         expect(gate).to_contain_text("off target")  # the finger's own scatter may add one
-        expect(gate.locator("tr[data-index='6'] .leave-out")).to_be_checked()
+        expect(gate.locator("tr[data-index='6'] .leave-out")).not_to_be_checked()
         shot = ARTIFACTS / "10-train-gate.png"
         ARTIFACTS.mkdir(parents=True, exist_ok=True)
         page.screenshot(path=str(shot))
-        # All kept in: the far touch is named as the one that hurts the held-out error most.
-        for box in gate.locator(".leave-out").all():
-            box.uncheck()
+        # All kept in: the far touch is named as the one that hurts the error most.
         page.click("#train-btn")
         page.wait_for_function("() => window.skinloc.state.training?.running")
         expect(page.locator("#train-result")).to_be_empty()  # no old result under the bar
         result = page.locator("#train-result")
         expect(result.locator(".result")).to_be_visible(timeout=300_000)
         expect(result).to_contain_text("Trained on all 20 touches")
-        expect(result).to_contain_text("#7 (off-target)")
+        expect(result).to_contain_text("#7 (off target)")
         expect(result.locator(".influence")).to_contain_text(
-            "Touch #7 (off-target) hurts the held-out error most"
+            "Touch #7 (off target) hurts the cross-validated error most"
         )
         page.screenshot(path=str(ARTIFACTS / "11-train-influence.png"))
         # Left out from there: trained again without it, and the result says so.
@@ -683,8 +682,10 @@ def test_sessions_own_their_state_and_flagged_touches_are_gated(chromium, server
         page.wait_for_function("() => window.skinloc.state.training?.running")
         expect(result).to_be_empty()  # the earlier result is not left under the running bar
         expect(result).to_contain_text("Trained on 19 of 20 touches", timeout=300_000)
-        expect(result).to_contain_text("left out #7 (off-target)")
-        expect(gate.locator("tr[data-index='6'] .leave-out")).to_be_checked()  # as trained
+        expect(result.locator(".left-out-list")).to_contain_text(
+            "#7: left out by hand; flagged off target"
+        )
+        expect(gate.locator("tr[data-index='6'] .leave-out")).to_be_checked()  # stays out
         expect(result.locator(".influence")).to_contain_text("cross-validated")
         page.screenshot(path=str(ARTIFACTS / "11b-train-result.png"))
 
@@ -693,7 +694,7 @@ def test_sessions_own_their_state_and_flagged_touches_are_gated(chromium, server
         page.locator(".guided[data-kind=validate] .coverage").check()
         COVERAGE_DRAWN.wait(page)
         legend = page.locator(".guided[data-kind=validate] .coverage-legend")
-        for words in ("expected", "not measured", "held-out touches: mean"):
+        for words in ("expected", "not measured", "cross-validated touches: mean"):
             expect(legend).to_contain_text(words)
         page.screenshot(path=str(ARTIFACTS / "12-coverage.png"))
 

@@ -244,14 +244,18 @@ def test_train_page_shows_each_touch_error_on_the_skin_and_as_a_histogram(chromi
         assert result.locator("svg.curve line.floor").count() == 1
         expect(result.locator(".prior-curve")).to_contain_text("Dashed: the real skin")
         worst = int(np.argmax(te["error_mm"]))
-        expect(result.locator(".evidence .hint")).to_contain_text(f"#{te['index'][worst] + 1} (")
-        # One dot per touch on the 3D skin, at its target, shown on the Train page only.
+        expect(result.locator(".evidence .hint")).to_contain_text(f"#{te['number'][worst]}: ")
+        # One dot per touch on the 3D skin, at its target, with its number, shown on the Train
+        # page only.
         dots = page.evaluate(
             "() => { const g = window.skinloc.evidence.group;"
-            " return { visible: g.visible, n: g.children.length,"
-            " errors: g.children.map(m => m.userData.error_mm) }; }"
+            " const m = g.children.filter(o => o.isMesh);"
+            " return { visible: g.visible, n: m.length, errors: m.map(o => o.userData.error_mm),"
+            " numbers: g.children.filter(o => o.userData.label).map(o => o.userData.label.text)"
+            " }; }"
         )
         assert dots["visible"] and dots["n"] == 8
+        assert sorted(dots["numbers"], key=int) == [str(k) for k in te["number"]]
         np.testing.assert_allclose(sorted(dots["errors"]), sorted(te["error_mm"]))
         assert page.locator("#viewer").is_visible()
         settle(page)  # the view draws the dots (for the picture)
@@ -302,7 +306,7 @@ def test_traces_of_a_sensor_a_live_track_and_a_touch(chromium, server):
         expect(row).to_contain_text("1")
         row.locator("td").first.click()
         touch = page.locator('.trace-pop[data-kind="touch"]')
-        expect(touch.locator(".trace-title")).to_have_text("Calibration touch 1")
+        expect(touch.locator(".trace-title")).to_have_text("Calibration touch #1")
         assert touch.get_attribute("data-frames") == "10"
         touch.locator(".frame-slider").fill("7")
         expect(touch.locator(".frame-no")).to_have_text("7")

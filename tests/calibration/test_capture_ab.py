@@ -158,11 +158,31 @@ def assert_same(got: Any, want: Any, where: str) -> None:
         assert got == want, where
 
 
+#: What the app keeps per touch since the golden was written (issue 33): each touch's target
+#: number and attempt, whether it is left out, and the numbers' bookkeeping.
+NEW_APP_META = ("target_numbers", "attempts", "left_out", "numbers_used", "next_numbers")
+
+
 @pytest.mark.parametrize("case", sorted(CASES))
 def test_the_capture_records_what_the_old_captures_recorded(case, tmp_path):
     want = json.loads(GOLDEN.read_text())[case]
     got = json.loads(json.dumps(digest(CASES[case](tmp_path))))
+    added = {
+        k: got["meta"].get("app", {}).pop(k)
+        for k in NEW_APP_META
+        if k in got["meta"].get("app", {})
+    }
     assert_same(got, want, case)
+    if case == "app":
+        # 3 touches, #2 retaken (its 2nd attempt), #4, #4 undone and touched again, #5 skipped
+        # (its number not given to another), #6.
+        assert added == {
+            "target_numbers": [1, 3, 2, 4, 6],
+            "attempts": [1, 1, 2, 2, 1],
+            "left_out": [False] * 5,
+            "numbers_used": 6,
+            "next_numbers": [],
+        }
 
 
 if __name__ == "__main__":  # write the golden from the skinloc on PYTHONPATH

@@ -167,14 +167,15 @@ def baseline_drift_sigma(frames: np.ndarray, baseline: np.ndarray, noise: np.nda
 
 
 def check_recording(
-    rec: Recording, *, threshold_sigma: float = 5.0, min_active: int = 2
+    rec: Recording, *, threshold_sigma: float | None = None, min_active: int | None = None
 ) -> tuple[list[list[str]], OffTarget]:
-    """Every touch's flags in a recording, as the app's gate would give them.
+    """Every touch's flags in a recording, as the app's gate gives them (it calls this).
 
     Each point log is one touch: ``short`` counts its frames the calibration's touch rule
     (``TouchDetector`` with ``threshold_sigma`` and ``min_active``, on the recording's own
     baseline and noise) does not see as a touch; the reference peak of ``weak`` is the
-    median peak of the recording.
+    median peak of the recording. ``threshold_sigma`` and ``min_active`` default to the
+    session's settings stored in the recording (``meta["session"]``), else 5.0 and 2.
 
     Returns
     -------
@@ -185,6 +186,11 @@ def check_recording(
     """
     from skinloc.geometry.mesh import surface_points
 
+    session = rec.meta.get("session") or {}
+    if threshold_sigma is None:
+        threshold_sigma = float(session.get("threshold_sigma", 5.0))
+    if min_active is None:
+        min_active = int(session.get("min_active", 2))
     baseline = rec.baseline
     detector = TouchDetector(baseline, rec.noise, threshold_sigma, min_active)
     peaks = (rec.touch_means.astype(np.float64)).max(axis=1) if rec.n_point_logs else []

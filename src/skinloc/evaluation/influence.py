@@ -29,6 +29,7 @@ __all__ = [
     "LeaveOneOutMap",
     "TouchInfluence",
     "cross_validated_errors",
+    "fold_of",
     "leave_one_out_residuals",
     "touch_influence",
 ]
@@ -39,8 +40,11 @@ Fit = Callable[[Recording], Any]
 Progress = Callable[[int, int], None]
 
 
-def _folds(n: int, n_folds: int, random_state: int) -> np.ndarray:
-    """Fold of each of ``n`` touches, ``(n,)`` int: a shuffled, balanced split."""
+def fold_of(n: int, n_folds: int, random_state: int = 0) -> np.ndarray:
+    """Fold of each of ``n`` touches, ``(n,)`` int: a shuffled, balanced split.
+
+    ``min(n_folds, n // 2)`` folds, at least 2 (each fold at least 2 touches).
+    """
     k = max(2, min(n_folds, n // 2))
     return np.random.default_rng(random_state).permutation(n) % k
 
@@ -132,7 +136,7 @@ def touch_influence(
         Touches to examine first, indices into ``rec``.
     """
     n = rec.n_point_logs
-    folds = _folds(n, n_folds, random_state)
+    folds = fold_of(n, n_folds, random_state)
     k = int(folds.max()) + 1
     chosen: list[int] = []
     total = k + max_suspects * (k - 1)

@@ -72,9 +72,16 @@ class ValidateBody(BaseModel):
 
 
 class TrainBody(BaseModel):
-    """``POST /api/train``: touches (0-based) left out of the model."""
+    """``POST /api/train``: touches (0-based) to leave out, with those left out already."""
 
     exclude: list[Annotated[int, Field(ge=0)]] = Field(default_factory=list, max_length=10_000)
+
+
+class LeaveOutBody(BaseModel):
+    """``POST /api/train/leave_out``: a calibration touch (0-based) left out or put back."""
+
+    index: int = Field(ge=0)
+    out: bool = True
 
 
 class RecordBody(BaseModel):

@@ -4,7 +4,13 @@ from __future__ import annotations
 
 from typing import Any
 
-from skinloc.app.routes.bodies import FlagBody, IndexBody, TrainBody, ValidateBody
+from skinloc.app.routes.bodies import (
+    FlagBody,
+    IndexBody,
+    LeaveOutBody,
+    TrainBody,
+    ValidateBody,
+)
 from skinloc.app.routes.common import OK, PageContext, actions_router
 
 
@@ -12,7 +18,7 @@ def add_routes(ctx: PageContext) -> None:
     """Add the guided-capture, training and live actions.
 
     ``POST /api/calibrate/start``, ``/api/validate/start``, ``/api/capture/...``,
-    ``/api/finger``, ``/api/train``, ``/api/live/start``.
+    ``/api/finger``, ``/api/train``, ``/api/train/leave_out``, ``/api/live/start``.
     """
     app, workspace = ctx.app, ctx.workspace
     router = actions_router()
@@ -53,6 +59,11 @@ def add_routes(ctx: PageContext) -> None:
     @router.post("/api/train")
     def train(body: TrainBody | None = None) -> dict[str, Any]:
         workspace.train(body.exclude if body is not None else None)
+        return OK
+
+    @router.post("/api/train/leave_out")
+    def leave_out(body: LeaveOutBody) -> dict[str, Any]:
+        workspace.leave_out(body.index, body.out)
         return OK
 
     @router.post("/api/live/start")

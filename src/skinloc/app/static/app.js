@@ -4,7 +4,7 @@ import { LivePage } from "/static/live.js";
 import { drawHeat } from "/static/heatmap.js";
 import { ExportPage } from "/static/export.js";
 import { RecordPanel } from "/static/record.js";
-import { TrainEvidence, referenceReady } from "/static/evidence.js";
+import { TrainEvidence, referenceReady, touchName } from "/static/evidence.js";
 import { LivePlot, SensorTrace, TouchView } from "/static/traces.js";
 import { LiveSettings } from "/static/settings.js";
 
@@ -44,6 +44,11 @@ const app = {
 };
 window.skinloc = app; // for the end-to-end test and for debugging
 
+// A touch of a recording by its target's number for life: "#6", a retake "#6 (2nd)".
+const recName = (rec, i) => touchName(...(rec?.numbers?.[i] || [i + 1, 1]));
+// What an earlier validation was: of this model's previous run, or of an earlier model.
+const previousName = (prev) => (prev.earlier_model ? "an earlier model's validation" : "previous");
+
 function validationCell(s) {
   // The result, what was retaken; while a new validation runs, the previous one, named so.
   const v = s.validation, prev = s.validation_previous;
@@ -51,7 +56,7 @@ function validationCell(s) {
     const note = retakenNote(v);
     return `${fmtErr(v)}${note ? `<br><span class="flag retaken">${esc(note)}</span>` : ""}`;
   }
-  return prev ? `<span class="hint">previous: ${fmtErr(prev)}${prev.retaken ? ` (${prev.retaken} retaken)` : ""}</span>` : "-";
+  return prev ? `<span class="hint">${previousName(prev)}: ${fmtErr(prev)}${prev.retaken ? ` (${prev.retaken} retaken)` : ""}</span>` : "-";
 }
 
 // ------------------------------------------------------------------ talking to the server
@@ -478,7 +483,7 @@ function guidedPanel(kind) {
     <div class="coverage-legend hint hidden"></div>`}
     <canvas class="heat guided-heat"></canvas>
     <div class="touches"><table>
-      <thead><tr><th>#</th><th>Position (mm)</th>${isCal ? "" : "<th>Error (mm)</th>"}<th>Flags</th><th></th></tr></thead>
+      <thead><tr><th>#</th><th>Position (mm)</th>${isCal ? "" : "<th>Error (mm)</th>"}<th>Flags</th>${isCal ? "<th>Leave out</th>" : ""}<th></th></tr></thead>
       <tbody></tbody></table></div>`;
   if (!isCal) $(".n-val", el).addEventListener("input", (ev) => { ev.target.dataset.touched = "1"; });
   $(".start", el).addEventListener("click", () => (isCal ? act("/api/calibrate/start")
@@ -502,6 +507,9 @@ function guidedPanel(kind) {
   $(".touches", el).addEventListener("click", (ev) => {
     const i = ev.target.dataset?.retake;
     if (i !== undefined) act("/api/capture/retake", { index: Number(i), recording: isCal ? "calibration" : "validation" });
+  });
+  $(".touches", el).addEventListener("change", (ev) => {
+    if (ev.target.classList.contains("leave-out")) leaveOut(ev.target);
   });
   return el;
 }
@@ -550,7 +558,7 @@ async function toggleCoverage(on) {
     <div class="hint">predicted by the model at each place; the dots are the validation touches</div>`;
   const m = c.measured || {};
   const measured = [
-    m.holdout ? `held-out touches: mean ${m.holdout.mean_mm.toFixed(1)}, p95 ${m.holdout.p95_mm.toFixed(1)} mm` : "",
+    m.holdout ? `${m.holdout.how ? "cross-validated" : "held-out"} touches: mean ${m.holdout.mean_mm.toFixed(1)}, p95 ${m.holdout.p95_mm.toFixed(1)} mm` : "",
     m.validation ? `validation: mean ${m.validation.mean_mm.toFixed(1)}, p95 ${m.validation.p95_mm.toFixed(1)} mm` : "",
   ].filter(Boolean);
   const worst = Math.max(...[m.holdout, m.validation].filter(Boolean).map((x) => x.p95_mm));
@@ -604,7 +612,7 @@ function renderGuided(kind) {
     state.textContent = text;
     state.className = `big-state ${cls}`;
   }
-  $(".target-info", el).textContent = g?.target ? `Target ${g.index + 1} at ${mm(g.target)} mm` : "";
+  $(".target-info", el).textContent = g?.target ? `Target ${touchName(g.number, g.attempt)} at ${mm(g.target)} mm` : "";
   const complete = !active && st?.mode !== "baseline" && !!current && total > 0 && done >= total;
   $(".next-step", el).classList.toggle("hidden", !complete || (kind === "validate" && !st?.session?.has_model));
   if (kind === "calibrate") $(".sheets", el).classList.toggle("hidden", !current);
@@ -620,13 +628,16 @@ function renderGuided(kind) {
     const prev = st?.session?.validation_previous;
     $(".val-result", el).innerHTML = v && v.mean_mm != null ? `<div class="result">${fmtErr(v)}</div><div class="hint">mean ± std over ${v.n} touches (median ${v.median_mm.toFixed(1)}, p95 ${v.p95_mm.toFixed(1)} mm)</div>` +
       (note ? `<div class="flag retaken">${esc(note)}</div>` : "")
+      : prev?.earlier_model ? `<div class="hint val-earlier">The model was trained again: its validation so far scored ${fmtErr(prev)} on the earlier model${prev.file ? ` (kept as ${esc(prev.file)})` : ""}. Validate to score this one.</div>`
       : prev ? `<div class="hint">Previous validation (kept as ${esc(prev.file)}): ${fmtErr(prev)}${prev.retaken ? `, ${prev.retaken} retaken` : ""}</div>` : "";
   }
   const rows = (rec?.done || []).map((p, i) => {
     const flags = rec.flags?.[i] || [];
     const err = rec.errors_mm?.[i];
-    return `<tr><td>${i + 1}</td><td>${p.map((x) => (x * 1000).toFixed(0)).join(", ")}</td>${kind === "validate" ? `<td>${err != null ? err.toFixed(1) : ""}</td>` : ""}
-      <td class="flags">${flags.map((f) => `<span class="flag ${f}">${f}</span>`).join("")}</td>
+    const out = kind === "calibrate"
+      ? `<td><input type="checkbox" class="leave-out" data-index="${i}" title="leave this touch out of training until put back" ${rec.left_out?.[i] ? "checked" : ""}></td>` : "";
+    return `<tr data-index="${i}"><td class="touch-name">${esc(recName(rec, i))}</td><td>${p.map((x) => (x * 1000).toFixed(0)).join(", ")}</td>${kind === "validate" ? `<td>${err != null ? err.toFixed(1) : ""}</td>` : ""}
+      <td class="flags">${flags.map((f) => `<span class="flag ${esc(f)}">${esc(FLAG_WORDS[f] || f)}</span>`).join("")}</td>${out}
       <td><button data-retake="${i}" title="take this touch back (kept in the history) and touch its target again">Retake</button></td></tr>`;
   }).reverse();
   $(".touches tbody", el).innerHTML = rows.join("") || `<tr><td colspan="5" class="hint">No touch recorded yet.</td></tr>`;
@@ -661,13 +672,16 @@ document.addEventListener("keydown", (ev) => {
 });
 
 // ------------------------------------------------------------------ train page
-// Before training: the touches the capture flagged, each to leave out or retake. Before the
-// first training off-target touches (the image says the finger was elsewhere) are ticked to be
-// left out, the others (weak, short, forced, saturated) go in; after it, what it left out.
-const FLAG_WORDS = { "off-target": "off target", weak: "weak", short: "short", forced: "forced", saturated: "saturated" };
-function flaggedTouches() {
-  const cal = app.session?.calibration;
-  return (cal?.flags || []).map((f, i) => ({ index: i, flags: f || [] })).filter((t) => t.flags.length);
+// Before training: every touch, the flagged ones first, each to leave out (it stays out of every
+// training until put back: POST /api/train/leave_out) or to retake. The flags are the words of
+// ``skinloc check`` (the same code); nothing is left out unless the researcher says so.
+const FLAG_WORDS = { off_target: "off target", weak: "weak", short: "short", forced: "forced", saturated: "saturated" };
+const flagHtml = (flags) => flags.map((f) => `<span class="flag ${esc(f)}">${esc(FLAG_WORDS[f] || f)}</span>`).join("");
+// Leave a touch out, or put it back, from a checkbox (``data-index``); the list follows.
+async function leaveOut(box) {
+  box.disabled = true;
+  await act("/api/train/leave_out", { index: Number(box.dataset.index), out: box.checked });
+  await refreshSession();
 }
 function renderGate() {
   const el = $("#train-gate");
@@ -675,34 +689,31 @@ function renderGate() {
   const n = cal?.done?.length ?? 0;
   if (!app.session || !n) {
     el.innerHTML = app.session ? `<p class="hint">No touch recorded yet: calibrate first.</p>` : "";
+    delete el.dataset.key;
     return;
   }
-  const flagged = flaggedTouches();
-  // Ticked: what the last training left out; before any, the off-target touches.
-  const last = app.state?.session?.holdout;
-  const before = new Set((last?.left_out || []).map((t) => t.index));
-  const leave = (t) => (last ? before.has(t.index) : t.flags.includes("off-target"));
-  const key = `${app.session.id}:${n}:${JSON.stringify(flagged)}:${[...before]}:${!!last}`;
-  if (el.dataset.key === key) return; // keep what the person ticked
+  const touches = cal.done.map((_, i) => ({ index: i, flags: cal.flags?.[i] || [], out: !!cal.left_out?.[i] }));
+  const key = `${app.session.id}:${JSON.stringify(touches)}:${JSON.stringify(cal.numbers)}`;
+  if (el.dataset.key === key) return;
   el.dataset.key = key;
-  if (!flagged.length) {
-    el.innerHTML = `<p><b>${n} touches</b> recorded; none flagged by the capture: all go in.</p>`;
-    return;
-  }
+  const flagged = touches.filter((t) => t.flags.length);
+  const out = touches.filter((t) => t.out);
   const counts = {};
   for (const t of flagged) for (const f of t.flags) counts[f] = (counts[f] || 0) + 1;
   const summary = Object.entries(counts).map(([f, k]) => `${k} ${FLAG_WORDS[f] || f}`).join(", ");
-  el.innerHTML = `<p><b>${n} touches</b> recorded; <b>${flagged.length} flagged</b> by the capture (${esc(summary)}).
-      Leave them out, or retake them on the Calibrate page; the result says what went in.</p>
-    <table class="list gate-list"><thead><tr><th>Touch</th><th>Flags</th><th>Leave out</th><th></th></tr></thead><tbody>
-    ${flagged.map((t) => `<tr data-index="${t.index}"><td>#${t.index + 1}</td>
-      <td>${t.flags.map((f) => `<span class="flag ${esc(f)}">${esc(f)}</span>`).join("")}</td>
-      <td><input type="checkbox" class="leave-out" data-index="${t.index}" ${leave(t) ? "checked" : ""}></td>
-      <td><button data-gate-retake="${t.index}">Retake</button></td></tr>`).join("")}</tbody></table>`;
+  const order = [...flagged, ...touches.filter((t) => !t.flags.length)];
+  el.innerHTML = `<p><b>${n} touches</b> recorded; ${flagged.length ? `<b>${flagged.length} flagged</b> (${esc(summary)}), listed first` : "none flagged"};
+      <b class="gate-out">${out.length} left out</b>${out.length ? ` (${esc(out.map((t) => recName(cal, t.index)).join(", "))})` : ""}.
+      Any touch can be left out (it stays out until put back) or retaken; the result lists what went in.</p>
+    <div class="gate-scroll"><table class="list gate-list"><thead><tr><th>Touch</th><th>Flags</th><th>Leave out</th><th></th></tr></thead><tbody>
+    ${order.map((t) => `<tr data-index="${t.index}" class="${t.out ? "left-out" : ""}"><td class="touch-name">${esc(recName(cal, t.index))}</td>
+      <td>${flagHtml(t.flags)}</td>
+      <td><input type="checkbox" class="leave-out" data-index="${t.index}" ${t.out ? "checked" : ""}></td>
+      <td><button data-gate-retake="${t.index}">Retake</button></td></tr>`).join("")}</tbody></table></div>`;
 }
-function leftOut() {
-  return $$("#train-gate .leave-out").filter((b) => b.checked).map((b) => Number(b.dataset.index));
-}
+$("#train-gate").addEventListener("change", (ev) => {
+  if (ev.target.classList.contains("leave-out")) leaveOut(ev.target);
+});
 $("#train-gate").addEventListener("click", async (ev) => {
   const i = ev.target.dataset?.gateRetake;
   if (i === undefined) return;
@@ -711,13 +722,14 @@ $("#train-gate").addEventListener("click", async (ev) => {
 $("#train-result").addEventListener("click", async (ev) => {
   const d = ev.target.dataset || {};
   if (d.dropTouch !== undefined) {
-    const exclude = [...new Set([...(app.state?.session?.holdout?.left_out || []).map((t) => t.index), Number(d.dropTouch)])];
-    act("/api/train", { exclude });
+    ev.target.disabled = true;
+    if (await act("/api/train/leave_out", { index: Number(d.dropTouch), out: true })) act("/api/train");
+    refreshSession();
   } else if (d.retakeTouch !== undefined) {
     if (await act("/api/capture/retake", { index: Number(d.retakeTouch), recording: "calibration" })) showPage("calibrate");
   }
 });
-$("#train-btn").addEventListener("click", () => act("/api/train", { exclude: leftOut() }));
+$("#train-btn").addEventListener("click", () => act("/api/train"));
 function renderTraining(t) {
   t = t || app.state?.training;
   const bar = $("#train-bar");
@@ -734,7 +746,7 @@ function renderTraining(t) {
     return;
   }
   if (t.running) {
-    const phases = ["held-out check", "final model", "which touch hurts most"];
+    const phases = ["cross-validation", "final model", "with and without the map prior"];
     const k = Math.max(0, phases.indexOf(t.phase));
     const frac = (k + (t.total ? t.done / t.total : 0)) / phases.length;
     bar.style.width = `${Math.round(100 * frac)}%`;
@@ -748,33 +760,40 @@ function renderTraining(t) {
   $("#train-phase").textContent = t.error ? `failed: ${t.error}` : "";
   $("#train-result").innerHTML = t.result ? resultHtml(t.result) : "";
 }
-const touchList = (list) => list.map((t) => `#${t.index + 1}${t.flags?.length ? ` (${t.flags.join(", ")})` : ""}`).join(", ");
+// A training's touches by number (``number``, ``attempt``; older results: ``index`` only).
+const entryName = (t) => touchName(t.number ?? t.index + 1, t.attempt ?? 1);
+const touchList = (list) => list.map((t) => `${entryName(t)}${t.flags?.length ? ` (${t.flags.map((f) => FLAG_WORDS[f] || f).join(", ")})` : ""}`).join(", ");
 function resultHtml(h) {
   const rec = h.n_recorded ?? h.n_point_logs;
-  const inputs = h.left_out?.length
-    ? `Trained on ${h.n_point_logs} of ${rec} touches; left out ${esc(touchList(h.left_out))}.`
-    : `Trained on all ${h.n_point_logs} touches.`;
-  const kept = h.flagged_kept?.length ? ` Flagged but kept: ${esc(touchList(h.flagged_kept))}.` : "";
-  return `<div class="result">${fmtErr(h)}</div>
-    <div class="hint">error on ${h.n_test} held-out touches (median ${h.median_mm.toFixed(1)} mm, p95 ${h.p95_mm.toFixed(1)} mm);
-    the final model learnt from all ${h.n_point_logs} touches it was given${h.train_s != null ? ` in ${h.train_s} s` : ""}.</div>
-    <p class="train-inputs">${inputs}${kept}</p>${influenceHtml(h)}${app.evidence.html(h)}
+  const outList = (h.left_out || []).map((t) => `<li>${esc(entryName(t))}: ${esc(t.why || "left out")}${t.flags?.length ? `; flagged ${esc(t.flags.map((f) => FLAG_WORDS[f] || f).join(", "))}` : ""}</li>`).join("");
+  const inputs = `<p class="train-inputs">${h.left_out?.length ? `Trained on ${h.n_point_logs} of ${rec} touches.` : `Trained on all ${h.n_point_logs} touches.`}
+    ${h.went_in ? `<span class="went-in">In: ${esc(h.went_in.map(entryName).join(", "))}.</span>` : ""}</p>
+    ${outList ? `<div class="left-out-list">Left out:<ul>${outList}</ul></div>` : ""}
+    ${h.flagged_kept?.length ? `<p class="hint">Flagged but kept: ${esc(touchList(h.flagged_kept))}.</p>` : ""}`;
+  // Older results (before the cross-validation): their held-out figure, named so.
+  const figure = h.ci95_mm
+    ? `<div class="result">${h.mean_mm.toFixed(1)} mm <small class="ci">95 % interval ${h.ci95_mm[0].toFixed(1)} to ${h.ci95_mm[1].toFixed(1)} mm</small></div>
+    <div class="hint">mean error of every touch predicted by a model that did not see it (${esc(h.how)} over all ${h.n_point_logs} touches; std ${h.std_mm.toFixed(1)}, median ${h.median_mm.toFixed(1)}, p95 ${h.p95_mm.toFixed(1)} mm; the interval: bootstrap over the touches).
+    The final model learnt from all ${h.n_point_logs} touches${h.train_s != null ? ` (${h.train_s} s in all)` : ""}.</div>`
+    : `<div class="result">${fmtErr(h)}</div><div class="hint">error on ${h.n_test} held-out touches (an older training: train again for the cross-validated error).</div>`;
+  return `${figure}${inputs}${influenceHtml(h)}${app.evidence.html(h)}
     <p class="hint next-hint">Next: <b>Validate</b> on fresh touches, or try it on <b>Live</b>.</p>`;
 }
-// Which touch hurts the held-out error most (skinloc.evaluation.influence): the fall of the
-// other touches' cross-validated error when it is left out too.
+// Which touch hurts the cross-validated error most (skinloc.evaluation.influence): the fall of
+// the other touches' cross-validated error when it is left out too.
 function influenceHtml(h) {
   const inf = h.influence;
   if (!inf || !inf.suspects?.length) return "";
   const s = inf.suspects[0];
-  const flags = (app.session?.calibration?.flags || [])[s.index] || [];
-  const name = `#${s.index + 1}${flags.length ? ` (${flags.join(", ")})` : ""}`;
+  const cal = app.session?.calibration;
+  const flags = (cal?.flags || [])[s.index] || [];
+  const name = `${recName(cal, s.index)}${flags.length ? ` (${flags.map((f) => FLAG_WORDS[f] || f).join(", ")})` : ""}`;
   const big = s.gain_mm >= Math.max(1, 0.1 * s.others_with_mm);
   const how = `cross-validated error of the other touches ${s.others_with_mm.toFixed(1)} mm with it, ${s.others_without_mm.toFixed(1)} mm without it (${inf.n_folds}-fold; its own error ${s.error_mm.toFixed(1)} mm)`;
   if (!big) {
     return `<p class="influence hint">No single touch stands out: the most suspect, ${esc(name)}, moves the ${how}.</p>`;
   }
-  return `<div class="influence warn-box"><b>Touch ${esc(name)} hurts the held-out error most</b>: ${how}.
+  return `<div class="influence warn-box"><b>Touch ${esc(name)} hurts the cross-validated error most</b>: ${how}.
     <div class="buttons"><button data-drop-touch="${s.index}">Leave it out and train again</button>
     <button data-retake-touch="${s.index}">Retake it</button></div></div>`;
 }
@@ -844,7 +863,7 @@ function renderState(prev) {
   const key = wanted ? wanted.join(",") : "";
   if (key !== app.targetKey) {
     app.targetKey = key;
-    app.viewer.setTarget(wanted, true, wanted ? g.index + 1 : null);
+    app.viewer.setTarget(wanted, true, wanted ? g.number : null);
   }
   if (st.mode !== "live" && prev?.mode === "live") app.live.clear();
   $("#live-rate").textContent = d && !link.lost ? `${d.rate_hz.toFixed(1)} Hz` : "-";
@@ -878,11 +897,11 @@ function renderSession() {
   } else if (view === "live") {
     v.show(["live"]);
   } else if (view === "train") {
-    v.show([]); // the touches' errors only (evidence.js)
+    v.show(["evidence"]); // the touches' errors only (evidence.js)
   } else if (view === "calibrate" && !s.calibration.error) {
     const cal = s.calibration;
     v.setPlanned(cal.planned.slice(cal.done.length), cal.done.length);
-    v.setDone(cal.done, cal.flags || []);
+    v.setDone(cal.done, cal.flags || [], (cal.numbers || []).map(([k]) => k));
     v.show(["planned", "done", "target"]);
   }
   if (page === "calibrate") renderGuided("calibrate");

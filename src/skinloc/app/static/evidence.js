@@ -6,6 +6,11 @@ import { errorColor } from "/static/viewer.js";
 
 const MM = 1000;
 
+// ``k`` as an ordinal: 1st, 2nd, 3rd, 4th, ... 11th, 21st.
+export const ordinal = (k) => `${k}${k % 100 >= 10 && k % 100 <= 20 ? "th" : ({ 1: "st", 2: "nd", 3: "rd" }[k % 10] || "th")}`;
+// A touch by its target's number for life: "#6", and a retake "#6 (2nd)".
+export const touchName = (number, attempt = 1) => `#${number}${attempt > 1 ? ` (${ordinal(attempt)})` : ""}`;
+
 // A round bin width giving about ``want`` bins over [0, hi].
 function binWidth(hi, want = 10) {
   const raw = Math.max(hi, 1e-9) / want;
@@ -146,6 +151,8 @@ export class TrainEvidence {
     this.group.name = "touch-errors";
     this.group.visible = false;
     viewer.scene.add(this.group);
+    // One of the view's groups: its numbers are placed by the label layer (view_labels.js).
+    viewer.groups.evidence = this.group;
     this.geometry = new THREE.SphereGeometry(2.4, 14, 10);
     this.key = "";
   }
@@ -154,12 +161,12 @@ export class TrainEvidence {
   html(h) {
     const te = h?.touch_errors;
     if (!te?.error_mm?.length) return "";
-    const order = te.index.map((i, k) => [te.error_mm[k], i]).sort((a, b) => b[0] - a[0]);
-    const worst = order.slice(0, 3).map(([e, i]) => `#${i + 1} (${e.toFixed(1)} mm)`).join(", ");
+    const order = te.index.map((_, k) => [te.error_mm[k], this.name(te, k)]).sort((a, b) => b[0] - a[0]);
+    const worst = order.slice(0, 3).map(([e, name]) => `${name}: ${e.toFixed(1)} mm`).join(", ");
     return `<div class="evidence">
       <h3>Error of each touch <small>predicted by a model that did not see it (${te.how}, ${te.error_mm.length} touches)</small></h3>
       ${histogramSvg(te.error_mm)}
-      <p class="hint">Worst: ${worst}. On the 3D view each touch is a dot at its target, coloured by its error:
+      <p class="hint">Worst: ${worst}. On the 3D view each touch is a dot at its target, numbered and coloured by its error:
       <span class="err-scale"><span class="bar"></span> 0 to ≥ ${scaleTop(te.error_mm)} mm</span></p></div>${this.curveHtml(h)}`;
   }
 
@@ -172,7 +179,13 @@ export class TrainEvidence {
       ${curveSvg(c)}<p class="hint">The prior is used up to the touches where it helped on simulated skins; above, both are one model.${ref}</p></div>`;
   }
 
-  // The dots on the skin: ``h.touch_errors`` placed at the calibration's targets ``done``.
+  // Touch ``k`` of ``te``: its target's number (older results: its position).
+  name(te, k) {
+    return touchName(te.number?.[k] ?? te.index[k] + 1, te.attempt?.[k] ?? 1);
+  }
+
+  // The dots on the skin: ``h.touch_errors`` placed at the calibration's targets ``done``,
+  // each with its touch's number.
   update(h, done) {
     const te = h?.touch_errors;
     const key = te && done ? `${te.index.join(",")}:${te.error_mm.join(",")}:${done.length}` : "";
@@ -180,8 +193,9 @@ export class TrainEvidence {
     this.key = key;
     while (this.group.children.length) {
       const c = this.group.children.pop();
-      c.material.dispose();
+      c.material?.dispose(); // the numbers are bare objects
     }
+    this.viewer.labelsVersion += 1;
     if (te && done) {
       const top = scaleTop(te.error_mm);
       te.index.forEach((i, k) => {
@@ -190,6 +204,7 @@ export class TrainEvidence {
         m.position.set(done[i][0] * MM, done[i][1] * MM, done[i][2] * MM);
         m.userData = { index: i, error_mm: te.error_mm[k] };
         this.group.add(m);
+        this.group.add(this.viewer._label(this.name(te, k).slice(1), m.position.clone(), 2.4));
       });
     }
     this.viewer.dirty = true;

@@ -261,17 +261,18 @@ export class TouchView {
     document.addEventListener("click", (ev) => {
       const row = ev.target.closest?.(".guided .touches tbody tr");
       if (!row || ev.target.closest("button, input, a")) return;
-      const n = Number(row.cells[0]?.textContent);
-      if (!Number.isInteger(n) || n < 1) return;
+      // The row's touch (0-based) and its name: its target's number, "#6 (2nd)" for a retake.
+      const i = Number(row.dataset.index);
+      if (row.dataset.index === undefined || !Number.isInteger(i) || i < 0) return;
       const kind = row.closest(".guided").dataset.kind;
-      this.open(n - 1, kind === "validate" ? "validation" : "calibration");
+      this.open(i, kind === "validate" ? "validation" : "calibration", row.cells[0]?.textContent);
     });
   }
 
-  async open(index, recording) {
+  async open(index, recording, name = `#${index + 1}`) {
     const r = await fetch(`/api/session/touch?index=${index}&recording=${recording}`).catch(() => null);
     const d = r ? await r.json().catch(() => null) : null;
-    const el = popup("touch", `${recording === "validation" ? "Validation" : "Calibration"} touch ${index + 1}`);
+    const el = popup("touch", `${recording === "validation" ? "Validation" : "Calibration"} touch ${name}`);
     this.el = el;
     if (!r?.ok || !d) {
       el.querySelector(".trace-body").innerHTML = `<p class="hint">${this.esc(d?.detail || "cannot read the touch")}</p>`;

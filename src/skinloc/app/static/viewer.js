@@ -223,7 +223,8 @@ export class Viewer {
   }
 
   _dots(name, points, color, size, opacity = 1, first = null) {
-    // Dots; numbered from ``first`` (1-based, as in the touch list and on the printed sheet).
+    // Dots; numbered from ``first`` (1-based, as in the touch list and on the printed sheet),
+    // or by ``first[i]`` when it is a list (each touch's target number).
     this.clear(name);
     const geo = new THREE.SphereGeometry(size, 14, 10);
     for (let i = 0; i < points.length; i++) {
@@ -233,15 +234,17 @@ export class Viewer {
       m.position.copy(p);
       m.userData.index = i;
       this.groups[name].add(m);
-      if (first != null) this.groups[name].add(this._label(String(first + i), p, size));
+      const number = Array.isArray(first) ? first[i] ?? i + 1 : first != null ? first + i : null;
+      if (number != null) this.groups[name].add(this._label(String(number), p, size));
     }
   }
 
   setPlanned(points, first = 0) { this._dots("planned", points, 0x9aa3b5, 1.6, 0.7, first + 1); }
 
-  setDone(points, flags) {
+  setDone(points, flags, numbers = null) {
+    // ``numbers``: each touch's target number (a retake keeps its target's); else 1, 2, ...
     const colors = points.map((_, i) => ((flags[i] || []).length ? 0xe08a00 : 0x1e9e5a));
-    this._dots("done", points, colors, 2.4, 1, 1);
+    this._dots("done", points, colors, 2.4, 1, numbers?.length ? numbers : 1);
   }
 
   setTarget(point, turn = true, number = null) {

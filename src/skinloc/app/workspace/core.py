@@ -133,7 +133,10 @@ class Workspace(
             guided = None
             if self.mode in (Mode.CALIBRATE, Mode.VALIDATE) and a is not None:
                 sess = self._session_of(self.mode)
+                number, attempt = self.prompt_number(sess)
                 guided = {
+                    "number": number,  # the target's, for life (a retake keeps it)
+                    "attempt": attempt,
                     "index": sess.n_done,
                     "total": len(sess.targets),
                     "target": None if sess.finished else sess.targets[sess.n_done],

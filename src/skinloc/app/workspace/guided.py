@@ -11,7 +11,6 @@ from skinloc.app.capture import (
     CapturePhase,
     TouchCapture,
     baseline_drift_sigma,
-    off_target,
     touch_flags,
 )
 from skinloc.app.device import DeviceLink
@@ -22,12 +21,14 @@ from skinloc.app.workspace.state import (
     Mode,
     WorkspaceState,
     app_meta,
+    fill_per_touch,
+    ordinal,
     pop_point_log,
+    touch_numbers,
 )
 from skinloc.calibration.session import CalibrationSession, SessionConfig
-from skinloc.data.recording import Recording
+from skinloc.calibration.touch_check import check_recording
 from skinloc.errors import RecordingError
-from skinloc.geometry.mesh import surface_points
 from skinloc.sources.base import Frame
 
 
@@ -209,7 +210,8 @@ class GuidedCapture(WorkspaceState):
             self._take_back(sess, index, "retake")
             if self.mode is not mode:
                 self._begin(mode, sess)
-            self.message = f"retake: touch target {sess.n_done + 1} again"
+            number, attempt = self.prompt_number(sess)
+            self.message = f"retake: touch target #{number} again ({ordinal(attempt)} attempt)"
             if mode is Mode.CALIBRATE and self.active.model is not None:
                 self.message += "; train again afterwards for the model to use it"
             self._publish_state()
@@ -247,16 +249,31 @@ class GuidedCapture(WorkspaceState):
         if rec.frame_times is not None:
             arrays["frame_times"] = rec.frame_times[index]
         which = "validation" if sess is a.val else "calibration"
+        fill_per_touch(rec)
+        number, attempt = touch_numbers(rec)[index]
         # The history first: the touch must exist somewhere at every instant.
-        a.folder.archive("touch", arrays, {"reason": reason, "recording": which, "index": index})
+        a.folder.archive(
+            "touch",
+            arrays,
+            {
+                "reason": reason,
+                "recording": which,
+                "index": index,
+                "target_number": number,
+                "attempt": attempt,
+            },
+        )
         removed = pop_point_log(rec, index)
+        # Its target is asked next (at the plan's position n - 1): the next touch there is
+        # this target's next attempt, under its number.
+        app_meta(rec).setdefault("next_numbers", []).insert(0, [number, attempt])
         sess.drop_point_log(index)
         if which == "validation":
             self._keep_attempt(rec, index, reason, removed)
         planned = rec.planned_targets if rec.planned_targets is not None else rec.targets
         rec.planned_targets = np.concatenate([rec.targets, removed["target"][None], planned[n:]])
         sess.targets = rec.planned_targets
-        self._refresh_flags(rec)
+        self._refresh_flags(sess)
         sess.save_plan_and_meta()
         if self.capture is not None:
             self.capture.restart(touched_now=True)
@@ -264,7 +281,7 @@ class GuidedCapture(WorkspaceState):
         self._setup_finger()
         if which == "validation":
             self._summarise_validation()
-        self.message = f"{reason}: touch target {rec.n_point_logs + 1} again"
+        self.message = f"{reason}: touch target #{number} again ({ordinal(attempt + 1)} attempt)"
         self._update_session_snr()
         self._publish_state()
 
@@ -278,6 +295,7 @@ class GuidedCapture(WorkspaceState):
                 raise ValueError("no target left to skip")
             target = sess.targets[n]
             app_meta(rec).setdefault("skipped", []).append(target.tolist())
+            self._next_number(rec)  # the skipped target's number is not given to another
             sess.skipped = np.concatenate([np.reshape(sess.skipped, (-1, 3)), target[None]])
             rec.planned_targets = np.delete(sess.targets, n, axis=0)
             sess.targets = rec.planned_targets
@@ -330,8 +348,12 @@ class GuidedCapture(WorkspaceState):
         flags, peak = touch_flags(touch, rec.baseline, self.detector, ref)
         if touch.forced:
             flags.append("forced")
+        fill_per_touch(rec)
+        number, attempt = self._next_number(rec)  # before the touch is stored: not counted
         sess.store_point_log(target, touch.frames, touch.times)  # on disk before anything else
-        meta.setdefault("touch_flags", []).append(flags)
+        fill_per_touch(rec)
+        meta["touch_flags"][index] = flags
+        meta["target_numbers"][index], meta["attempts"][index] = number, attempt
         peaks.append(peak)
         if len(self._quiet) >= 20:
             drift = baseline_drift_sigma(np.stack(self._quiet), rec.baseline, rec.noise)
@@ -346,7 +368,7 @@ class GuidedCapture(WorkspaceState):
         self._quiet = []
         if self.mode is Mode.VALIDATE:
             self._score_touch(rec, index)
-        self._refresh_flags(rec)
+        self._refresh_flags(sess)
         sess.save_plan_and_meta()
         if self._finger is not None and self._finger_down:
             self._finger.captured(index)
@@ -377,13 +399,41 @@ class GuidedCapture(WorkspaceState):
         rec.planned_targets = sess.targets
         sess.save_plan_and_meta()
 
-    def _refresh_flags(self, rec: Recording) -> None:
+    @staticmethod
+    def prompt_number(sess: CalibrationSession) -> tuple[int, int]:
+        """The number and attempt of the target asked now (what ``_next_number`` will give)."""
+        meta = app_meta(sess.recording)
+        pending = meta.get("next_numbers", [])
+        if pending:
+            return int(pending[0][0]), int(pending[0][1]) + 1
+        numbers = (k for k, _ in touch_numbers(sess.recording))
+        used = max([int(meta.get("numbers_used", 0)), *numbers])
+        return used + 1, 1
+
+    @staticmethod
+    def _next_number(rec) -> tuple[int, int]:
+        """The number and attempt of the target asked now, taken (a touch or a skip uses it).
+
+        A target put back by a retake or an undo is its next attempt; any other is the next
+        number not given yet (a skipped target keeps its number: the others match the sheet).
+        """
         meta = app_meta(rec)
-        own = meta.setdefault("touch_flags", [])
-        # Touches recorded elsewhere (skinloc collect on the same file) have no flags of their own.
-        own.extend([] for _ in range(rec.n_point_logs - len(own)))
-        del own[rec.n_point_logs :]
-        bad = off_target(rec.targets, rec.touch_means, surface_points(rec.mesh, 2000)).flags
+        pending = meta.setdefault("next_numbers", [])
+        if pending:
+            number, attempt = pending.pop(0)
+            return int(number), int(attempt) + 1
+        used = max([int(meta.get("numbers_used", 0)), *(k for k, _ in touch_numbers(rec))])
+        meta["numbers_used"] = used + 1
+        return used + 1, 1
+
+    @staticmethod
+    def _refresh_flags(sess: CalibrationSession) -> None:
+        """Every touch's flags: ``skinloc check``'s (``check_recording``), and ``forced``."""
+        rec = sess.recording
+        fill_per_touch(rec)
+        meta = app_meta(rec)
+        flags, _ = check_recording(rec)  # the session's detector settings are in its meta
         meta["flags"] = [
-            list(f) + (["off-target"] if b else []) for f, b in zip(own, bad, strict=True)
+            f + (["forced"] if "forced" in own else [])
+            for f, own in zip(flags, meta["touch_flags"], strict=True)
         ]

@@ -11,7 +11,15 @@ import trimesh
 
 from skinloc.app.device import DeviceLink
 from skinloc.app.store import SessionFolder
-from skinloc.app.workspace.state import ActiveSession, Mode, WorkspaceState, app_meta, same_mesh
+from skinloc.app.workspace.state import (
+    ActiveSession,
+    Mode,
+    WorkspaceState,
+    app_meta,
+    left_out_touches,
+    same_mesh,
+    touch_numbers,
+)
 from skinloc.calibration.session import CalibrationSession, SessionConfig
 from skinloc.data.recording import read_recording, write_recording
 from skinloc.errors import RecordingError, SkinlocError
@@ -233,8 +241,8 @@ class SessionActions(WorkspaceState):
 
         ``points`` ``(E, 3)`` m and ``expected_mm`` ``(E,)`` mm (``skinloc.sensors.coverage``), plus
         the summary of ``skinloc coverage``, the colour scale's range (the map's 5th to 95th
-        percentile), mm, and ``measured``: the session's held-out and validation errors, mm, to
-        compare with. Computed once per model (about a second), outside the lock.
+        percentile), mm, and ``measured``: the session's cross-validated and validation errors,
+        mm, to compare with. Computed once per model (about a second), outside the lock.
         """
         from skinloc.sensors.coverage import coverage_map
 
@@ -265,10 +273,13 @@ class SessionActions(WorkspaceState):
         return {**out, "measured": self._measured_errors()}
 
     def _measured_errors(self) -> dict[str, Any]:
-        """The errors measured on touches, to set the coverage map beside: held-out, validation."""
+        """The errors measured on touches, to set the coverage map beside.
+
+        The training's (cross-validated: its ``how`` says so) and the validation's.
+        """
         with self._lock:
             info = self.active.info if self.active is not None else {}
-        keys = ("n", "mean_mm", "median_mm", "p95_mm")
+        keys = ("n", "mean_mm", "median_mm", "p95_mm", "how", "ci95_mm")
         return {
             k: {key: v[key] for key in keys if key in v}
             for k, v in (("holdout", info.get("holdout")), ("validation", info.get("validation")))
@@ -311,6 +322,8 @@ class SessionActions(WorkspaceState):
                 "planned": plan if plan is not None else np.zeros((0, 3)),
                 "done": np.zeros((0, 3)),
                 "flags": [],
+                "numbers": [],
+                "left_out": [],
                 "peaks": [],
                 "predicted": [],
                 "errors_mm": [],
@@ -324,6 +337,9 @@ class SessionActions(WorkspaceState):
             "planned": rec.planned_targets if rec.planned_targets is not None else rec.targets,
             "done": rec.targets,
             "flags": meta.get("flags", [[] for _ in range(rec.n_point_logs)]),
+            # each touch's target number for life, its attempt, and whether it is left out
+            "numbers": [[k, t] for k, t in touch_numbers(rec)],
+            "left_out": left_out_touches(rec),
             "peaks": meta.get("peaks", []),
             "predicted": meta.get("predicted", []),
             "errors_mm": meta.get("errors_mm", []),

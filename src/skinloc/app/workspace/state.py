@@ -26,7 +26,17 @@ from skinloc.data.recording import Recording
 from skinloc.errors import SkinlocError
 from skinloc.geometry.mesh import cone_skin
 
-__all__ = ["ActiveSession", "AppConfig", "BusyError", "Mode", "WorkspaceState"]
+__all__ = [
+    "ActiveSession",
+    "AppConfig",
+    "BusyError",
+    "Mode",
+    "WorkspaceState",
+    "fill_per_touch",
+    "left_out_touches",
+    "ordinal",
+    "touch_numbers",
+]
 
 
 class BusyError(SkinlocError):
@@ -61,8 +71,9 @@ class AppConfig:
         Pause of the scripted finger before each touch, s.
     frame_push_hz : float
         Heat-map updates sent to the tabs per second.
-    holdout_fraction : float
-        Share of the point logs held out to measure the error when training.
+    cv_folds : int
+        Folds of the cross-validation that measures the error when training (at most one
+        touch a fold: leave-one-out).
     influence_suspects : int
         Touches examined after training for how much they raise the cross-validated error
         of the others (``skinloc.evaluation.influence``); 0: none.
@@ -74,7 +85,7 @@ class AppConfig:
     train_options: dict[str, Any] = field(default_factory=dict)
     finger_delay_s: float = 0.4
     frame_push_hz: float = 25.0
-    holdout_fraction: float = 0.2
+    cv_folds: int = 5
     influence_suspects: int = 2
 
 
@@ -177,7 +188,63 @@ def app_meta(rec: Recording) -> dict[str, Any]:
 
 
 #: Per-touch lists in ``meta["app"]``, one entry per point log.
-PER_POINT = ("touch_flags", "flags", "peaks", "predicted", "uncertainty_mm", "errors_mm")
+PER_POINT = (
+    "touch_flags",
+    "flags",
+    "peaks",
+    "predicted",
+    "uncertainty_mm",
+    "errors_mm",
+    "left_out",
+    "target_numbers",
+    "attempts",
+)
+
+
+def touch_numbers(rec: Recording) -> list[tuple[int, int]]:
+    """Each touch's target number (1-based, kept for life) and attempt (1: the first).
+
+    A retake or an undo is its target's next attempt under the same number; a recording
+    without the numbers (older, or written elsewhere) numbers its touches by position.
+    """
+    meta = app_meta(rec)
+    nums, tries = meta.get("target_numbers", []), meta.get("attempts", [])
+    return [
+        (int(nums[i]) if i < len(nums) else i + 1, int(tries[i]) if i < len(tries) else 1)
+        for i in range(rec.n_point_logs)
+    ]
+
+
+def ordinal(k: int) -> str:
+    """``1st``, ``2nd``, ``3rd``, ``4th``, ... ``11th``, ``21st``."""
+    suffix = "th" if 10 <= k % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(k % 10, "th")
+    return f"{k}{suffix}"
+
+
+def left_out_touches(rec: Recording) -> list[bool]:
+    """Whether each touch is left out of training by hand (until put back)."""
+    out = app_meta(rec).get("left_out", [])
+    return [bool(out[i]) if i < len(out) else False for i in range(rec.n_point_logs)]
+
+
+def fill_per_touch(rec: Recording) -> None:
+    """Give every touch its entries in ``touch_flags``, ``left_out`` and the numbers.
+
+    Touches recorded elsewhere (``skinloc collect`` on the same file, an older recording)
+    have none of their own: no flags of the capture, not left out, numbered by position.
+    """
+    meta = app_meta(rec)
+    numbers = touch_numbers(rec)
+    n = rec.n_point_logs
+    for key, default in (
+        ("touch_flags", lambda i: []),
+        ("left_out", lambda i: False),
+        ("target_numbers", lambda i: numbers[i][0]),
+        ("attempts", lambda i: numbers[i][1]),
+    ):
+        own = meta.setdefault(key, [])
+        own.extend(default(i) for i in range(len(own), n))
+        del own[n:]
 
 
 def pop_point_log(rec: Recording, i: int) -> dict[str, Any]:

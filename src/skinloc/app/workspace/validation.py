@@ -24,11 +24,14 @@ class ValidationActions(WorkspaceState):
                 raise ValueError("train a model first: validation scores the trained model")
             if a.val is None and a.folder.validation.is_file():
                 a.val = CalibrationSession.resume(device.source, a.folder.validation)
+            model_id = (a.info.get("holdout") or {}).get("model_id")
             if (
                 a.val is not None
                 and a.val.recording is not None
                 and not a.val.finished
                 and n_points in (None, len(a.val.targets))
+                # a validation belongs to the model it scored: a retrained one starts anew
+                and app_meta(a.val.recording).get("model_id", model_id) == model_id
             ):
                 self._begin(Mode.VALIDATE, a.val)  # carry on where it stopped
                 return
@@ -60,6 +63,8 @@ class ValidationActions(WorkspaceState):
         a.folder.validation.rename(a.folder.path / kept)
         # Said to be the previous result, never shown as the new run's.
         old = a.info.pop("validation", None)
+        if old is None and "file" not in a.info.get("validation_previous", {"file": None}):
+            old = a.info["validation_previous"]  # an earlier model's, moved by training
         if old:
             a.info["validation_previous"] = {**old, "file": kept}
         a.folder.write_info(a.info)
@@ -87,6 +92,7 @@ class ValidationActions(WorkspaceState):
         model = self.active.model
         pred = model.predict_full(rec.touch_means[index][None])
         meta = app_meta(rec)
+        meta.setdefault("model_id", (self.active.info.get("holdout") or {}).get("model_id"))
         err = float(1e3 * np.linalg.norm(pred.points[0] - rec.targets[index]))
         meta.setdefault("predicted", []).append(pred.points[0].tolist())
         meta.setdefault("uncertainty_mm", []).append(float(pred.uncertainty_mm[0]))
@@ -102,6 +108,8 @@ class ValidationActions(WorkspaceState):
         taken_back = meta.get("taken_back", [])
         if not errors and not taken_back:
             return
+        if meta.get("model_id") != (a.info.get("holdout") or {}).get("model_id"):
+            return  # an earlier model's validation: never shown as this model's
         from skinloc.evaluation.metrics import error_stats
 
         stats: dict[str, Any] = (
@@ -115,6 +123,7 @@ class ValidationActions(WorkspaceState):
             retaken=len(taken_back),
             skipped=len(meta.get("skipped", [])),
             n_attempts=len(errors) + len(taken_back),
+            model_id=meta.get("model_id"),
             # Every attempt, the ones taken back included: the honest figure next to the mean.
             all_attempts=error_stats(np.asarray(every)).as_dict() if every else None,
             taken_back=[

@@ -33,6 +33,7 @@ from tests.app._app import wait as _wait  # noqa: E402
 N_POINTS = int(os.environ.get("SKINLOC_APP_POINTS", "10"))
 
 
+@pytest.mark.slow  # a session in Chromium
 def test_full_session_in_the_browser(chromium, server, tmp_path):
     url, app = server
     # Generous limits: a loaded 2-core machine renders WebGL in software.
@@ -596,6 +597,7 @@ def _calibrate(ws, off_target_at: int | None = None) -> None:
     _wait(lambda: ws.message == "calibration complete", "calibration")
 
 
+@pytest.mark.slow  # a session in Chromium
 def test_sessions_own_their_state_and_flagged_touches_are_gated(chromium, server):
     """Issue 22, section 1: a new session shows nothing of the last one (training result,
     scripted finger); Live and Validate without a model say so without a page error; the
@@ -722,6 +724,7 @@ def test_sessions_own_their_state_and_flagged_touches_are_gated(chromium, server
     assert not errors, f"the page logged errors: {errors}"
 
 
+@pytest.mark.slow  # a session in Chromium
 def test_heat_map_scale_is_steady_robust_and_lockable(chromium, server):
     """Issue 22, section 2: the heat map's scale does not jump from frame to frame (one noisy
     sensor does not set it), can be locked while a touch would raise it, and the outline

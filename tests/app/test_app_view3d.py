@@ -89,6 +89,7 @@ def _session_waiting_at_a_target(ws, n_points: int, n_done: int) -> None:
     _wait(lambda: ws.capture is not None and ws.capture.phase.value == "wait_touch", "the prompt")
 
 
+@pytest.mark.slow  # a session in Chromium
 def test_the_3d_view_is_readable_at_1440_and_800(chromium, server):  # noqa: F811
     url, app = server
     ws = app.state.workspace
@@ -196,6 +197,7 @@ def test_the_3d_view_is_readable_at_1440_and_800(chromium, server):  # noqa: F81
     assert not errors, f"the page logged errors: {errors}"
 
 
+@pytest.mark.slow  # a session in Chromium
 def test_dragging_on_the_skin_moves_the_simulated_finger(chromium, server):  # noqa: F811
     url, app = server
     ws = app.state.workspace
@@ -301,6 +303,7 @@ def test_dragging_on_the_skin_moves_the_simulated_finger(chromium, server):  # n
     assert not errors, f"the page logged errors: {errors}"
 
 
+@pytest.mark.slow  # a session in Chromium
 def test_a_mouse_drag_on_the_live_page_is_tracked(chromium, server):  # noqa: F811
     """Trails and tracking without hardware: a mouse drag across the simulated skin on the Live
     page is followed by the live pipeline, its track's trail running along the drag. (Whether a

@@ -75,9 +75,14 @@ def _controller(config) -> bool:
 
 def pytest_configure(config) -> None:
     """The controller of ``pytest -n`` names the run (xdist's ``--testrunuid``) before it
-    starts its workers, to remove what they shared (``tests/_live.py``) when the run ends."""
+    starts its workers, to remove what they shared (``tests/_live.py``) when the run ends, and
+    keeps the order the workers list the tests in."""
     if _controller(config) and getattr(config.option, "testrunuid", None) is None:
         config.option.testrunuid = uuid.uuid4().hex
+    if _controller(config):
+        # the workers' order (slow units first, pytest_collection_modifyitems), not xdist's
+        # own (the units with the most tests first)
+        config.option.loadscopereorder = False
 
 
 def pytest_unconfigure(config) -> None:
@@ -90,10 +95,23 @@ def pytest_unconfigure(config) -> None:
 
 def pytest_collection_modifyitems(config, items) -> None:
     """``real`` on every test that reads the real recordings (through ``real_dir``), so
-    ``-m "not real"`` runs without them; a mark on a fixture itself would have no effect."""
+    ``-m "not real"`` runs without them; a mark on a fixture itself would have no effect.
+
+    In a worker of ``pytest -n``, the tests are listed with the ``worker_scope`` units holding
+    a ``slow`` test first (each unit kept whole, in its order): the scheduler hands them out in
+    this order (``pytest_configure``), so a long test does not start last and leave the other
+    worker idle at the end of the run.
+    """
     for item in items:
         if "real_dir" in getattr(item, "fixturenames", ()):
             item.add_marker(pytest.mark.real)
+    if hasattr(config, "workerinput"):
+        scopes = [worker_scope(item.nodeid, config.rootpath) for item in items]
+        heavy = {
+            s for s, item in zip(scopes, items, strict=True) if item.get_closest_marker("slow")
+        }
+        order = sorted(range(len(items)), key=lambda i: scopes[i] not in heavy)  # stable
+        items[:] = [items[i] for i in order]
 
 
 def _skip_reason(report) -> str:

@@ -51,6 +51,7 @@ def _download(page, click, folder: Path) -> Path:
     return path
 
 
+@pytest.mark.slow  # a session in Chromium
 def test_export_downloads_every_file_and_view(chromium, server, tmp_path):
     url, app = server
     sync_api.expect.set_options(timeout=60_000)
@@ -138,6 +139,7 @@ def test_export_downloads_every_file_and_view(chromium, server, tmp_path):
     assert not errors, f"the page logged errors: {errors}"
 
 
+@pytest.mark.slow  # a session in Chromium
 def test_record_the_live_stream_from_the_page(chromium, server, tmp_path):
     """Record HDF5 while the live view runs and a finger presses, see it grow, stop, download;
     then MCAP, ended by disconnecting the skin: both files are whole."""
@@ -206,6 +208,7 @@ def test_record_the_live_stream_from_the_page(chromium, server, tmp_path):
     assert not errors, f"the page logged errors: {errors}"
 
 
+@pytest.mark.slow  # a session in Chromium
 def test_train_page_shows_each_touch_error_on_the_skin_and_as_a_histogram(chromium, server):
     url, app = server
     sync_api.expect.set_options(timeout=60_000)
@@ -270,6 +273,7 @@ def test_train_page_shows_each_touch_error_on_the_skin_and_as_a_histogram(chromi
     assert not errors, f"the page logged errors: {errors}"
 
 
+@pytest.mark.slow  # a session in Chromium
 def test_traces_of_a_sensor_a_live_track_and_a_touch(chromium, server):
     url, app = server
     sync_api.expect.set_options(timeout=60_000)
@@ -333,6 +337,7 @@ def test_traces_of_a_sensor_a_live_track_and_a_touch(chromium, server):
     assert not errors, f"the page logged errors: {errors}"
 
 
+@pytest.mark.slow  # a session in Chromium
 def test_live_settings_are_saved_to_the_skins_file_and_latency_is_shown(chromium, server):
     from skinloc.live.skins_file import load_skins
 

@@ -265,6 +265,7 @@ def _bench():
     return module
 
 
+@pytest.mark.slow  # the app served and attacked over HTTP
 def test_attacks_replayed_on_a_running_app(tmp_path):
     """bench/app_attacks.py against a real ``skinloc app`` process: every attack refused."""
     pytest.importorskip("websockets")

@@ -78,6 +78,7 @@ def test_retake_after_complete_and_in_a_reopened_session(tmp_path):
         assert len(client.get("/api/session").json()["calibration"]["done"]) == 6
 
 
+@pytest.mark.slow  # a 20-touch session trained twice
 def test_training_leaves_out_touches_and_names_the_one_that_hurts(tmp_path):
     with make_client(tmp_path) as client:
         client.app.state.workspace.config.influence_suspects = 2

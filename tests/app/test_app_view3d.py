@@ -89,6 +89,7 @@ def _session_waiting_at_a_target(ws, n_points: int, n_done: int) -> None:
     _wait(lambda: ws.capture is not None and ws.capture.phase.value == "wait_touch", "the prompt")
 
 
+@pytest.mark.slow  # a session in Chromium
 def test_the_3d_view_is_readable_at_1440_and_800(chromium, server):  # noqa: F811
     url, app = server
     ws = app.state.workspace
@@ -196,6 +197,7 @@ def test_the_3d_view_is_readable_at_1440_and_800(chromium, server):  # noqa: F81
     assert not errors, f"the page logged errors: {errors}"
 
 
+@pytest.mark.slow  # a session in Chromium
 def test_dragging_on_the_skin_moves_the_simulated_finger(chromium, server):  # noqa: F811
     url, app = server
     ws = app.state.workspace
@@ -233,13 +235,18 @@ def test_dragging_on_the_skin_moves_the_simulated_finger(chromium, server):  # n
         start, end = (cx - 60, cy + 20), (cx + 60, cy - 20)
         hits = [on_skin(page, box, *start), on_skin(page, box, *end)]
         assert all(hits), "the drag's ends are not on the skin"
+        # the pointer events' own times (s, the page's clock), as the page sees them first
+        page.evaluate(
+            "() => { window.__drag = []; for (const type of"
+            " ['pointerdown', 'pointermove', 'pointerup']) window.addEventListener(type,"
+            " (e) => window.__drag.push([type, e.timeStamp / 1000]), { capture: true }); }"
+        )
         page.mouse.move(*start)
         page.mouse.down()
         steps = 12
         for k in range(1, steps + 1):
             f = k / steps
             page.mouse.move(start[0] + f * (end[0] - start[0]), start[1] + f * (end[1] - start[1]))
-            page.wait_for_timeout(40)  # the drag's pace (a speed the test asserts, not a state)
         page.mouse.up()
         _wait(lambda: pressed and pressed[-1] is None, "the finger lifted")
         with lock:
@@ -251,8 +258,18 @@ def test_dragging_on_the_skin_moves_the_simulated_finger(chromium, server):  # n
         assert along[-1] == pytest.approx(1.0, abs=0.02), along
         assert all(y >= x - 0.02 for x, y in itertools.pairwise(along)), along  # forward only
         assert pressed.count(None) == 1  # one lift, at the end
-        # the path keeps the mouse's pace: the page's times span the drag (12 moves 40 ms apart)
-        assert all(b >= a for a, b in itertools.pairwise(times)) and times[-1] - times[0] > 0.3
+        # the path keeps the mouse's pace: each point carries its pointer event's own time,
+        # from the press to the release (not the time the page got round to sending it)
+        events = page.evaluate("() => window.__drag")
+        down = next(t for kind, t in events if kind == "pointerdown")
+        up = next(t for kind, t in events if kind == "pointerup")
+        moved = [t for kind, t in events if kind == "pointermove" and down <= t <= up]
+        assert len(times) == len(pressed) and len(moved) >= steps
+        assert times[0] == pytest.approx(down, abs=1e-9)
+        assert times[-1] == pytest.approx(up, abs=1e-9)
+        for t in times[1:-1]:
+            assert min(abs(t - m) for m in moved) < 1e-9, (t, moved)
+        assert all(b >= a for a, b in itertools.pairwise(times)) and times[-1] > times[0]
 
         # A drag off the skin turns the view and touches nothing.
         n = len(pressed)
@@ -286,6 +303,7 @@ def test_dragging_on_the_skin_moves_the_simulated_finger(chromium, server):  # n
     assert not errors, f"the page logged errors: {errors}"
 
 
+@pytest.mark.slow  # a session in Chromium
 def test_a_mouse_drag_on_the_live_page_is_tracked(chromium, server):  # noqa: F811
     """Trails and tracking without hardware: a mouse drag across the simulated skin on the Live
     page is followed by the live pipeline, its track's trail running along the drag. (Whether a

@@ -147,6 +147,7 @@ def _svg_root(data: bytes) -> ET.Element:
     return root
 
 
+@pytest.mark.slow  # a session in Chromium
 def test_the_whole_flow_as_a_user(chromium, server, tmp_path):
     url, app = server
     ws = app.state.workspace

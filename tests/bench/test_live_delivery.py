@@ -121,6 +121,7 @@ def test_a_gesture_made_while_unplugged_is_left_out_of_precision_and_recall():
 # -------------------------------------------------------------------------- through the pipeline
 
 
+@pytest.mark.slow  # a 60 s gesture script in real time
 def test_scripted_gestures_through_a_faulty_virtual_skin_are_delivered_once(tmp_path):
     """A few seconds of every gesture on a pty with faults and unplugs, `Runner` to a jsonl sink.
 

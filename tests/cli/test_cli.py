@@ -58,6 +58,7 @@ def test_convert_both_ways(rec_path, tmp_path):
     assert res.exit_code == 1 and ".mat or .h5" in res.output
 
 
+@pytest.mark.slow  # models trained and evaluated
 def test_train_and_evaluate(rec_path, tmp_path):
     model = tmp_path / "m.h5"
     res = run("train", rec_path, "--out", model, "--arch", "paper", "--epochs", "30")

@@ -271,6 +271,7 @@ def test_signal_in_a_weakref_callback_is_raised_at_the_next_step():
         ),
     ],
 )
+@pytest.mark.slow  # a long job stopped by a signal
 def test_one_signal_stops_a_long_job_cleanly(tmp_path, argv, sig, code, says):
     """The signal is sent once the job says it is under way (its first progress line), and the
     job is sized so that it is still far from its end then, whatever the machine's load."""

@@ -83,6 +83,7 @@ def test_end_of_a_replay_that_stops_mid_touch(tmp_path):
     _assert_every_touch_ended(out)
 
 
+@pytest.mark.slow  # skinloc run on the paced simulator
 def test_duration_stops_with_the_finger_down(tmp_path):
     """The replay holds the touch for 300 s; ``--duration`` stops the run long before."""
     out, err = tmp_path / "out.jsonl", tmp_path / "err.txt"

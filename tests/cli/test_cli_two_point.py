@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+import pytest
 from typer.testing import CliRunner
 
 from skinloc.cli.main import app
@@ -15,6 +16,7 @@ def run(*args):
     return CliRunner().invoke(app, [str(a) for a in args])
 
 
+@pytest.mark.slow  # a model trained with its two-point search
 def test_a_new_model_shows_its_threshold_in_words_and_json():
     path = model_path("map")
     res = run("coverage", path, "--json", "--points", "60")

@@ -122,6 +122,7 @@ def model(calibration, tmp_path_factory):
     return out
 
 
+@pytest.mark.slow  # a 60 s run on the emulated board
 def test_run_on_the_emulated_board_localises_as_the_direct_path(
     calibration, model, fw_build, tmp_path
 ):

@@ -81,6 +81,7 @@ def test_separable_images_are_fitted_and_their_peaks_found(sim):
     assert np.median(err) < 5.0
 
 
+@pytest.mark.slow  # line fields fitted and held out
 def test_heldout_comparison_picks_the_method_the_sensor_map_reports(sim):
     rec, T, Y, C, tree = sim
     pred = FM.per_crossing_predictor(C, tree, 8, 8, 5.3)
@@ -107,6 +108,7 @@ def test_fit_fields_refuses_mismatched_images(sim):
         FM.fit_fields(T[:3], Y[:3], 8, 8, C, tree)
 
 
+@pytest.mark.slow  # line fields fitted and held out
 def test_real_cone_fields_predict_heldout_touches_and_see_rx3_weak(real_dir):
     rec = read_recording(real_dir / "ConeSkinData80Points_RND_80PL_1.mat")
     C = 1e3 * rec.surface_points

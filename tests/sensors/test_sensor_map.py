@@ -42,6 +42,7 @@ def sim_path(tmp_path_factory):
     return path
 
 
+@pytest.mark.slow  # sensor maps fitted on simulated sessions
 def test_sensor_map_finds_the_simulated_crossings_and_faults(sim_path):
     rec = read_recording(sim_path)
     smap = S.sensor_map_from_recordings([rec], n_boot=0)
@@ -102,6 +103,7 @@ def test_sensor_map_rejects_bad_input():
         S.estimate_sensor_map(np.zeros((20, 3)), np.zeros((20, 64)), 8, 8, cands, label_error_mm=-1)
 
 
+@pytest.mark.slow  # sensor maps fitted on simulated sessions
 def test_info_prints_the_truth_and_sensors_scores_against_it(sim_path, tmp_path):
     info = json.loads(run("info", sim_path, "--json").output)
     assert np.asarray(info["truth_sensor_positions_m"]).shape == (64, 3)
@@ -134,6 +136,7 @@ def test_sensors_bad_input_is_one_line(tmp_path, sim_path):
     assert "Traceback" not in res.output
 
 
+@pytest.mark.slow  # sensor maps fitted on simulated sessions
 def test_sensors_and_coverage_from_a_model(sim_path, tmp_path):
     model = tmp_path / "m.h5"
     assert run("train", sim_path, "--out", model).exit_code == 0
@@ -219,6 +222,7 @@ def test_train_select_cli(sim_path, tmp_path):
     assert res.exit_code == 1 and "between 1 and 80" in res.output
 
 
+@pytest.mark.slow  # sensor maps fitted on simulated sessions
 def test_repeated_targets_measure_the_probing_floor(tmp_path):
     from skinloc.evaluation.repeatability import repeated_pairs, session_repeatability
 
@@ -251,6 +255,7 @@ def test_whole_image_model_beats_the_per_crossing_fit(sim_path):
     assert new.as_dict()["method"] == "joint"
 
 
+@pytest.mark.slow  # sensor maps fitted on simulated sessions
 def test_whole_image_model_falls_back_when_it_does_not_fit(sim_path, monkeypatch):
     rec = read_recording(sim_path)
     old = S.sensor_map_from_recordings([rec], n_boot=0, joint=False)
@@ -284,6 +289,7 @@ def test_plausibility_check_of_the_whole_image_model():
     assert J.plausible(fit(0.0, 12.0), labels, 12.0, 0.0)
 
 
+@pytest.mark.slow  # sensor maps fitted on simulated sessions
 def test_dead_lines_are_found_without_false_alarms(tmp_path):
     """Injected with the simulator's own fault options: TX 2 and RX 5 nearly dead."""
     mesh = cone_skin()
@@ -302,6 +308,7 @@ def test_dead_lines_are_found_without_false_alarms(tmp_path):
     assert np.median(err[alive]) < 3.0
 
 
+@pytest.mark.slow  # sensor maps fitted on simulated sessions
 def test_weak_line_is_judged_without_the_skin_wide_response_trend(tmp_path):
     """Skin seed 5: its weak RX 3 runs near the cone's thin-silicone top, where every line
     responds more; its raw peak gain is then close to the healthy lines at the base, while its
@@ -333,6 +340,7 @@ def test_weak_line_is_judged_without_the_skin_wide_response_trend(tmp_path):
     assert [s for i, s in enumerate(smap.line_status["rx"]) if i != 3] == ["ok"] * 7
 
 
+@pytest.mark.slow  # sensor maps fitted on simulated sessions
 def test_sensors_fields_flag_reaches_the_sensor_map(sim_path, tmp_path, monkeypatch):
     # The fields are tried only where the whole-image model is not kept (as on the real cone):
     # refuse it here so the flag can show.
@@ -364,6 +372,7 @@ def test_sensors_fields_flag_reaches_the_sensor_map(sim_path, tmp_path, monkeypa
     assert res.exit_code == 1 and "--fields" in res.output and "Traceback" not in res.output
 
 
+@pytest.mark.slow  # sensor maps fitted on simulated sessions
 def test_the_app_flags_a_recording_as_skinloc_sensors_does(sim_path):
     """One classifier (``sensors.health``): the Connect page and ``skinloc sensors`` agree."""
     from skinloc.app.device import SensorMonitor

@@ -36,12 +36,16 @@ export class LivePage {
 
   // A long press is reported once held long enough (its end_s is that moment), while the
   // finger may still be down: its row follows the track until it lifts, so a 6 s hold says 6 s.
-  holding(trackId, t, ended) {
+  // A track judged lifted because it fell silent (`stale`) was only late when it speaks again
+  // (a tab or server that lagged half a second): its row follows it again until its end.
+  holding(trackId, t, ended, stale = false) {
     let changed = false;
     for (const g of this.gestures) {
-      if (g.kind !== "long_press" || g.released || !(g.track_ids || []).includes(trackId)) continue;
+      if (g.kind !== "long_press" || !(g.track_ids || []).includes(trackId)) continue;
+      if (g.released && !g.stale) continue; // lifted: its own end came
       if (Number.isFinite(t) && g.start_s != null) g.held_s = Math.max(g.held_s ?? 0, t - g.start_s);
-      if (ended) g.released = true;
+      g.released = ended;
+      g.stale = stale;
       changed = true;
     }
     if (changed) this.later("gestures", () => this.renderGestures());
@@ -70,7 +74,7 @@ export class LivePage {
       if (now - t.at <= TRACK_STALE_MS) continue;
       this.tracks.delete(key);
       this.viewer.endTrack(key);
-      this.holding(t.contact.track_id, NaN, true); // its end was lost on the way: held so far
+      this.holding(t.contact.track_id, NaN, true, true); // its end lost on the way: held so far
       dropped = true;
     }
     if (dropped) this.later("live", () => this.render());

@@ -901,6 +901,7 @@ def test_a_touch_held_when_skinloc_run_stops_ends_for_a_subscriber_in_another_pr
     assert last_action and set(last_action.values()) == {2}  # every sphere DELETEd
 
 
+@pytest.mark.slow  # a multi-process benchmark
 def test_bench_functions_with_the_ros2_sink_run_small(domain):
     from skinloc.bench.online import many_skins
     from skinloc.bench.sinks import sink_cost

@@ -23,9 +23,15 @@ import numpy as np
 import trimesh
 
 from skinloc._typing import Points
-from skinloc.geometry.mesh import SamplingMode, nearest_on_surface, sample_targets
+from skinloc.geometry.mesh import (
+    SamplingMode,
+    farthest_point_sampling,
+    nearest_on_surface,
+    sample_targets,
+)
 
 __all__ = [
+    "MAX_FILL_FACTOR",
     "PLAN_MODES",
     "REASON_RIM",
     "REASON_TILT",
@@ -38,6 +44,9 @@ __all__ = [
 
 #: Target samplings a probing plan uses (a probe gets its targets up front).
 PLAN_MODES = (SamplingMode.EVEN.value, SamplingMode.RANDOM.value)
+#: A filled plan draws at most this many times ``n_points`` targets, in at most as many rounds.
+MAX_FILL_FACTOR = 8
+MAX_FILL_ROUNDS = 8
 #: Why a target was left out.
 REASON_TILT = "tilt"
 REASON_RIM = "rim"
@@ -116,6 +125,8 @@ class ProbePlan:
         The skin's pose in the robot's base frame.
     clearance_m : float
         Height of the approach points above the surface, m.
+    n_drawn : int
+        Targets drawn to make the plan (more than asked for when it was filled).
     """
 
     targets_m: Points
@@ -125,6 +136,7 @@ class ProbePlan:
     skipped_reasons: list[str]
     pose: SkinPose = field(default_factory=SkinPose)
     clearance_m: float = 0.01
+    n_drawn: int = 0
 
     def __len__(self) -> int:
         return len(self.targets_m)
@@ -229,6 +241,7 @@ def plan_probing(
     rim_clearance_m: float = 0.005,
     clearance_m: float = 0.01,
     targets: Points | None = None,
+    fill: bool = False,
 ) -> ProbePlan:
     """Plan a probing session on ``mesh``.
 
@@ -255,6 +268,11 @@ def plan_probing(
         Height of the approach point above the target along the normal, m (> 0).
     targets : (n, 3) float, optional
         Targets to plan instead of sampling them (put on the surface first).
+    fill : bool
+        Plan ``n_points`` reachable targets: draw more (up to ``MAX_FILL_FACTOR`` times as
+        many) until enough are reachable, then keep ``n_points`` of them (an even plan by
+        farthest-point sampling, a random one the first drawn). Those left out of the last
+        draw are listed. By default the ``n_points`` drawn are planned, less those left out.
 
     Returns
     -------
@@ -274,19 +292,41 @@ def plan_probing(
         raise ValueError(f"arm_direction must be a direction (3 numbers), got {arm_direction!r}")
     arm = arm / np.linalg.norm(arm)
     pose = pose or SkinPose()
-    if targets is None:
-        targets = sample_targets(mesh, n_points, mode, random_state=random_state)
-    on_surface, _, face = nearest_on_surface(mesh, targets)
-    normals = np.asarray(mesh.face_normals[face], dtype=np.float64)
-    press_base = pose.directions_to_base(-normals)
-    tilt = np.degrees(np.arccos(np.clip(press_base @ arm, -1.0, 1.0)))
-    reasons = np.full(len(on_surface), "", dtype=object)
-    reasons[tilt > max_tilt_deg] = REASON_TILT
-    if rim_clearance_m > 0:
-        near_rim = boundary_distance(mesh, on_surface) < rim_clearance_m
-        reasons[near_rim & (reasons == "")] = REASON_RIM
+
+    def drawn(points: Points) -> tuple[Points, Points, np.ndarray]:
+        on_surface, _, face = nearest_on_surface(mesh, points)
+        normals = np.asarray(mesh.face_normals[face], dtype=np.float64)
+        press_base = pose.directions_to_base(-normals)
+        tilt = np.degrees(np.arccos(np.clip(press_base @ arm, -1.0, 1.0)))
+        reasons = np.full(len(on_surface), "", dtype=object)
+        reasons[tilt > max_tilt_deg] = REASON_TILT
+        if rim_clearance_m > 0:
+            near_rim = boundary_distance(mesh, on_surface) < rim_clearance_m
+            reasons[near_rim & (reasons == "")] = REASON_RIM
+        return on_surface, normals, reasons
+
+    if targets is not None:
+        on_surface, normals, reasons = drawn(targets)
+    else:
+        n_drawn = n_points
+        for _ in range(MAX_FILL_ROUNDS):
+            targets = sample_targets(mesh, n_drawn, mode, random_state=random_state)
+            on_surface, normals, reasons = drawn(targets)
+            n_ok = int(np.count_nonzero(reasons == ""))
+            if not fill or n_ok >= n_points or n_ok == 0 or n_drawn >= MAX_FILL_FACTOR * n_points:
+                break
+            n_drawn = min(
+                int(np.ceil(1.25 * n_drawn * n_points / n_ok)), MAX_FILL_FACTOR * n_points
+            )
     keep = reasons == ""
     pts, nrm = on_surface[keep], normals[keep]
+    if len(pts) > n_points and targets is not None and fill:
+        # More reachable than asked for: an even plan keeps an even spread of them.
+        if mode == SamplingMode.EVEN.value:
+            pick = np.sort(farthest_point_sampling(pts, n_points))
+        else:
+            pick = np.arange(n_points)
+        pts, nrm = pts[pick], nrm[pick]
     approach = pts + clearance_m * nrm
     order = short_path_order(approach) if len(pts) else np.zeros(0, dtype=int)
     return ProbePlan(
@@ -297,4 +337,5 @@ def plan_probing(
         skipped_reasons=[str(r) for r in reasons[~keep]],
         pose=pose,
         clearance_m=float(clearance_m),
+        n_drawn=len(on_surface),
     )

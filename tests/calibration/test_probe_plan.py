@@ -156,3 +156,18 @@ def test_skin_mount_from_a_skins_file(tmp_path):
         skin_mount(path)
     with pytest.raises(ValueError, match="not found"):
         skin_mount(tmp_path / "none.toml")
+
+
+@pytest.mark.parametrize("mode", ["even", "random"])
+def test_a_filled_plan_has_the_targets_asked_for(cone, mode):
+    plain = plan_probing(cone, 40, mode, random_state=2)
+    assert 0 < len(plain) < 40 and len(plain) + len(plain.skipped_m) == plain.n_drawn == 40
+    full = plan_probing(cone, 40, mode, random_state=2, fill=True)
+    assert len(full) == 40 and full.n_drawn > 40
+    # all reachable: pointing down within 60 degrees, 5 mm from the rim
+    assert np.all(full.normals[:, 2] >= np.cos(np.radians(60)) - 1e-9)
+    assert boundary_distance(cone, full.targets_m).min() >= 0.005
+    assert len(np.unique(np.round(full.targets_m, 9), axis=0)) == 40
+    # nothing reachable: no endless drawing
+    none = plan_probing(cone, 10, mode, arm_direction=(0, 0, 1), fill=True)
+    assert len(none) == 0 and none.n_drawn == 10

@@ -179,3 +179,16 @@ def test_dry_run_only_moves_above(tmp_path, cone):
     with pytest.raises(ProbeSafetyError, match="dry run"):
         probe_dry_run(session, probe, ProbeSettings(), POSE)
     assert probe.stops == 1
+
+
+def test_a_press_the_skin_does_not_feel_stops_the_probe(tmp_path, cone):
+    from skinloc.errors import FrameTimeoutError
+
+    skin = SimulatedSkin(cone, random_state=0)
+    session, _ = _session(tmp_path, cone, skin)
+    # a typical touch needs 1000 mm here: 2 mm barely dents the skin, which feels nothing
+    probe = Spy(SimulatedProbe(skin, pose=POSE, nominal_depth_m=1.0))
+    with pytest.raises(FrameTimeoutError, match="no touch detected"):
+        record_probe_point(session, 0, probe, ProbeSettings(), POSE)
+    assert probe.presses == 1 and probe.stops == 1 and skin.contact is None
+    assert session.n_done == 0

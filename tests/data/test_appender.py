@@ -44,6 +44,20 @@ def test_every_change_is_made_in_place_and_read_back(tmp_path):
     assert path.stat().st_ino == inode
 
 
+def test_an_append_merges_its_meta_in_the_same_write(tmp_path):
+    rec = make_recording(2, 4)
+    path = tmp_path / "a.h5"
+    head = rec.subset(slice(0, 0))
+    app = RecordingAppender(head, path)
+    created = read_recording(path).meta["created"]
+    app.append(rec.targets[0], rec.frames[0], meta={"probe_depths_m": [0.002]})
+    assert read_recording(path).meta["probe_depths_m"] == [0.002]
+    app.append(rec.targets[1], rec.frames[1], meta={"probe_depths_m": [0.002, 0.003]})
+    app.append(rec.targets[1], rec.frames[1])  # no meta: what is there stays
+    got = read_recording(path)
+    assert got.meta["probe_depths_m"] == [0.002, 0.003] and got.meta["created"] == created
+
+
 def test_a_file_written_whole_is_converted_once_then_appended_to(tmp_path):
     rec = make_recording(3, 4)
     rec.planned_targets = np.concatenate([rec.targets, rec.targets[:1]])

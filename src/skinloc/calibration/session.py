@@ -296,15 +296,23 @@ class CalibrationSession:
             self._appender = RecordingAppender.reopen(self.path)
         return self._appender
 
-    def store_point_log(self, target: Points, frames: np.ndarray, times: np.ndarray) -> None:
+    def store_point_log(
+        self,
+        target: Points,
+        frames: np.ndarray,
+        times: np.ndarray,
+        meta: dict[str, Any] | None = None,
+    ) -> None:
         """Add a point log to the recording and append it to the file.
 
-        ``target (3,)`` m, ``frames (s, n_sensors)`` raw counts, ``times (s,)`` s.
+        ``target (3,)`` m, ``frames (s, n_sensors)`` raw counts, ``times (s,)`` s; ``meta``:
+        keys merged into the recording's meta in the same write.
         """
         if self.recording is None:
             raise RecordingError("capture the baseline before recording point logs")
-        self.writer.append(target, frames, times)
+        self.writer.append(target, frames, times, meta=meta)
         self.recording.append(target, frames, times)
+        self.recording.meta.update(meta or {})
 
     def drop_point_log(self, index: int) -> None:
         """Take point log ``index`` out of the file.
@@ -327,7 +335,7 @@ class CalibrationSession:
         self.writer.update_meta(**values)
 
     # ------------------------------------------------------------ the touch rule
-    def _pull(self, capture: TouchCapture) -> CapturedTouch | None:
+    def pull(self, capture: TouchCapture) -> CapturedTouch | None:
         """Feed ``capture`` frames from the source until its touch or its release.
 
         Returns the captured touch, or None when ``capture`` waited for a release.
@@ -426,11 +434,11 @@ class CalibrationSession:
             settle_frames=cfg.settle_frames,
             release_frames=RELEASE_FRAMES,
         )
-        touch = self._pull(capture)
+        touch = self.pull(capture)
         assert touch is not None
         self.store_point_log(target, touch.frames, touch.times)
         prober.captured(index)
-        self._pull(capture)
+        self.pull(capture)
 
     def run(self, prober: Prober, progress: Callable[[int, int], None] | None = None) -> Recording:
         """Record every remaining point log; returns the finished recording."""

@@ -38,6 +38,7 @@ from skinloc.cli.hardware import (
     open_cli_source,
     stats_line,
 )
+from skinloc.cli.probe_collect import ProbeChoice, ProbeOptions, collect_with_probe
 
 log = logging.getLogger(__name__)
 
@@ -127,11 +128,68 @@ def register(app: typer.Typer) -> None:
         force: Annotated[
             bool, typer.Option("--force", help="With --new: replace an existing --out.")
         ] = False,
+        probe: Annotated[
+            ProbeChoice | None,
+            typer.Option(
+                help="A robot's probe presses the targets instead of a person: 'sim' is a "
+                "simulated arm on the simulated skin (docs/hardware.md, 4b-4d)."
+            ),
+        ] = None,
+        probe_error_mm: Annotated[
+            float, typer.Option(min=0, help="--probe sim: the tip's position error per axis, mm.")
+        ] = 0.5,
+        press_depth_mm: Annotated[
+            float, typer.Option(min=0.01, help="--probe: press depth past the surface, mm.")
+        ] = 2.0,
+        press_force_n: Annotated[
+            float | None,
+            typer.Option(min=0.01, help="--probe: press to this force, N, instead of a depth."),
+        ] = None,
+        max_depth_mm: Annotated[
+            float, typer.Option(min=0.01, help="--probe: deepest press allowed, mm.")
+        ] = 5.0,
+        max_force_n: Annotated[
+            float, typer.Option(min=0.01, help="--probe: strongest press allowed, N.")
+        ] = 10.0,
+        clearance_mm: Annotated[
+            float, typer.Option(min=0.1, help="--probe: height above a target before a press, mm.")
+        ] = 10.0,
+        dwell: Annotated[
+            float, typer.Option(min=0, help="--probe: hold after reaching the depth, s.")
+        ] = 0.2,
+        max_tilt_deg: Annotated[
+            float,
+            typer.Option(
+                min=1, max=180, help="--probe: largest angle of a press from --arm-direction."
+            ),
+        ] = 90.0,
+        rim_mm: Annotated[
+            float, typer.Option(min=0, help="--probe: leave out targets this near the rim, mm.")
+        ] = 5.0,
+        arm_direction: Annotated[
+            str, typer.Option(help="--probe: the way the probe points, x,y,z in the base frame.")
+        ] = "0,0,-1",
+        skins: Annotated[
+            Path | None,
+            typer.Option(help="--probe: skins file giving the skin's pose on the robot."),
+        ] = None,
+        skin: Annotated[str | None, typer.Option(help="--probe: the skin of --skins.")] = None,
+        skin_seed: Annotated[
+            int, typer.Option(min=0, help="--probe sim: seed of the simulated skin.")
+        ] = 0,
+        dry_run: Annotated[
+            bool,
+            typer.Option("--dry-run", help="--probe: only move above every target; no file."),
+        ] = False,
     ) -> None:
         """Record a calibration session on the skin, resumable after a crash.
 
         The terminal names each target by its index and coordinates; the recording is saved
         after every touch, and rerunning the same command resumes it.
+
+        With --probe sim a simulated robot arm presses a plan made from the mesh (targets it
+        cannot reach left out) on the simulated skin of --skin-seed, and each touch keeps the
+        tip's reported position and press depth.
 
         Example: skinloc collect --port /dev/ttyACM0 --points 80 --mode even --out cal.h5
         """
@@ -152,6 +210,50 @@ def register(app: typer.Typer) -> None:
                 f"{out} exists and is resumed with its own mesh: drop --mesh or "
                 "pass --new to start over"
             )
+        if probe is not None:
+            if port is not None or source is not SourceChoice.serial or scripted_finger:
+                raise ValueError(
+                    "--probe sim presses the simulated skin it reads: drop --port, --source "
+                    "and --scripted-finger"
+                )
+            if mode.value not in ("even", "random"):
+                raise ValueError(
+                    "--probe plans its targets up front: --mode must be even or random"
+                )
+            collect_with_probe(
+                ProbeOptions(
+                    probe,
+                    error_mm=probe_error_mm,
+                    depth_mm=press_depth_mm,
+                    force_n=press_force_n,
+                    max_depth_mm=max_depth_mm,
+                    max_force_n=max_force_n,
+                    clearance_mm=clearance_mm,
+                    dwell_s=dwell,
+                    max_tilt_deg=max_tilt_deg,
+                    rim_mm=rim_mm,
+                    arm_direction=arm_direction,
+                    skins=skins,
+                    skin=skin,
+                    skin_seed=skin_seed,
+                    dry_run=dry_run,
+                ),
+                out=out,
+                resume=resume,
+                surface=surface,
+                cfg_args={
+                    "samples_per_touch": samples,
+                    "n_baseline_frames": baseline_frames,
+                    "touch_timeout_s": touch_timeout,
+                },
+                n_points=points,
+                mode=mode.value,
+                seed=seed,
+                tx=tx,
+                rx=rx,
+                max_touches=max_touches,
+            )
+            return
         args = SourceArgs(
             port, source, baud, fmt, tx, rx, tx_mask, rx_mask, seed, gain, lines, allow_url
         )

@@ -18,6 +18,39 @@ from skinloc.cli.common import (
 
 #: Meta keys ``info`` shows in their own fields, not under ``meta``.
 _TRUTH_KEYS = ("true_contacts", "truth_sensor_positions_m")
+#: Per-touch meta of a session pressed by a robot's probe (``skinloc collect --probe``).
+_PROBE_KEYS = ("probe_tips_m", "probe_depths_m", "probe_forces_n")
+
+
+def _probe_touches(meta: dict[str, Any]) -> dict[str, Any]:
+    """A probed session's touches: reported tip (mm, mesh frame), depth (mm), force (N)."""
+    tips = meta.get("probe_tips_m")
+    if not isinstance(tips, list):
+        return {}
+    depths = meta.get("probe_depths_m") or [None] * len(tips)
+    forces = meta.get("probe_forces_n") or [None] * len(tips)
+    return {
+        "probe_touches": [
+            {
+                "tip_mm": [round(1e3 * float(v), 3) for v in tip],
+                "depth_mm": None if d is None else round(1e3 * float(d), 3),
+                "force_n": f,
+            }
+            for tip, d, f in zip(tips, depths, forces, strict=False)
+        ]
+    }
+
+
+def _probe_line(touches: list[dict[str, Any]]) -> str:
+    """One line about a probed session's touches, for the table."""
+    depths = [t["depth_mm"] for t in touches if t["depth_mm"] is not None]
+    forces = [t["force_n"] for t in touches if t["force_n"] is not None]
+    what = [f"{len(touches)} with the probe's reported tip"]
+    for name, vals, unit in (("depth", depths, "mm"), ("force", forces, "N")):
+        if vals:
+            lo, hi = min(vals), max(vals)
+            what.append(f"{name} {lo:g} {unit}" if lo == hi else f"{name} {lo:g}-{hi:g} {unit}")
+    return ", ".join(what) + " (each in --json)"
 
 
 def _truth_layout(rec) -> dict[str, Any]:
@@ -254,7 +287,8 @@ def register(app: typer.Typer) -> None:
             "mesh_vertices": len(rec.vertices),
             "mesh_faces": len(rec.faces),
             **(stream_summary(data) or {}),  # a `skinloc record` file: its raw stream too
-            "meta": {k: v for k, v in rec.meta.items() if k not in _TRUTH_KEYS},
+            "meta": {k: v for k, v in rec.meta.items() if k not in _TRUTH_KEYS + _PROBE_KEYS},
+            **_probe_touches(rec.meta),
             **_truth_layout(rec),
             **(read_gesture_truth(data) or {}),  # a `skinloc simulate --gestures` stream
         }
@@ -267,9 +301,16 @@ def register(app: typer.Typer) -> None:
                 table.add_row(k, f"{len(v)} true crossings (simulated skin)")
             elif k in ("truth_gestures", "truth_touches"):
                 table.add_row(k, f"{len(v)} (see --json)")
+            elif k == "probe_touches":
+                table.add_row(k, _probe_line(v))
             elif k != "meta":
                 table.add_row(k, f"{v:.1f}" if isinstance(v, float) else str(v))
         for k, v in summary["meta"].items():
+            if k == "probe" and isinstance(v, dict) and "skipped_m" in v:
+                # the targets left out are many numbers: their count here, each in --json
+                n = len(v["skipped_m"])
+                v = {kk: vv for kk, vv in v.items() if kk not in ("skipped_m", "skipped_reasons")}
+                v["skipped"] = f"{n} unreachable targets (each in --json)"
             table.add_row(f"meta.{k}", str(v))
         console.print(table)
 

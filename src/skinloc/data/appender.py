@@ -155,10 +155,18 @@ class RecordingAppender:
             yield f
             f.flush()
 
-    def append(self, target: Points, frames: np.ndarray, times: np.ndarray | None = None) -> None:
+    def append(
+        self,
+        target: Points,
+        frames: np.ndarray,
+        times: np.ndarray | None = None,
+        meta: dict[str, Any] | None = None,
+    ) -> None:
         """Add one point log and flush it to disk.
 
-        ``target (3,)`` m, ``frames (s, n_sensors)`` raw counts, ``times (s,)`` s (optional).
+        ``target (3,)`` m, ``frames (s, n_sensors)`` raw counts, ``times (s,)`` s (optional);
+        ``meta``: keys merged into the file's meta in the same flush (what a robot's probe
+        reported of this touch stays with it).
         """
         frames = np.asarray(frames, dtype=np.float32)
         if frames.shape != self._shape:
@@ -168,7 +176,7 @@ class RecordingAppender:
         if not np.all(np.isfinite(frames)):
             raise RecordingError("point log frames have NaN or infinite values")
         i = self.n_point_logs
-        meta = {**self.meta, "modified": utc_now()}
+        meta = {**self.meta, **(meta or {}), "modified": utc_now()}
         text = json.dumps(meta)
         with self._edit(frames.nbytes + 16 * len(frames) + 24 + len(text)) as f:
             g = f["point_logs"]

@@ -21,7 +21,7 @@ from skinloc.sources.base import FrameSource, SourceKind, SourceOptions, source_
 if TYPE_CHECKING:
     from skinloc.live.core import SkinCore
 
-__all__ = ["SkinConfig", "skin_info"]
+__all__ = ["SkinConfig", "mount_pose", "skin_info"]
 
 
 @dataclass
@@ -239,19 +239,31 @@ def _mount_pose(
     skin: SkinConfig,
 ) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
     """Check and normalise a skin's mounting pose (translation m, unit quaternion xyzw)."""
-    if skin.parent_frame is not None and (
-        not isinstance(skin.parent_frame, str) or not skin.parent_frame.strip()
-    ):
-        raise ValueError(f"parent_frame must be a frame name, not {skin.parent_frame!r}")
-    t = _vector(skin.translation, 3, "translation")
-    if skin.rotation is not None and skin.rpy is not None:
+    return mount_pose(skin.parent_frame, skin.translation, skin.rotation, skin.rpy)
+
+
+def mount_pose(
+    parent_frame: str | None = None,
+    translation: Sequence[float] = (0.0, 0.0, 0.0),
+    rotation: Sequence[float] | None = None,
+    rpy: Sequence[float] | None = None,
+) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
+    """A skin's mounting pose from a skins file's keys, checked: ``(translation m, xyzw)``.
+
+    ``rotation`` is a unit quaternion ``x, y, z, w``, ``rpy`` fixed-axis roll, pitch, yaw in
+    rad (one of them or neither: the identity). Raises ``ValueError`` naming the key.
+    """
+    if parent_frame is not None and (not isinstance(parent_frame, str) or not parent_frame.strip()):
+        raise ValueError(f"parent_frame must be a frame name, not {parent_frame!r}")
+    t = _vector(translation, 3, "translation")
+    if rotation is not None and rpy is not None:
         raise ValueError("give rotation (quaternion x, y, z, w) or rpy (rad), not both")
-    if skin.rpy is not None:
+    if rpy is not None:
         from skinloc.geometry.skin_frame import quaternion_from_rpy
 
-        q = quaternion_from_rpy(*_vector(skin.rpy, 3, "rpy"))
-    elif skin.rotation is not None:
-        q = _vector(skin.rotation, 4, "rotation (quaternion x, y, z, w)")
+        q = quaternion_from_rpy(*_vector(rpy, 3, "rpy"))
+    elif rotation is not None:
+        q = _vector(rotation, 4, "rotation (quaternion x, y, z, w)")
         norm = math.sqrt(sum(v * v for v in q))
         if abs(norm - 1.0) > 1e-3:
             raise ValueError(f"rotation must be a unit quaternion x, y, z, w (norm {norm:.4g})")

@@ -50,9 +50,10 @@ from typing import Any
 from skinloc.live.core import PipelineConfig
 from skinloc.live.runner import Runner, SkinConfig
 from skinloc.live.sinks.ros2.params import read_param_dump
+from skinloc.live.skin_config import mount_pose
 from skinloc.ros2.names import ros_name
 
-__all__ = ["load_skins", "read_skins_toml", "runner_from_config", "skin_table"]
+__all__ = ["load_skins", "read_skins_toml", "runner_from_config", "skin_mount", "skin_table"]
 
 _PATH_KEYS = ("model", "baseline")
 
@@ -169,3 +170,43 @@ def runner_from_config(path: str | Path, extra_sinks: list[str] | None = None) -
     """A ``Runner`` for every skin of a skins file (plus ``extra_sinks`` for all skins)."""
     skins, sinks = load_skins(path)
     return Runner(skins, sinks=[*sinks, *(extra_sinks or [])])
+
+
+def skin_mount(
+    path: str | Path, name: str | None = None
+) -> tuple[str | None, tuple[float, float, float], tuple[float, float, float, float]]:
+    """One skin's pose on the robot from a skins file: ``(parent_frame, translation m, xyzw)``.
+
+    Only the pose keys are read (``parent_frame``, ``translation``, ``rotation`` or ``rpy``,
+    over ``[defaults]``), so a skin not yet calibrated (no ``model``) has one. ``name`` picks
+    the ``[[skin]]``; it may be left out when the file has one skin. Raises ``ValueError`` in
+    one line for a missing file, an unknown name or a bad pose.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"skins file not found: {path}")
+    raw = read_skins_toml(path)
+    skins = raw.get("skin", [])
+    if not isinstance(skins, list) or not skins:
+        raise ValueError(f"{path}: no [[skin]] entries")
+    defaults = raw.get("defaults", {})
+    entries = [{**defaults, **e} for e in skins if isinstance(e, dict)]
+    names = [str(e.get("name", f"skin{k}")) for k, e in enumerate(entries)]
+    if name is None:
+        if len(entries) != 1:
+            raise ValueError(f"{path} has {len(entries)} skins: name one ({', '.join(names)})")
+        entry = entries[0]
+    elif name in names:
+        entry = entries[names.index(name)]
+    else:
+        raise ValueError(f"{path} has no skin {name!r}; it has: {', '.join(names)}")
+    try:
+        translation, rotation = mount_pose(
+            entry.get("parent_frame"),
+            entry.get("translation", (0.0, 0.0, 0.0)),
+            entry.get("rotation"),
+            entry.get("rpy"),
+        )
+    except ValueError as exc:
+        raise ValueError(f"{path}: skin {names[entries.index(entry)]!r}: {exc}") from None
+    return entry.get("parent_frame"), translation, rotation

@@ -32,6 +32,7 @@ from skinloc.models.multi_contact.search import (
     nnls2_interior,
     polish,
     weakest_z,
+    whiten_into,
 )
 
 __all__ = ["AnchoredPair", "PairRefit"]
@@ -71,12 +72,7 @@ def _anchored_pair(
     """The fit into ``out (3,)``: ratio, z2, found (1.0) or not; rows of ``S.fi[:2]``."""
     w, Ct, Cg, Cd, Cpos, nbr, Ft, Fpos, Fpk, Fcell, off, cfine, _ = arrays
     xw, fi, s = S.xw, S.fi, S.s
-    k = x.shape[0]
-    xx = 0.0
-    for j in range(k):
-        v = np.float32(x[j] * w[j])
-        xw[j] = v
-        xx += float(v) * float(v)
+    xx, _ = whiten_into(x, w, xw)
     C = Ct.shape[0]
     best = np.inf
     ca = 0

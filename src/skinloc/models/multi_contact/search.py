@@ -58,6 +58,7 @@ __all__ = [
     "search_remember",
     "single_into",
     "weakest_z",
+    "whiten_into",
 ]
 
 #: Coarse cells searched around each contact (its own and the nearest others).
@@ -294,6 +295,19 @@ def _dot2(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> tuple:  # pragma: no c
 
 
 @jit()
+def whiten_into(x: np.ndarray, w: np.ndarray, xw: np.ndarray) -> tuple:  # pragma: no cover
+    """``xw = x * w`` (float32, whitened counts); returns ``(|xw|^2, max(0, max xw))``."""
+    xx = 0.0
+    zmax = 0.0
+    for j in range(x.shape[0]):
+        v = np.float32(x[j] * w[j])
+        xw[j] = v
+        xx += float(v) * float(v)
+        zmax = max(zmax, float(v))
+    return xx, zmax
+
+
+@jit()
 def _row_norms(Ft: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
     """``_dot(row, row)`` of every row of ``Ft (P, k)``: ``(P,)`` float64 (the search's own)."""
     n = np.empty(Ft.shape[0])
@@ -341,6 +355,30 @@ def nnls2(
 
 
 @jit()
+def _solve3(G: np.ndarray, b: np.ndarray) -> tuple:  # pragma: no cover - compiled
+    """Least squares of three columns from their Gram ``G`` and ``b``, by cofactors.
+
+    Returns ``(ok, s0, s1, s2)``: ``ok`` False (and zeros) for a degenerate ``G``; the
+    strengths may be negative (``nnls`` and ``nnls3_interior`` decide what to keep).
+    """
+    a, bb, c = G[0, 0], G[0, 1], G[0, 2]
+    d, e, f = G[1, 1], G[1, 2], G[2, 2]
+    c00 = d * f - e * e
+    c01 = c * e - bb * f
+    c02 = bb * e - c * d
+    det = a * c00 + bb * c01 + c * c02
+    if not det > 1e-12 * a * d * f:
+        return False, 0.0, 0.0, 0.0
+    c11 = a * f - c * c
+    c12 = bb * c - a * e
+    c22 = a * d - bb * bb
+    s0 = (c00 * b[0] + c01 * b[1] + c02 * b[2]) / det
+    s1 = (c01 * b[0] + c11 * b[1] + c12 * b[2]) / det
+    s2 = (c02 * b[0] + c12 * b[1] + c22 * b[2]) / det
+    return True, s0, s1, s2
+
+
+@jit()
 def nnls(G: np.ndarray, b: np.ndarray, m: int, s: np.ndarray) -> float:  # pragma: no cover
     """Non-negative least squares of ``m <= 3`` columns from their Gram ``G`` and ``b``.
 
@@ -354,22 +392,12 @@ def nnls(G: np.ndarray, b: np.ndarray, m: int, s: np.ndarray) -> float:  # pragm
     if m == 2:
         g, s[0], s[1] = nnls2(G[0, 0], G[0, 1], G[1, 1], b[0], b[1])
         return g
+    ok, s0, s1, s2 = _solve3(G, b)
+    if ok and s0 >= 0.0 and s1 >= 0.0 and s2 >= 0.0:
+        s[0], s[1], s[2] = s0, s1, s2
+        return s0 * b[0] + s1 * b[1] + s2 * b[2]
     a, bb, c = G[0, 0], G[0, 1], G[0, 2]
     d, e, f = G[1, 1], G[1, 2], G[2, 2]
-    c00 = d * f - e * e
-    c01 = c * e - bb * f
-    c02 = bb * e - c * d
-    det = a * c00 + bb * c01 + c * c02
-    if det > 1e-12 * a * d * f:
-        c11 = a * f - c * c
-        c12 = bb * c - a * e
-        c22 = a * d - bb * bb
-        s0 = (c00 * b[0] + c01 * b[1] + c02 * b[2]) / det
-        s1 = (c01 * b[0] + c11 * b[1] + c12 * b[2]) / det
-        s2 = (c02 * b[0] + c12 * b[1] + c22 * b[2]) / det
-        if s0 >= 0.0 and s1 >= 0.0 and s2 >= 0.0:
-            s[0], s[1], s[2] = s0, s1, s2
-            return s0 * b[0] + s1 * b[1] + s2 * b[2]
     g01, p0, p1 = nnls2(a, bb, d, b[0], b[1])
     g02, q0, q2 = nnls2(a, c, f, b[0], b[2])
     g12, r1, r2 = nnls2(d, e, f, b[1], b[2])
@@ -387,23 +415,10 @@ def nnls(G: np.ndarray, b: np.ndarray, m: int, s: np.ndarray) -> float:  # pragm
 def nnls3_interior(G: np.ndarray, b: np.ndarray, s: np.ndarray) -> float:  # pragma: no cover
     """``nnls(G, b, 3, s)``'s gain if its answer has three positive strengths, else -1.
 
-    The same arithmetic as ``nnls``'s interior solution; ``s`` is written only when kept.
+    ``nnls``'s interior solution (``_solve3``); ``s`` is written only when kept.
     """
-    a, bb, c = G[0, 0], G[0, 1], G[0, 2]
-    d, e, f = G[1, 1], G[1, 2], G[2, 2]
-    c00 = d * f - e * e
-    c01 = c * e - bb * f
-    c02 = bb * e - c * d
-    det = a * c00 + bb * c01 + c * c02
-    if not det > 1e-12 * a * d * f:
-        return -1.0
-    c11 = a * f - c * c
-    c12 = bb * c - a * e
-    c22 = a * d - bb * bb
-    s0 = (c00 * b[0] + c01 * b[1] + c02 * b[2]) / det
-    s1 = (c01 * b[0] + c11 * b[1] + c12 * b[2]) / det
-    s2 = (c02 * b[0] + c12 * b[1] + c22 * b[2]) / det
-    if not (s0 > 0.0 and s1 > 0.0 and s2 > 0.0):
+    ok, s0, s1, s2 = _solve3(G, b)
+    if not (ok and s0 > 0.0 and s1 > 0.0 and s2 > 0.0):
         return -1.0
     s[0], s[1], s[2] = s0, s1, s2
     return s0 * b[0] + s1 * b[1] + s2 * b[2]
@@ -598,14 +613,7 @@ def search_into(
     xw, bC, g1, top, fi, keep, gq, qq, s, spread, st = S
     z_on, min2, tau2, tau3 = prm[PRM_Z_ON], prm[PRM_MIN2], prm[PRM_TAU2], prm[PRM_TAU3]
     z2_min, z3_min = prm[PRM_Z2_MIN], prm[PRM_Z3_MIN]
-    k = x.shape[0]
-    xx = 0.0
-    zmax = 0.0
-    for j in range(k):
-        v = np.float32(x[j] * w[j])
-        xw[j] = v
-        xx += float(v) * float(v)
-        zmax = max(zmax, float(v))
+    xx, zmax = whiten_into(x, w, xw)
     st[:] = 0.0
     st[STAT_XX] = xx
     # the model's typical misfit of one touch: a reduction within it is no second finger
@@ -810,13 +818,7 @@ def recall_into(
         return -1
     w = arrays.w
     xw, fi, s, st = S.xw, S.fi, S.s, S.stats
-    xx = 0.0
-    zmax = 0.0
-    for j in range(x.shape[0]):
-        v = np.float32(x[j] * w[j])
-        xw[j] = v
-        xx += float(v) * float(v)
-        zmax = max(zmax, float(v))
+    xx, zmax = whiten_into(x, w, xw)
     st[:] = 0.0
     st[STAT_XX] = xx
     if zmax < prm[PRM_Z_ON]:

@@ -1,17 +1,21 @@
 """A stand-in robot arm for ``Ros2Probe``, with the real rclpy, run in another process.
 
-``python ros2_arm.py LOG MODE TIMEOUT_S`` with ``ROS_DOMAIN_ID`` set. It follows the contract of
-``skinloc.calibration.probe_ros2`` under ``/skinloc/probe``: ``above`` to an approach, the tip
-pose (the press pose plus ``TIP_OFFSET_M``, the arm's "measurement") then ``pressed`` to a
-press, ``lifted`` to a lift, ``stopped`` to a stop. MODE ``ok`` answers everything; ``mute``
-never answers a press (a lost arm); ``refuse`` answers a press with ``error: joint limit``.
-Every message it hears goes, as it comes, to LOG (one JSON line each); it prints ``ready`` once
-its node is up and exits after TIMEOUT_S or on SIGTERM/SIGINT. Nothing here asserts.
+``python ros2_arm.py LOG MODE TIMEOUT_S [PORT]`` with ``ROS_DOMAIN_ID`` set. It follows the
+contract of ``skinloc.calibration.probe_ros2`` under ``/skinloc/probe``: ``above`` to an
+approach, the tip pose (the press pose plus ``TIP_OFFSET_M``, the arm's "measurement") then
+``pressed`` to a press, ``lifted`` to a lift, ``stopped`` to a stop. MODE ``ok`` answers
+everything; ``mute`` never answers a press (a lost arm); ``refuse`` answers a press with
+``error: joint limit``; ``skin`` answers everything and presses the virtual skin of PORT
+(``skinloc virtual-skin``) at the measured tip (``touch x y z``, the base frame taken as the
+mesh frame), lifting its finger on a lift or a stop. Every message it hears goes, as it comes,
+to LOG (one JSON line each); it prints ``ready`` once its node is up and exits after TIMEOUT_S
+or on SIGTERM/SIGINT. Nothing here asserts.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import signal
 import sys
 import time
@@ -27,6 +31,12 @@ TIP_OFFSET_M = (0.0003, -0.0002, 0.0001)
 
 def main() -> None:
     log_path, mode, timeout_s = sys.argv[1], sys.argv[2], float(sys.argv[3])
+    finger = os.open(sys.argv[4], os.O_WRONLY | os.O_NOCTTY) if mode == "skin" else None
+
+    def touch(line: str) -> None:
+        if finger is not None:
+            os.write(finger, line.encode() + b"\n")
+
     rclpy.init()
     node = Node("stand_in_arm")
     qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -69,14 +79,18 @@ def main() -> None:
         out.pose.position.y += TIP_OFFSET_M[1]
         out.pose.position.z += TIP_OFFSET_M[2]
         tip.publish(out)
+        q = out.pose.position
+        touch(f"touch {q.x:.6f} {q.y:.6f} {q.z:.6f}")
         say("pressed")
 
     def on_lift(msg) -> None:
         note("lift", msg)
+        touch("lift")
         say("lifted")
 
     def on_stop(_msg) -> None:
         note("stop")
+        touch("lift")
         say("stopped")
 
     subs = [  # noqa: F841 - kept alive for the run
@@ -100,6 +114,8 @@ def main() -> None:
     node.destroy_node()
     rclpy.try_shutdown()
     log.close()
+    if finger is not None:
+        os.close(finger)
 
 
 if __name__ == "__main__":

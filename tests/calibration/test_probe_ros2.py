@@ -57,11 +57,12 @@ def ros_domain(monkeypatch):
 class Arm:
     """The stand-in arm process and what it heard."""
 
-    def __init__(self, tmp_path: Path, mode: str) -> None:
+    def __init__(self, tmp_path: Path, mode: str, port: str | None = None) -> None:
         self.log = tmp_path / f"arm-{mode}.jsonl"
         self.log.touch()
         self.proc = subprocess.Popen(
-            [sys.executable, str(ARM), str(self.log), mode, str(scaled(300.0))],
+            [sys.executable, str(ARM), str(self.log), mode, str(scaled(300.0))]
+            + ([port] if port else []),
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,

@@ -1,9 +1,9 @@
 """``skinloc collect --probe ros2`` against a stand-in arm written with rclpy, in another process.
 
-The skin is ``--source sim``: the stand-in arm cannot press it, so a press it answers is never
-felt; what is tested is the whole session up to the press through the real rclpy exchange, the
-timeouts, and that every stop reaches the arm. The exchange of whole touches is tested in
-``tests/calibration/test_probe_ros2.py``. Skipped, with the reason, without the Jazzy wheels.
+Whole sessions: the stand-in arm presses ``skinloc virtual-skin`` (a pseudo-terminal) at the tip
+it reports, and collect reads that port. Failure paths on ``--source sim``, which the arm cannot
+press (a press it answers is never felt): the timeouts, and that every stop reaches the arm.
+Skipped, with the reason, without the Jazzy wheels.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from typer.testing import CliRunner
 
 from skinloc.cli.main import app
 from skinloc.data.recording import read_recording
-from tests._helpers import one_line_error, start_skinloc, stop_and_wait, wait_until
+from tests._helpers import one_line_error, scaled, start_skinloc, stop_and_wait, wait_until
 from tests.calibration.test_probe_ros2 import _WHY, Arm
 
 pytestmark = pytest.mark.skipif(bool(_WHY), reason=_WHY)
@@ -127,3 +127,59 @@ def test_a_real_ctrl_c_stops_the_arm(tmp_path, arm):
     assert "probe stopped" in err, err
     wait_until(lambda: "stop" in arm.kinds(), "the arm to hear the stop", 30.0)
     assert arm.kinds() == ["approach", "press", "stop"]
+
+
+@pytest.mark.skipif(os.name != "posix", reason="the virtual skin is a pseudo-terminal")
+def test_an_arm_presses_the_virtual_skin_end_to_end(tmp_path, ros_domain):
+    """The stand-in arm presses ``skinloc virtual-skin`` at its measured tip; collect reads it."""
+    import numpy as np
+
+    from tests.calibration.test_probe_ros2 import TIP_OFFSET_M
+
+    skin = start_skinloc(
+        "virtual-skin", "--format", "binary", "--rate", "100",
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    arm = None
+    try:
+        assert skin.stdout is not None
+        port = skin.stdout.readline().strip()
+        assert port, skin.stderr.read() if skin.stderr else ""
+        arm = Arm(tmp_path, "skin", port)
+        out = tmp_path / "cal.h5"
+        res = runner.invoke(
+            app,
+            [
+                "collect",
+                "--probe",
+                "ros2",
+                "--port",
+                port,
+                "--points",
+                "3",
+                "--samples",
+                "5",
+                "--baseline-frames",
+                "10",
+                "--touch-timeout",
+                "30",
+                "--out",
+                str(out),
+            ],  # fmt: skip
+        )
+        assert res.exit_code == 0, res.output
+        assert "3/3 probed point logs (complete)" in res.output
+    finally:
+        if arm is not None:
+            arm.end()
+        skin.send_signal(signal.SIGINT)
+        skin.communicate(timeout=scaled(120.0))
+    assert arm.kinds() == ["approach", "press", "lift"] * 3
+    rec = read_recording(out)
+    assert rec.n_point_logs == 3 and rec.meta["probe"]["kind"] == "ros2"
+    presses = [r["position"] for r in arm.heard() if r["kind"] == "press"]
+    # the recording keeps the arm's measured tips (base frame = mesh frame here)
+    np.testing.assert_allclose(rec.meta["probe_tips_m"], np.add(presses, TIP_OFFSET_M), atol=1e-6)
+    assert rec.meta["probe_depths_m"] == [0.002] * 3
+    res = runner.invoke(app, ["info", str(out)])
+    assert res.exit_code == 0 and "3 with the probe's reported tip, depth 2 mm" in res.output

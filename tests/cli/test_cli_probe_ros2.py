@@ -147,28 +147,16 @@ def test_an_arm_presses_the_virtual_skin_end_to_end(tmp_path, ros_domain):
         assert port, skin.stderr.read() if skin.stderr else ""
         arm = Arm(tmp_path, "skin", port)
         out = tmp_path / "cal.h5"
-        res = runner.invoke(
-            app,
-            [
-                "collect",
-                "--probe",
-                "ros2",
-                "--port",
-                port,
-                "--points",
-                "3",
-                "--samples",
-                "5",
-                "--baseline-frames",
-                "10",
-                "--touch-timeout",
-                "30",
-                "--out",
-                str(out),
-            ],  # fmt: skip
-        )
+        args = [
+            "collect", "--probe", "ros2", "--port", port, "--points", "3", "--samples", "5",
+            "--baseline-frames", "10", "--touch-timeout", "30", "--out", str(out),
+        ]  # fmt: skip
+        res = runner.invoke(app, [*args, "--max-touches", "2"])
         assert res.exit_code == 0, res.output
-        assert "3/3 probed point logs (complete)" in res.output
+        assert "2/3 probed point logs (saved; rerun" in res.output
+        res = runner.invoke(app, args)  # the same command resumes, with the file's settings
+        assert res.exit_code == 0, res.output
+        assert "Resuming" in res.output and "3/3 probed point logs (complete)" in res.output
     finally:
         if arm is not None:
             arm.end()

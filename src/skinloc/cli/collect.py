@@ -73,6 +73,17 @@ class TerminalProber:
             self.finger.write(b"lift\n")
 
 
+def _opener(params: dict[str, Any]):
+    """Opens the source ``params`` (the command's options) name, for the skin's mesh."""
+
+    def open_source(mesh):
+        if params.get("source") is SourceChoice.sim:
+            return open_cli_source({**params, "port": None}, mesh=mesh)
+        return open_cli_source(params)
+
+    return open_source
+
+
 def register(app: typer.Typer) -> None:
     """Add ``skinloc collect`` to the main ``skinloc`` app."""
 
@@ -132,9 +143,16 @@ def register(app: typer.Typer) -> None:
             ProbeChoice | None,
             typer.Option(
                 help="A robot's probe presses the targets instead of a person: 'sim' is a "
-                "simulated arm on the simulated skin (docs/hardware.md, 4b-4d)."
+                "simulated arm on the simulated skin, 'ros2' an arm over ROS 2 topics "
+                "(/skinloc/probe/*) on the skin of --port (docs/hardware.md, 4b-4d)."
             ),
         ] = None,
+        probe_timeout: Annotated[
+            float,
+            typer.Option(
+                min=0.1, help="--probe ros2: longest wait for the arm to appear or answer, s."
+            ),
+        ] = 30.0,
         probe_error_mm: Annotated[
             float, typer.Option(min=0, help="--probe sim: the tip's position error per axis, mm.")
         ] = 0.5,
@@ -189,7 +207,8 @@ def register(app: typer.Typer) -> None:
 
         With --probe sim a simulated robot arm presses a plan made from the mesh (targets it
         cannot reach left out) on the simulated skin of --skin-seed, and each touch keeps the
-        tip's reported position and press depth.
+        tip's reported position and press depth. With --probe ros2 an arm answering the
+        /skinloc/probe topics presses the skin of --port (docs/hardware.md, 4c).
 
         Example: skinloc collect --port /dev/ttyACM0 --points 80 --mode even --out cal.h5
         """
@@ -211,7 +230,9 @@ def register(app: typer.Typer) -> None:
                 "pass --new to start over"
             )
         if probe is not None:
-            if port is not None or source is not SourceChoice.serial or scripted_finger:
+            if scripted_finger:
+                raise ValueError("--probe presses the targets itself: drop --scripted-finger")
+            if probe is ProbeChoice.sim and (port is not None or source is not SourceChoice.serial):
                 raise ValueError(
                     "--probe sim presses the simulated skin it reads: drop --port, --source "
                     "and --scripted-finger"
@@ -237,6 +258,7 @@ def register(app: typer.Typer) -> None:
                     skin=skin,
                     skin_seed=skin_seed,
                     dry_run=dry_run,
+                    timeout_s=probe_timeout,
                 ),
                 out=out,
                 resume=resume,
@@ -252,6 +274,7 @@ def register(app: typer.Typer) -> None:
                 tx=tx,
                 rx=rx,
                 max_touches=max_touches,
+                open_source=_opener(dict(locals())),
             )
             return
         args = SourceArgs(

@@ -1,4 +1,7 @@
-"""``skinloc collect --probe sim``: a calibration session pressed by a (simulated) robot's probe.
+"""``skinloc collect --probe sim|ros2``: a calibration session pressed by a robot's probe.
+
+``sim`` is a simulated arm on a simulated skin of its own; ``ros2`` an arm answering the ROS 2
+topics of ``calibration.probe_ros2`` on the skin of ``--port`` (or ``--source``).
 
 The session is the terminal's (``cli.collect``): the recording at ``--out`` is written touch by
 touch with ``RecordingAppender`` and a rerun of the same command resumes it. The probe's plan
@@ -9,7 +12,9 @@ comes from the mesh (``calibration.probe_plan``), each touch is ``calibration.pr
 
 from __future__ import annotations
 
+import contextlib
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from enum import StrEnum
 from pathlib import Path
@@ -26,6 +31,7 @@ class ProbeChoice(StrEnum):
     """Probes ``skinloc collect --probe`` drives."""
 
     sim = "sim"
+    ros2 = "ros2"
 
 
 @dataclass
@@ -47,6 +53,7 @@ class ProbeOptions:
     skin: str | None = None
     skin_seed: int = 0
     dry_run: bool = False
+    timeout_s: float = 30.0
 
 
 def _direction(text: str) -> tuple[float, float, float]:
@@ -100,11 +107,14 @@ def collect_with_probe(
     tx: int | None,
     rx: int | None,
     max_touches: int | None,
+    open_source: Callable[[Any], Any] | None = None,
 ) -> None:
     """Run (or resume) a probed session into ``out``; see the module and ``skinloc collect``.
 
     ``cfg_args`` are the ``SessionConfig`` fields the command sets (samples, baseline frames,
-    touch timeout); ``surface`` is the mesh (None when resuming: the file's).
+    touch timeout); ``surface`` is the mesh (None when resuming: the file's). ``--probe sim``
+    presses a simulated skin of its own; ``--probe ros2`` an arm over ROS 2
+    (``calibration.probe_ros2``) on the skin ``open_source(mesh)`` opens (``--port``).
     """
     from skinloc.calibration.probe import (
         ProbeSettings,
@@ -126,6 +136,11 @@ def collect_with_probe(
             raise RecordingError(
                 f"{out} was not recorded with a probe: resume it without --probe, or pass --new"
             )
+        if saved.get("kind", "sim") != opts.probe.value:
+            raise ValueError(
+                f"{out} was probed with --probe {saved.get('kind', 'sim')}: resume it with that "
+                "probe, or pass --new"
+            )
         surface = rec.mesh
         pose = SkinPose(
             tuple(saved["pose"]["translation_m"]),
@@ -144,8 +159,26 @@ def collect_with_probe(
         error_m, dwell_s, skin_seed = opts.error_mm * 1e-3, opts.dwell_s, opts.skin_seed
         if not (math.isfinite(error_m) and error_m >= 0):
             raise ValueError(f"--probe-error-mm must be >= 0, got {opts.error_mm!r}")
-    skin = SimulatedSkin(surface, n_tx=tx or 8, n_rx=rx or 8, random_state=skin_seed)
-    with skin:
+    ros2 = opts.probe is ProbeChoice.ros2
+    if ros2:
+        if open_source is None:
+            raise ValueError("--probe ros2 reads the skin of --port: give --port")
+        skin = open_source(surface)
+    else:
+        skin = SimulatedSkin(surface, n_tx=tx or 8, n_rx=rx or 8, random_state=skin_seed)
+    with contextlib.ExitStack() as stack:
+        probe: Any = None
+        if ros2:  # the arm first: a missing one is told before anything is written
+            from skinloc.calibration.probe_ros2 import Ros2Probe
+
+            probe = Ros2Probe(
+                pose.parent_frame or "base_link",
+                timeout_s=opts.timeout_s,
+                connect_timeout_s=opts.timeout_s,
+                max_depth_m=settings.max_depth_m,
+            )
+            stack.callback(probe.close)
+        stack.enter_context(skin)
         if resume:
             session = CalibrationSession.resume(skin, out)
             if session.finished:
@@ -153,12 +186,14 @@ def collect_with_probe(
                     f"{out} is already complete ({session.n_done} point logs); "
                     "pass --new to record it again"
                 )
-            skin.reseed(seed + session.n_done)
+            if not ros2:
+                skin.reseed(seed + session.n_done)
             console.print(
                 f"Resuming {out} at point log {session.n_done + 1}/{len(session.targets)}"
             )
         else:
-            skin.reseed(seed)
+            if not ros2:
+                skin.reseed(seed)
             plan = plan_probing(
                 surface,
                 n_points,
@@ -186,23 +221,33 @@ def collect_with_probe(
                 n_points=len(plan),
                 mode=mode,
                 random_state=seed,
-                description=f"probed by a simulated arm (skin seed {skin_seed})",
+                description=(
+                    f"probed by an arm over ROS 2 on {skin.name}"
+                    if ros2
+                    else f"probed by a simulated arm (skin seed {skin_seed})"
+                ),
                 **cfg_args,
             )
             session = CalibrationSession(
-                skin, surface, out, cfg, targets=plan.targets_m, source_name="sim"
+                skin,
+                surface,
+                out,
+                cfg,
+                targets=plan.targets_m,
+                source_name=skin.name if ros2 else "sim",
             )
-        probe = SimulatedProbe(
-            skin,
-            pose=pose,
-            position_error_m=error_m,
-            max_depth_m=settings.max_depth_m,
-            max_force_n=settings.max_force_n,
-            dwell_s=dwell_s,
-            random_state=seed + 1 + session.n_done,
-        )
         n_targets = len(session.targets)
         try:
+            if not ros2:
+                probe = SimulatedProbe(
+                    skin,
+                    pose=pose,
+                    position_error_m=error_m,
+                    max_depth_m=settings.max_depth_m,
+                    max_force_n=settings.max_force_n,
+                    dwell_s=dwell_s,
+                    random_state=seed + 1 + session.n_done,
+                )
             if opts.dry_run and not resume:
                 frames, _ = skin.read_many(session.config.n_baseline_frames)
                 from skinloc.calibration.capture import TouchDetector
@@ -222,9 +267,10 @@ def collect_with_probe(
                 session.update_meta(
                     probe={
                         "kind": opts.probe.value,
-                        "error_m": error_m,
-                        "dwell_s": dwell_s,
-                        "skin_seed": skin_seed,
+                        # a simulated arm's own figures; an arm over ROS 2 has none
+                        "error_m": None if ros2 else error_m,
+                        "dwell_s": None if ros2 else dwell_s,
+                        "skin_seed": None if ros2 else skin_seed,
                         "settings": settings.as_meta(),
                         "pose": {
                             "translation_m": list(pose.translation_m),
@@ -251,7 +297,8 @@ def collect_with_probe(
                 "rerun the same command to resume"
             ) from None
         finally:
-            probe.close()
+            if probe is not None:
+                probe.close()
             session.close()
     done = session.n_done
     state = "complete" if done >= n_targets else "saved; rerun the same command to resume"

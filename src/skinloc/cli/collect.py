@@ -73,13 +73,13 @@ class TerminalProber:
             self.finger.write(b"lift\n")
 
 
-def _opener(params: dict[str, Any]):
-    """Opens the source ``params`` (the command's options) name, for the skin's mesh."""
+def _opener(args: SourceArgs):
+    """Opens the source ``args`` (the command's options) name, for the skin's mesh."""
 
     def open_source(mesh):
-        if params.get("source") is SourceChoice.sim:
-            return open_cli_source({**params, "port": None}, mesh=mesh)
-        return open_cli_source(params)
+        if args.source is SourceChoice.sim:
+            return open_cli_source(dataclasses.replace(args, port=None), mesh=mesh)
+        return open_cli_source(args)
 
     return open_source
 
@@ -229,6 +229,9 @@ def register(app: typer.Typer) -> None:
                 f"{out} exists and is resumed with its own mesh: drop --mesh or "
                 "pass --new to start over"
             )
+        args = SourceArgs(
+            port, source, baud, fmt, tx, rx, tx_mask, rx_mask, seed, gain, lines, allow_url
+        )
         if probe is not None:
             if scripted_finger:
                 raise ValueError("--probe presses the targets itself: drop --scripted-finger")
@@ -274,12 +277,9 @@ def register(app: typer.Typer) -> None:
                 tx=tx,
                 rx=rx,
                 max_touches=max_touches,
-                open_source=_opener(dict(locals())),
+                open_source=_opener(args),
             )
             return
-        args = SourceArgs(
-            port, source, baud, fmt, tx, rx, tx_mask, rx_mask, seed, gain, lines, allow_url
-        )
         if source is SourceChoice.sim:
             from skinloc.data.recording import read_recording
 

@@ -12,14 +12,19 @@ Figures (docs/benchmarks.md, "Live pipeline"):
 * batched frames/s: the engine's ``predict_batch`` on 200,000 touched frames, against the same
   baseline on the same batch;
 * 100 skins at 100 Hz (``skinloc.bench.many_skins``): a feeder process writes every skin's
-  frames to its own pseudo-terminal on schedule; one ``Runner`` reads all of them (or one per
-  worker process); latency from the bytes' arrival to the contact, and end to end from the
-  frame's scheduled write time; once more with the ROS 2 sink on (plain DDS, loopback);
+  frames to its own pseudo-terminal on schedule; one ``Runner`` per worker process (one per
+  core, as ``skinloc run --workers``) reads its share, and once one ``Runner`` reads all;
+  latency from the bytes' arrival to the contact, and end to end from the frame's scheduled
+  write time; then with the ROS 2 sink on (through a real rclpy node per worker when rclpy
+  is installed, else plain DDS on loopback), quiet and beside two CPU-heavy processes; each
+  with the load average and the loop's CPU per frame over the single-contact NumPy
+  baseline's, measured in the same processes;
 * publishing cost per contact of the sinks (``skinloc.bench.sinks``).
 """
 
 from __future__ import annotations
 
+import importlib.util
 import logging
 import os
 import tempfile
@@ -302,12 +307,29 @@ def online_bench(
     else:
         what = "measuring the ROS 2 sink (its cost, 100 skins through it)"
         results["left_out"].append(missing_extra_message("cyclonedds", what))
-    step("online: 100 skins", 0, 2)
-    results["many_skins"] = many_skins(Path(models[0]), n_skins, 100.0, skins_duration_s)
-    if ros2:
-        step("online: 100 skins, ROS 2 sink", 1, 2)
-        results["many_skins_ros2"] = many_skins(
-            Path(models[0]), n_skins, 100.0, skins_duration_s, sinks=("ros2",)
+    # the skins over the cores, as ``skinloc run --workers`` spreads them; one process too
+    workers = max(min(os.cpu_count() or 1, n_skins), 1)
+    # the ROS 2 sink's own choice (rclpy when it imports), made here once for the figures
+    backend = "rclpy" if importlib.util.find_spec("rclpy") is not None else "dds"
+    if ros2 and backend == "dds":
+        results["left_out"].append(
+            "the ROS 2 figures through a real node need rclpy (pip install 'skinloc[ros2]'); "
+            "measured over plain DDS instead"
         )
+    runs: list[tuple[str, dict[str, Any]]] = [
+        ("many_skins", {"workers": workers}),
+        ("many_skins_one_process", {"workers": 1}),
+    ]
+    if ros2 or backend == "rclpy":
+        runs += [
+            ("many_skins_ros2", {"workers": workers, "sinks": ("ros2",), "backend": backend}),
+            (
+                "many_skins_ros2_loaded",
+                {"workers": workers, "sinks": ("ros2",), "backend": backend, "hogs": 2},
+            ),
+        ]
+    for i, (key, kw) in enumerate(runs):
+        step(f"online: 100 skins ({key})", i, len(runs))
+        results[key] = many_skins(Path(models[0]), n_skins, 100.0, skins_duration_s, **kw)
     step("online: done", 1, 1)
     return results

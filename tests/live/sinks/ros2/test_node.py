@@ -189,3 +189,43 @@ def test_the_loop_survives_a_model_that_raises_once_and_a_sink_that_always_raise
     assert routes["failing"]["errors"] >= 2 and routes["failing"]["skipped"] > 0, routes
     assert routes["ros2"]["errors"] == 0, routes
     assert arm["sink_errors"] == routes["failing"]["errors"]
+
+
+def test_workers_each_serve_their_skins_from_a_node_of_their_own(tmp_path, ros_domain):
+    from tests._live import model_path
+
+    cfg = tmp_path / "robot.toml"
+    cfg.write_text(
+        f'[defaults]\nmodel = "{model_path("map")}"\nsource = "sim"\n'
+        '[[skin]]\nname = "arm"\n[[skin]]\nname = "leg"\nsource = "sim:1"\n'
+    )
+    proc = start_skinloc(
+        "run", "--config", cfg, "--workers", "2", "--sink", "ros2", "--duration", "900",
+        "--stats", stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    err = Lines(proc.stderr)
+    try:
+        err.wait_for("ROS 2 node skinloc_1", "the second worker's node", 240.0)
+        probe = subprocess.run(
+            [sys.executable, str(PROBE.with_name("workers_probe.py")), "skinloc_0,skinloc_1",
+             "arm,leg", str(scaled(240.0))],
+            capture_output=True, text=True, timeout=scaled(300.0), env=dict(os.environ),
+        )  # fmt: skip
+        assert probe.returncode == 0, probe.stderr[-3000:]
+        seen = json.loads(probe.stdout.strip().splitlines()[-1])
+        stop_and_wait(proc, signal.SIGINT, "skinloc run --workers 2 --sink ros2")
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    text = err.rest()
+    assert proc.returncode == 0 and "Traceback" not in text, text[-3000:]
+    assert {"skinloc_0", "skinloc_1"} <= set(seen["nodes"]), seen["nodes"]
+    # each node holds the parameters of its own worker's skin only
+    assert seen["params"] == {"skinloc_0": ["arm"], "skinloc_1": ["leg"]}, seen["params"]
+    for skin in ("arm", "leg"):
+        assert f"/skinloc/{skin}/tare" in seen["services"]
+        assert any(skin in d for d in seen["diagnostics"]), seen["diagnostics"]
+        assert seen["tares"].get(skin), seen["tares"]  # answered (done or refused: touched)
+    stats = json.loads(text.strip().splitlines()[-1])
+    assert [(d["skin"], d["worker"]) for d in stats] == [("arm", 0), ("leg", 1)]

@@ -33,6 +33,7 @@ Decisions (docs/live.md, "Workers"):
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 import math
 import multiprocessing as mp
@@ -188,9 +189,10 @@ class WorkerPool:
         shares = partition(len(skins), workers)
         self.workers = []
         for w, share in enumerate(shares):
-            mine = [skins[i] for i in share]
-            for skin in mine:  # a skin's own sinks go with it to its worker
-                skin.sinks = worker_sinks(skin.sinks, w)
+            # a skin's own sinks go with it to its worker (copies: the caller's stay as given)
+            mine = [
+                dataclasses.replace(skins[i], sinks=worker_sinks(skins[i].sinks, w)) for i in share
+            ]
             self.workers.append(_Worker(w, mine, worker_sinks(sinks, w)))
         self.report = report or (lambda line: log.info("%s", line))
         self._ctx = mp.get_context("spawn")

@@ -159,11 +159,11 @@ def _shard(
 def _baseline_cpu_us(model_path: Path, n: int = 2000) -> float:
     """CPU (this thread's) of the single-contact NumPy baseline per touched frame, us.
 
-    ``skinloc.bench.online.baseline_fn`` on the touch stream's touched frames, one frame a
+    ``skinloc.bench.baseline.baseline_fn`` on the touch stream's touched frames, one frame a
     call, as the loop gets them: the yardstick the loop's CPU per frame is divided by, taken
     in the loop's own process right after it, so both see the same machine.
     """
-    from skinloc.bench.online import baseline_fn
+    from skinloc.bench.baseline import baseline_fn
     from skinloc.models.localizer import ContactLocalizer
 
     plain = baseline_fn(ContactLocalizer.load(model_path))

@@ -35,12 +35,14 @@ from typing import Any
 
 import numpy as np
 
+from skinloc.bench.baseline import baseline_fn
 from skinloc.bench.many_skins import many_skins
 from skinloc.bench.stream import touch_stream
 
 log = logging.getLogger(__name__)
 
 __all__ = [
+    "baseline_fn",
     "many_skins",
     "model_code_stamp",
     "online_bench",
@@ -127,61 +129,6 @@ def train_bench_models(folder: Path, archs: tuple[str, ...], step: Step = _noop)
             step("online: training", i, len(archs))
             train_localizer([cal], arch=a, random_state=0).save(paths[a])
     return paths
-
-
-def baseline_fn(model: Any) -> Callable[[np.ndarray], np.ndarray]:
-    """The plain NumPy implementation the engine is compared with: rows ``(n, 64)`` to points.
-
-    For a response map, the coarse-to-fine match in NumPy (the library's own prediction
-    before the engine); for a network, a NumPy forward pass over the ensemble and a scipy
-    ``cKDTree`` snap. A benchmark's baseline, not a second engine: nothing else calls it.
-    """
-    from scipy.spatial import cKDTree
-
-    from skinloc.models.network_engine import activate_inplace
-
-    spec = model.spec()
-    if spec.kind == "map":
-        return _plain_map_match(spec)
-    pts = spec.surface_points
-    tree = cKDTree(pts)
-
-    def plain(X: np.ndarray) -> np.ndarray:
-        Z = np.maximum(X, 0.0) if spec.clip_negative else X
-        if spec.normalise != "none":
-            order = 1 if spec.normalise == "l1" else 2
-            Z = Z / np.maximum(np.linalg.norm(Z, ord=order, axis=1, keepdims=True), 1.0)
-        h = (Z - spec.feature_mean) / spec.feature_scale
-        for i, (W, b) in enumerate(zip(spec.weights, spec.biases, strict=True)):
-            h = np.matmul(h, W) + b
-            if i < len(spec.weights) - 1:
-                h = activate_inplace(h, spec.activation)
-        raw = (h * spec.target_scale + spec.target_mean).mean(axis=0)
-        return pts[tree.query(raw)[1]]
-
-    return plain
-
-
-def _plain_map_match(spec: Any) -> Callable[[np.ndarray], np.ndarray]:
-    """Coarse-to-fine matching in NumPy, 512 rows at a time: the best of the 8 best cells."""
-    T = np.asarray(spec.table, dtype=np.float32)
-    sq = (T**2).sum(axis=1)
-    coarse, members = spec.coarse, spec.cells
-
-    def plain(X: np.ndarray) -> np.ndarray:
-        Z = np.maximum(X, 0.0) if spec.clip_negative else X
-        F = (Z / np.maximum(np.linalg.norm(Z, axis=1, keepdims=True), 1.0)).astype(np.float32)
-        out = []
-        for i in range(0, len(F), 512):
-            Fs = F[i : i + 512]
-            dc = sq[coarse][None, :] - 2.0 * Fs @ T[coarse].T
-            best_cells = np.argpartition(dc, spec.n_cells - 1, axis=1)[:, : spec.n_cells]
-            idx = members[best_cells].reshape(len(Fs), -1)
-            d = sq[idx] - 2.0 * np.einsum("nk,nck->nc", Fs, T[idx])
-            out.append(spec.surface_points[idx[np.arange(len(Fs)), d.argmin(axis=1)]])
-        return np.concatenate(out)
-
-    return plain
 
 
 def single_stream(model_path: Path, n_frames: int = 20000, random_state: int = 0) -> dict:

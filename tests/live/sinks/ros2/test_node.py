@@ -223,6 +223,7 @@ def test_workers_each_serve_their_skins_from_a_node_of_their_own(tmp_path, ros_d
     assert {"skinloc_0", "skinloc_1"} <= set(seen["nodes"]), seen["nodes"]
     # each node holds the parameters of its own worker's skin only
     assert seen["params"] == {"skinloc_0": ["arm"], "skinloc_1": ["leg"]}, seen["params"]
+    assert seen["tf_static_publishers"] >= 2  # each worker's skins' transforms
     for skin in ("arm", "leg"):
         assert f"/skinloc/{skin}/tare" in seen["services"]
         assert any(skin in d for d in seen["diagnostics"]), seen["diagnostics"]

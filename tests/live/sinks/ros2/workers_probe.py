@@ -2,7 +2,8 @@
 
 Run by ``test_node.py`` as ``python workers_probe.py NODE[,NODE...] SKIN[,SKIN...] TIMEOUT_S``
 with ``ROS_DOMAIN_ID`` set; prints one JSON object: the nodes in the graph, each node's
-parameters, the services, the skins named in ``/diagnostics`` and a tare answer per skin.
+parameters, the services, the ``/tf_static`` writers, the skins named in ``/diagnostics`` and
+a tare answer per skin.
 """
 
 from __future__ import annotations
@@ -57,6 +58,9 @@ def main() -> None:
         params[n] = sorted({name.split(".")[0] for name in got if ".pipeline." in name})
     out["params"] = params
     out["services"] = sorted(n for n, _ in me.get_service_names_and_types())
+    # /tf_static: each worker's publisher writes its skins' transforms (a DDS writer each)
+    spin_until(lambda: len(me.get_publishers_info_by_topic("/tf_static")) >= len(nodes), 60.0)
+    out["tf_static_publishers"] = len(me.get_publishers_info_by_topic("/tf_static"))
     spin_until(lambda: all(any(s in d for d in diag) for s in skins), 60.0)
     out["diagnostics"] = sorted(diag)
     tares: dict = {}

@@ -67,3 +67,25 @@ def test_many_skins_in_worker_processes_with_the_ros2_sink(monkeypatch):
     assert m["workers"] == 2 and m["frames_processed"] > 0
     assert st["queued"] > 0 and st["sent"] == st["queued"] and st["pending"] == 0
     assert m["sink_frames_dropped"] == 0 and st["cpu_s"] > 0
+
+
+@pytest.mark.slow  # a multi-process benchmark
+def test_many_skins_through_rclpy_nodes_beside_busy_processes(monkeypatch):
+    pytest.importorskip("rclpy", reason="the ROS 2 Jazzy wheels: pip install '.[ros2]'")
+    m = many_skins(
+        model_path("map"), n_skins=2, rate_hz=50.0, duration_s=1.5, sinks=("ros2",),
+        workers=2, backend="rclpy", hogs=1,
+    )  # fmt: skip
+    assert m["ros2_backend"] == "rclpy" and m["cpu_heavy_processes_beside"] == 1
+    assert len(m["load_average_before"]) == len(m["load_average_after"]) == 3
+    st = m["sink_stats"]["ros2"]
+    assert m["frames_processed"] > 0 and st["queued"] > 0 and st["sent"] == st["queued"]
+    # the loop's CPU beside the single-contact NumPy baseline's, from the same processes
+    assert m["baseline_cpu_us_per_frame"] > 0
+    assert m["loop_cpu_over_baseline"] == pytest.approx(
+        m["loop_cpu_us_per_frame"] / m["baseline_cpu_us_per_frame"]
+    )
+    with pytest.raises(ValueError, match="backend must be dds or rclpy"):
+        many_skins(model_path("map"), n_skins=2, duration_s=1.0, backend="fastdds")
+    with pytest.raises(ValueError, match="hogs must be 0 or more"):
+        many_skins(model_path("map"), n_skins=2, duration_s=1.0, hogs=-1)

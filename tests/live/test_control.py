@@ -148,6 +148,30 @@ def test_a_param_dump_reads_back_as_skins_file_tables(tmp_path):
         read_param_dump(tmp_path / "none.yaml")
 
 
+def test_the_dumps_of_every_workers_node_appended_read_back_as_one(tmp_path, monkeypatch):
+    # run --workers: ros2 param dump /skinloc_0 > p.yaml; ros2 param dump /skinloc_1 >> p.yaml
+    text = "".join(
+        f"/skinloc_{i}:\n  ros__parameters:\n    use_sim_time: false\n    {skin}:\n"
+        f"      pipeline:\n        touch_on_z: {z}\n"
+        for i, (skin, z) in enumerate((("arm", 9.0), ("leg", 7.5)))
+    )
+    path = tmp_path / "p.yaml"
+    path.write_text(text)
+    want = {"arm": {"pipeline": {"touch_on_z": 9.0}}, "leg": {"pipeline": {"touch_on_z": 7.5}}}
+    assert read_param_dump(path) == want
+    import builtins
+
+    real_import = builtins.__import__
+
+    def no_yaml(name, *args, **kwargs):
+        if name == "yaml":
+            raise ImportError("no PyYAML here")
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", no_yaml)  # the reader's own subset of YAML
+    assert read_param_dump(path) == want
+
+
 def test_a_skins_file_reads_a_param_dump_back(tmp_path):
     from skinloc.live.skins_file import load_skins
 

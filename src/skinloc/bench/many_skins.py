@@ -79,6 +79,8 @@ def _shard(
     domain: int | None,
     dds_config: str | None,
     start: Callable[[], float],
+    worker: int = 0,
+    backend: str = "dds",
 ) -> dict:
     """One ``Runner`` over the skins ``first .. first + len(names) - 1`` (their ptys ``names``).
 
@@ -118,7 +120,11 @@ def _shard(
         if spec.startswith("ros2"):
             from skinloc.live.sinks.ros2.sink import Ros2Sink
 
-            sink_objs.append(Ros2Sink(domain_id=domain, backend="dds", dds_config=dds_config))
+            # one node per worker, named as ``skinloc run --workers`` names them
+            node = "skinloc" if worker < 0 else f"skinloc_{worker}"
+            sink_objs.append(
+                Ros2Sink(node, domain_id=domain, backend=backend, dds_config=dds_config)
+            )
         else:
             sink_objs.append(spec)
     runner = Runner(specs, sinks=sink_objs, callback=on_contact)
@@ -137,7 +143,9 @@ def _shard(
     stats = runner.stats()
     runner.close()  # the ROS 2 sink publishes what is queued and joins its thread
     sink_stats = {getattr(s, "name", str(s)): s.stats() for s in sink_objs if hasattr(s, "stats")}
+    base_us = _baseline_cpu_us(model_path)
     return {
+        "baseline_cpu_us_per_frame": base_us,
         "lat_us": np.asarray(lat, dtype=np.float64),
         "e2e_s": np.asarray(e2e, dtype=np.float64),
         "stats": stats,
@@ -146,6 +154,36 @@ def _shard(
         "cpu_proc": cpu_proc,
         "max_contacts": config.max_contacts,
     }
+
+
+def _baseline_cpu_us(model_path: Path, n: int = 2000) -> float:
+    """CPU (this thread's) of the single-contact NumPy baseline per touched frame, us.
+
+    ``skinloc.bench.baseline.baseline_fn`` on the touch stream's touched frames, one frame a
+    call, as the loop gets them: the yardstick the loop's CPU per frame is divided by, taken
+    in the loop's own process right after it, so both see the same machine.
+    """
+    from skinloc.bench.baseline import baseline_fn
+    from skinloc.models.localizer import ContactLocalizer
+
+    plain = baseline_fn(ContactLocalizer.load(model_path))
+    frames, _ = touch_stream(n + 200, random_state=1)
+    deltas = frames[100:].astype(np.float64) - frames[:100].mean(axis=0)
+    touched = deltas[np.max(deltas, axis=1) > 60][:n]
+    for x in touched[:50]:  # warm
+        plain(x[None])
+    t0 = time.thread_time()
+    for x in touched:
+        plain(x[None])
+    return (time.thread_time() - t0) / max(len(touched), 1) * 1e6
+
+
+def _hog(stop: Any) -> None:
+    """A CPU-heavy process (a busy loop) until ``stop`` is set: the robot computer's load."""
+    x = 0
+    while not stop.is_set():
+        for _ in range(100_000):
+            x += 1
 
 
 def _worker(conn: Any, kw: dict) -> None:
@@ -189,6 +227,8 @@ def many_skins(
     sinks: tuple[str, ...] = (),
     max_contacts: int | None = None,
     workers: int = 1,
+    hogs: int = 0,
+    backend: str = "dds",
 ) -> dict:
     """``n_skins`` pipelines at ``rate_hz`` each, fed through ptys.
 
@@ -198,12 +238,25 @@ def many_skins(
     ``sink_stats``).
     ``max_contacts``: contacts per frame each pipeline looks for (``PipelineConfig``'s; ``None``:
     its default). ``workers``: 1, one ``Runner`` in this process; more, one per worker
-    process over consecutive shares of the skins (loop CPU then summed over the workers).
+    process over the shares of ``skinloc.live.workers.partition`` (as ``skinloc run
+    --workers``; loop CPU then summed over the workers). ``hogs``: CPU-heavy processes (busy
+    loops) running beside, for the figure on a loaded machine. ``backend``: the ROS 2 sink's
+    (``rclpy``: through a real node, one per worker, ``skinloc_<w>``; ``dds``: plain DDS).
+
+    Every run reports the load average before and after, and the loop's CPU per frame beside
+    the single-contact NumPy baseline's, both measured in the loops' processes
+    (``loop_cpu_over_baseline``).
     """
     from skinloc.bench.sinks import bench_dds
+    from skinloc.live.workers import partition
 
     if not 1 <= workers <= n_skins:
         raise ValueError(f"workers must be 1..{n_skins} (the skins), got {workers}")
+    if hogs < 0:
+        raise ValueError(f"hogs must be 0 or more, got {hogs}")
+    if backend not in ("dds", "rclpy"):
+        raise ValueError(f"backend must be dds or rclpy, got {backend!r}")
+    load_before = os.getloadavg()
     frames, _ = touch_stream(3000, random_state=random_state)
     domain, dds = bench_dds() if any(s.startswith("ros2") for s in sinks) else (None, None)
     ctx = mp.get_context("spawn")
@@ -213,6 +266,10 @@ def many_skins(
     )
     proc.start()
     procs: list[Any] = []
+    stop_hogs = ctx.Event()
+    for _ in range(hogs):
+        procs.append(ctx.Process(target=_hog, args=(stop_hogs,), daemon=True))
+        procs[-1].start()
     try:
         names = parent.recv()
         common = {
@@ -224,6 +281,7 @@ def many_skins(
             "max_contacts": max_contacts,
             "domain": domain,
             "dds_config": dds,
+            "backend": backend,
         }
 
         def go() -> float:
@@ -232,13 +290,14 @@ def many_skins(
             return t0
 
         if workers == 1:
-            parts = [_shard(names=names, first=0, start=go, **common)]
+            parts = [_shard(names=names, first=0, start=go, worker=-1, **common)]
         else:
-            cut = np.linspace(0, n_skins, workers + 1).round().astype(int)
             pipes = []
-            for w in range(workers):
+            for w, share in enumerate(partition(n_skins, workers)):
                 a, b = ctx.Pipe()
-                kw = dict(common, names=names[cut[w] : cut[w + 1]], first=int(cut[w]))
+                kw = dict(
+                    common, names=names[share.start : share.stop], first=share.start, worker=w
+                )
                 p = ctx.Process(target=_worker, args=(b, kw), daemon=True)
                 p.start()
                 procs.append(p)
@@ -256,6 +315,7 @@ def many_skins(
         report = parent.recv()
         parent.send("done")
     finally:
+        stop_hogs.set()
         for p in (*procs, proc):
             p.join(10)
             if p.is_alive():
@@ -270,11 +330,17 @@ def many_skins(
     wire = [s.get("wire", {}) for s in stats]
     sent = report["written"]
     has = len(lat) > 0
+    loop_us = cpu_thread / max(sum(frames_in), 1) * 1e6
+    base_us = float(np.mean([p["baseline_cpu_us_per_frame"] for p in parts]))
     return {
         "skins": n_skins,
         "rate_hz": rate_hz,
         "duration_s": duration_s,
         "workers": workers,
+        "cpu_heavy_processes_beside": hogs,
+        "ros2_backend": backend if any(s.startswith("ros2") for s in sinks) else None,
+        "load_average_before": list(load_before),
+        "load_average_after": list(os.getloadavg()),
         "frames_sent": int(sum(sent)),
         "frames_processed": int(sum(frames_in)),
         "frames_dropped": int(sum(sent) - sum(frames_in)),
@@ -297,5 +363,9 @@ def many_skins(
         "sink_frames_dropped": int(sum(v["dropped"] for v in sink_stats.values())),
         "loop_thread_cpu_s": cpu_thread,
         "process_cpu_s": cpu_proc,
-        "loop_cpu_us_per_frame": cpu_thread / max(sum(frames_in), 1) * 1e6,
+        "loop_cpu_us_per_frame": loop_us,
+        # the single-contact NumPy baseline per touched frame, in the same processes
+        "baseline_cpu_us_per_frame": base_us,
+        "loop_cpu_over_baseline": loop_us / base_us if base_us > 0 else None,
+        "end_to_end_max_us": float(np.max(e2e)) * 1e6 if has else None,
     }

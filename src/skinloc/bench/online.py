@@ -12,14 +12,19 @@ Figures (docs/benchmarks.md, "Live pipeline"):
 * batched frames/s: the engine's ``predict_batch`` on 200,000 touched frames, against the same
   baseline on the same batch;
 * 100 skins at 100 Hz (``skinloc.bench.many_skins``): a feeder process writes every skin's
-  frames to its own pseudo-terminal on schedule; one ``Runner`` reads all of them (or one per
-  worker process); latency from the bytes' arrival to the contact, and end to end from the
-  frame's scheduled write time; once more with the ROS 2 sink on (plain DDS, loopback);
+  frames to its own pseudo-terminal on schedule; one ``Runner`` per worker process (one per
+  core, as ``skinloc run --workers``) reads its share, and once one ``Runner`` reads all;
+  latency from the bytes' arrival to the contact, and end to end from the frame's scheduled
+  write time; then with the ROS 2 sink on (through a real rclpy node per worker when rclpy
+  is installed, else plain DDS on loopback), quiet and beside two CPU-heavy processes; each
+  with the load average and the loop's CPU per frame over the single-contact NumPy
+  baseline's, measured in the same processes;
 * publishing cost per contact of the sinks (``skinloc.bench.sinks``).
 """
 
 from __future__ import annotations
 
+import importlib.util
 import logging
 import os
 import tempfile
@@ -30,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from skinloc.bench.baseline import PLAIN_BASELINES, baseline_fn, plain_baseline
 from skinloc.bench.many_skins import many_skins
 from skinloc.bench.stream import touch_stream
 
@@ -125,84 +131,6 @@ def train_bench_models(folder: Path, archs: tuple[str, ...], step: Step = _noop)
             step("online: training", i, len(archs))
             train_localizer([cal], arch=a, random_state=0).save(paths[a])
     return paths
-
-
-def _plain_network(spec: Any) -> Callable[[np.ndarray], np.ndarray]:
-    """A NumPy forward pass over the ensemble and a scipy ``cKDTree`` snap."""
-    from scipy.spatial import cKDTree
-
-    from skinloc.models.network_engine import activate_inplace
-
-    pts = spec.surface_points
-    tree = cKDTree(pts)
-
-    def plain(X: np.ndarray) -> np.ndarray:
-        Z = np.maximum(X, 0.0) if spec.clip_negative else X
-        if spec.normalise != "none":
-            order = 1 if spec.normalise == "l1" else 2
-            Z = Z / np.maximum(np.linalg.norm(Z, ord=order, axis=1, keepdims=True), 1.0)
-        h = (Z - spec.feature_mean) / spec.feature_scale
-        for i, (W, b) in enumerate(zip(spec.weights, spec.biases, strict=True)):
-            h = np.matmul(h, W) + b
-            if i < len(spec.weights) - 1:
-                h = activate_inplace(h, spec.activation)
-        raw = (h * spec.target_scale + spec.target_mean).mean(axis=0)
-        return pts[tree.query(raw)[1]]
-
-    return plain
-
-
-def _plain_map_match(spec: Any) -> Callable[[np.ndarray], np.ndarray]:
-    """Coarse-to-fine matching in NumPy, 512 rows at a time: the best of the 8 best cells."""
-    T = np.asarray(spec.table, dtype=np.float32)
-    sq = (T**2).sum(axis=1)
-    coarse, members = spec.coarse, spec.cells
-
-    def plain(X: np.ndarray) -> np.ndarray:
-        Z = np.maximum(X, 0.0) if spec.clip_negative else X
-        F = (Z / np.maximum(np.linalg.norm(Z, axis=1, keepdims=True), 1.0)).astype(np.float32)
-        out = []
-        for i in range(0, len(F), 512):
-            Fs = F[i : i + 512]
-            dc = sq[coarse][None, :] - 2.0 * Fs @ T[coarse].T
-            best_cells = np.argpartition(dc, spec.n_cells - 1, axis=1)[:, : spec.n_cells]
-            idx = members[best_cells].reshape(len(Fs), -1)
-            d = sq[idx] - 2.0 * np.einsum("nk,nck->nc", Fs, T[idx])
-            out.append(spec.surface_points[idx[np.arange(len(Fs)), d.argmin(axis=1)]])
-        return np.concatenate(out)
-
-    return plain
-
-
-#: Each model kind's plain NumPy implementation, the engine's baseline in this benchmark, by
-#: the kind's name: ``(build(spec) -> rows (n, n_sensors) to points (n, 3) m, its label)``.
-#: A response map's is its coarse-to-fine match (the library's own prediction before the
-#: engine). A benchmark's baseline, not a second engine: nothing else calls it.
-PLAIN_BASELINES: dict[str, tuple[Callable[[Any], Callable[[np.ndarray], np.ndarray]], str]] = {
-    "map": (_plain_map_match, "numpy coarse-to-fine match"),
-    "network": (_plain_network, "numpy forward + scipy cKDTree snap"),
-}
-
-
-def plain_baseline(kind: str) -> tuple[Callable[[Any], Callable[[np.ndarray], np.ndarray]], str]:
-    """The entry of ``PLAIN_BASELINES`` for the model kind ``kind``; ValueError when none."""
-    entry = PLAIN_BASELINES.get(kind)
-    if entry is None:
-        raise ValueError(
-            f"no plain baseline for a {kind!r} model; the online benchmark has them for "
-            f"{', '.join(PLAIN_BASELINES)} (skinloc.bench.online.PLAIN_BASELINES)"
-        )
-    return entry
-
-
-def baseline_fn(model: Any) -> Callable[[np.ndarray], np.ndarray]:
-    """The plain NumPy implementation the engine is compared with: rows ``(n, 64)`` to points.
-
-    Its kind's entry of ``PLAIN_BASELINES``.
-    """
-    spec = model.spec()
-    build, _ = plain_baseline(spec.kind)
-    return build(spec)
 
 
 def single_stream(model_path: Path, n_frames: int = 20000, random_state: int = 0) -> dict:
@@ -326,12 +254,29 @@ def online_bench(
     else:
         what = "measuring the ROS 2 sink (its cost, 100 skins through it)"
         results["left_out"].append(missing_extra_message("cyclonedds", what))
-    step("online: 100 skins", 0, 2)
-    results["many_skins"] = many_skins(Path(models[0]), n_skins, 100.0, skins_duration_s)
-    if ros2:
-        step("online: 100 skins, ROS 2 sink", 1, 2)
-        results["many_skins_ros2"] = many_skins(
-            Path(models[0]), n_skins, 100.0, skins_duration_s, sinks=("ros2",)
+    # the skins over the cores, as ``skinloc run --workers`` spreads them; one process too
+    workers = max(min(os.cpu_count() or 1, n_skins), 1)
+    # the ROS 2 sink's own choice (rclpy when it imports), made here once for the figures
+    backend = "rclpy" if importlib.util.find_spec("rclpy") is not None else "dds"
+    if ros2 and backend == "dds":
+        results["left_out"].append(
+            "the ROS 2 figures through a real node need rclpy (pip install 'skinloc[ros2]'); "
+            "measured over plain DDS instead"
         )
+    runs: list[tuple[str, dict[str, Any]]] = [
+        ("many_skins", {"workers": workers}),
+        ("many_skins_one_process", {"workers": 1}),
+    ]
+    if ros2 or backend == "rclpy":
+        runs += [
+            ("many_skins_ros2", {"workers": workers, "sinks": ("ros2",), "backend": backend}),
+            (
+                "many_skins_ros2_loaded",
+                {"workers": workers, "sinks": ("ros2",), "backend": backend, "hogs": 2},
+            ),
+        ]
+    for i, (key, kw) in enumerate(runs):
+        step(f"online: 100 skins ({key})", i, len(runs))
+        results[key] = many_skins(Path(models[0]), n_skins, 100.0, skins_duration_s, **kw)
     step("online: done", 1, 1)
     return results

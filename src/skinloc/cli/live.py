@@ -114,6 +114,66 @@ def _prepare_board(
     return ready.baud, ready.n_tx, ready.n_rx
 
 
+def _summary(counters: list[dict[str, Any]], elapsed: float, as_json: bool) -> None:
+    """The run's per-skin summary lines on stderr, and ``--stats``'s JSON line."""
+    from skinloc.cli.common import err_console
+
+    for c in counters:
+        if c.get("lost"):
+            err_console.print(
+                f"{c['skin']}: no statistics (worker {c['worker']} did not stop)", highlight=False
+            )
+            continue
+        err_console.print(
+            f"{c['skin']}: {c['frames']} frames, {c['touches']} touches, "
+            f"{c['contacts']} contacts, {c.get('gestures', 0)} gestures in {elapsed:.1f} s"
+            + (f", {c['reconnects']} reconnects" if "reconnects" in c else "")
+            + (f", {c['errors']} frames dropped by errors" if c["errors"] else "")
+            + (f", {c['sink_errors']} sink errors" if c["sink_errors"] else "")
+            + (
+                f", worker restarted {c['worker_restarts']} time(s)"
+                if c.get("worker_restarts")
+                else ""
+            ),
+            highlight=False,
+        )
+    if as_json:
+        sys.stderr.write(json.dumps(counters, default=str) + "\n")
+
+
+def _run_workers(
+    skin_cfgs: list[Any], sinks: list[str], workers: int, duration: float | None, stats: bool
+) -> None:
+    """``run --workers N``: the skins over N processes (``skinloc.live.workers``)."""
+    from skinloc.cli.common import err_console
+    from skinloc.live.workers import WorkerError, WorkerPool
+
+    def report(line: str) -> None:
+        err_console.print(line, highlight=False)
+
+    pool = WorkerPool(skin_cfgs, sinks, workers, report=report)
+    report(
+        f"running {len(skin_cfgs)} skin(s) on {workers} workers: "
+        + ", ".join(f"{s.name} <- {s.source}" for s in skin_cfgs)
+    )
+    previous = _stop_on_signals(pool)
+    try:
+        counters = pool.run(duration)
+    except WorkerError as exc:
+        raise ValueError(str(exc)) from None
+    except KeyboardInterrupt:  # a second signal: the workers were killed
+        counters = pool.stats()
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)
+    _summary(counters, pool.elapsed(), stats)
+
+
+def _us(value: float | None) -> str:
+    """A time in us as ``1234 us``, or ``n/a`` (no contact came)."""
+    return "n/a" if value is None else f"{value:.0f} us"
+
+
 def register(app: typer.Typer) -> None:
     """Add ``run`` and ``export`` to the main ``skinloc`` app."""
     from skinloc.cli.common import check_output, err_console, friendly_errors
@@ -230,6 +290,15 @@ def register(app: typer.Typer) -> None:
                 "Ctrl-C stops); --no-wait fails at once with exit code 1, for scripts.",
             ),
         ] = True,
+        workers: Annotated[
+            int,
+            typer.Option(
+                "--workers",
+                min=1,
+                help="Spread the skins of --config over this many processes (one loop and, "
+                "with --sink ros2, one node NODE_<i> each); sinks: jsonl, udp, ros2.",
+            ),
+        ] = 1,
     ) -> None:
         """Run the live pipeline: frames -> baseline -> touch -> localiser -> surface -> sinks.
 
@@ -258,8 +327,14 @@ def register(app: typer.Typer) -> None:
                 skin_cfg.realtime = skin_cfg.realtime and not fast
                 skin_cfg.loop = skin_cfg.loop or loop
             _check_sources(skin_cfgs, allow_url, wait)
-            runner = Runner(skin_cfgs, sinks=[*global_sinks, *(sink or [])] or ["jsonl"])
+            all_sinks = [*global_sinks, *(sink or [])] or ["jsonl"]
+            if workers > 1:
+                _run_workers(skin_cfgs, all_sinks, workers, duration, stats)
+                return
+            runner = Runner(skin_cfgs, sinks=all_sinks)
         else:
+            if workers > 1:
+                raise ValueError("--workers spreads the skins of --config: give a skins file")
             if model is None:
                 raise ValueError("give --model MODEL (from 'skinloc train') or --config SKINS.toml")
             if not model.is_file():
@@ -326,18 +401,7 @@ def register(app: typer.Typer) -> None:
                 for sig, old in previous.items():
                     signal.signal(sig, old)
             counters = runner.stats()
-        elapsed = time.monotonic() - t0
-        for c in counters:
-            err_console.print(
-                f"{c['skin']}: {c['frames']} frames, {c['touches']} touches, "
-                f"{c['contacts']} contacts, {c.get('gestures', 0)} gestures in {elapsed:.1f} s"
-                + (f", {c['reconnects']} reconnects" if "reconnects" in c else "")
-                + (f", {c['errors']} frames dropped by errors" if c["errors"] else "")
-                + (f", {c['sink_errors']} sink errors" if c["sink_errors"] else ""),
-                highlight=False,
-            )
-        if stats:
-            sys.stderr.write(json.dumps(counters, default=str) + "\n")
+        _summary(counters, time.monotonic() - t0, stats)
 
     @app.command()
     @friendly_errors
@@ -416,10 +480,26 @@ def bench_online(out: Path, as_json: bool, archs: tuple[str, ...], left_out: lis
             f"stream {r['stream_frames_per_s']:.0f} frames/s; "
             f"batched {r['batch_frames_per_s']:.0f} frames/s"
         )
-    m = res["many_skins"]
-    console.print(
-        f"{m['skins']} skins at {m['rate_hz']:g} Hz for {m['duration_s']:g} s: latency p99 "
-        f"{m['latency_p99_us']:.0f} us (end to end {m['end_to_end_p99_us']:.0f} us), "
-        f"{m['frames_dropped']} frames dropped of {m['frames_sent']}"
-    )
+    for key in (
+        "many_skins",
+        "many_skins_one_process",
+        "many_skins_ros2",
+        "many_skins_ros2_loaded",
+    ):
+        m = res.get(key)
+        if m is None:
+            continue
+        sink = f"ROS 2 sink ({m['ros2_backend']})" if m["ros2_backend"] else "no sink"
+        load = "/".join(f"{x:.2f}" for x in m["load_average_before"])
+        console.print(
+            f"{m['skins']} skins at {m['rate_hz']:g} Hz, K = {m['max_contacts']}, "
+            f"{m['workers']} worker(s), {sink}, {m['cpu_heavy_processes_beside']} CPU-heavy "
+            f"process(es) beside, load average {load} before: end to end p99 "
+            f"{_us(m['end_to_end_p99_us'])} (median {_us(m['end_to_end_median_us'])}), "
+            f"{m['frames_dropped']} frames dropped of {m['frames_sent']}, "
+            f"{m['sink_frames_dropped']} by the sink; loop CPU {m['loop_cpu_us_per_frame']:.1f} "
+            f"us/frame, single-contact NumPy baseline {m['baseline_cpu_us_per_frame']:.1f} "
+            f"us/frame (x{m['loop_cpu_over_baseline']:.2f})",
+            soft_wrap=True,
+        )
     console.print(f"Results in {out}/online.json")

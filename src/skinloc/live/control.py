@@ -173,7 +173,8 @@ class SkinControl:
             "nonfinite_frames": int(d.get("nonfinite_frames", 0)),
             "dropped_frames": int(wire.get("n_dropped", 0)),
             "corrupt_frames": int(wire.get("n_corrupted", 0)),
-            "errors": _count(d.get("errors", 0)),  # the runner's exception counters, if kept
+            "errors": _count(d.get("errors", 0)),  # frames dropped because processing raised
+            "sink_errors": _count(d.get("sink_errors", 0)),  # deliveries a sink refused
             "publisher_dropped": int(extra.get("publisher_dropped", 0)),
         }
         seen = self._seen.get(slot, {})

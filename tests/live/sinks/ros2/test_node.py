@@ -133,3 +133,100 @@ def test_plain_dds_says_once_what_it_cannot_do(tmp_path, monkeypatch):
     text = err.rest()
     assert text.count("no parameters") == 1, text[-2000:]
     assert "no node in the ROS graph" in text and "tare" in text
+
+
+def test_the_loop_survives_a_model_that_raises_once_and_a_sink_that_always_raises(
+    tmp_path, ros_domain
+):
+    """Through the real node: contacts keep reaching an rclpy subscriber after both faults,
+    and the counts show in ``/diagnostics`` and ``--stats``."""
+    from tests._live import model_path
+
+    launcher = Path(__file__).with_name("faulty_run.py")
+    probe = Path(__file__).with_name("faults_probe.py")
+    env = dict(os.environ)
+    root = str(Path(__file__).resolve().parents[4])  # the checkout: tests._live and skinloc
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH")) if p)
+    proc = subprocess.Popen(
+        [sys.executable, str(launcher), "run", "--model", str(model_path("map")),
+         "--source", "sim", "--name", "arm", "--sink", "ros2", "--sink", "failing",
+         "--duration", "900", "--stats"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env,
+    )  # fmt: skip
+    err = Lines(proc.stderr)
+    try:
+        err.wait_for("running", "the faulty skinloc run to start", 180.0)
+        res = subprocess.run(
+            [sys.executable, str(probe), "arm", str(scaled(240.0))],
+            capture_output=True,
+            text=True,
+            timeout=scaled(300.0),
+            env=env,
+        )
+        assert res.returncode == 0, res.stderr[-3000:]
+        seen = json.loads(res.stdout.strip().splitlines()[-1])
+        stop_and_wait(proc, signal.SIGINT, "the faulty skinloc run")
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    text = err.rest()
+    assert proc.returncode == 0, text[-3000:]
+    # /diagnostics: the dropped frame and the failing sink, counted, as a warning at least
+    assert seen["faults_seen"], seen
+    values = seen["first_status"]["values"]
+    assert int(values["errors"]) == 1 and int(values["sink_errors"]) >= 1, values
+    assert int(seen["last_status"]["values"]["errors"]) == 1, seen["last_status"]
+    # contacts kept reaching the subscriber after both faults
+    assert seen["contacts_after"] >= 10, seen
+    # logged once each, with the traceback; --stats has the same counts
+    assert text.count("FloatingPointError: the model blew up on this frame") >= 1
+    assert text.count("Traceback") == 2, text[-3000:]  # one per fault, not one per frame
+    stats = json.loads(text.strip().splitlines()[-1])
+    (arm,) = stats
+    assert arm["errors"] == 1 and "the model blew up" in arm["last_error"], arm
+    routes = {s["sink"]: s for s in arm["sinks"]}
+    assert routes["failing"]["errors"] >= 2 and routes["failing"]["skipped"] > 0, routes
+    assert routes["ros2"]["errors"] == 0, routes
+    assert arm["sink_errors"] == routes["failing"]["errors"]
+
+
+def test_workers_each_serve_their_skins_from_a_node_of_their_own(tmp_path, ros_domain):
+    from tests._live import model_path
+
+    cfg = tmp_path / "robot.toml"
+    cfg.write_text(
+        f'[defaults]\nmodel = "{model_path("map")}"\nsource = "sim"\n'
+        '[[skin]]\nname = "arm"\n[[skin]]\nname = "leg"\nsource = "sim:1"\n'
+    )
+    proc = start_skinloc(
+        "run", "--config", cfg, "--workers", "2", "--sink", "ros2", "--duration", "900",
+        "--stats", stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    err = Lines(proc.stderr)
+    try:
+        err.wait_for("ROS 2 node skinloc_1", "the second worker's node", 240.0)
+        probe = subprocess.run(
+            [sys.executable, str(PROBE.with_name("workers_probe.py")), "skinloc_0,skinloc_1",
+             "arm,leg", str(scaled(240.0))],
+            capture_output=True, text=True, timeout=scaled(300.0), env=dict(os.environ),
+        )  # fmt: skip
+        assert probe.returncode == 0, probe.stderr[-3000:]
+        seen = json.loads(probe.stdout.strip().splitlines()[-1])
+        stop_and_wait(proc, signal.SIGINT, "skinloc run --workers 2 --sink ros2")
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    text = err.rest()
+    assert proc.returncode == 0 and "Traceback" not in text, text[-3000:]
+    assert {"skinloc_0", "skinloc_1"} <= set(seen["nodes"]), seen["nodes"]
+    # each node holds the parameters of its own worker's skin only
+    assert seen["params"] == {"skinloc_0": ["arm"], "skinloc_1": ["leg"]}, seen["params"]
+    assert seen["tf_static_publishers"] >= 2  # each worker's skins' transforms
+    for skin in ("arm", "leg"):
+        assert f"/skinloc/{skin}/tare" in seen["services"]
+        assert any(skin in d for d in seen["diagnostics"]), seen["diagnostics"]
+        assert seen["tares"].get(skin), seen["tares"]  # answered (done or refused: touched)
+    stats = json.loads(text.strip().splitlines()[-1])
+    assert [(d["skin"], d["worker"]) for d in stats] == [("arm", 0), ("leg", 1)]

@@ -192,11 +192,12 @@ def read_param_dump(path: str | Path) -> dict[str, dict[str, Any]]:
     data = _read_yaml(path)
     if not isinstance(data, dict):
         raise ValueError(f"{path}: not a ros2 param dump (a YAML mapping of nodes)")
-    params = None
+    # every node of the file: the dumps of ``run --workers``'s nodes (skinloc_0, skinloc_1...)
+    # appended into one file give every skin's settings
+    params: dict[str, Any] | None = None
     for value in data.values():
         if isinstance(value, dict) and isinstance(value.get("ros__parameters"), dict):
-            params = value["ros__parameters"]
-            break
+            params = {**(params or {}), **value["ros__parameters"]}
     if params is None:
         raise ValueError(f"{path}: no ros__parameters (write it with ros2 param dump)")
     out: dict[str, dict[str, Any]] = {}

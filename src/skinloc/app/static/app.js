@@ -783,11 +783,21 @@ function influenceHtml(h) {
 }
 
 // ------------------------------------------------------------------ live page
-$("#live-start").addEventListener("click", () => {
+$("#live-start").addEventListener("click", async (ev) => {
+  // Disabled at once: the start takes a while (the first one compiles), a repeat click would
+  // queue behind it; the server's state says when it may be pressed again.
+  ev.currentTarget.disabled = true;
   app.live.clear(true);
   app.plot.clear();
-  act("/api/live/start");
+  await act("/api/live/start");
+  renderLiveButtons();
 });
+// Start waits while a start prepares the pipeline or captures its baseline.
+function renderLiveButtons() {
+  const st = app.state;
+  $("#live-start").disabled = !!st?.live_starting || st?.mode === "baseline";
+  $("#live-start").textContent = st?.live_starting ? "Starting..." : "Start";
+}
 $("#live-stop").addEventListener("click", () => act("/api/capture/stop"));
 
 // ------------------------------------------------------------------ rendering the state
@@ -835,6 +845,7 @@ function renderState(prev) {
     refreshSession();
   }
   if (st.mode !== prev?.mode) app.live.render();
+  if (st.live_starting !== prev?.live_starting || st.mode !== prev?.mode) renderLiveButtons();
   if (app.page === "calibrate") renderGuided("calibrate");
   if (app.page === "validate") renderGuided("validate");
   if (app.page === "train") renderTraining(st.training);

@@ -713,7 +713,11 @@ $("#train-result").addEventListener("click", async (ev) => {
     if (await act("/api/capture/retake", { index: Number(d.retakeTouch), recording: "calibration" })) showPage("calibrate");
   }
 });
-$("#train-btn").addEventListener("click", () => act("/api/train"));
+$("#train-btn").addEventListener("click", async (ev) => {
+  ev.currentTarget.disabled = true; // at once: a second click would only be refused
+  await act("/api/train");
+  renderTraining();
+});
 function renderTraining(t) {
   t = t || app.state?.training;
   const bar = $("#train-bar");

@@ -121,3 +121,52 @@ def test_numbers_stay_touches_stay_out_and_the_figures_are_honest(chromium, serv
             "an earlier model's validation"
         )
         assert not errors, errors
+
+
+def test_live_start_says_what_it_does_and_takes_one_click(chromium, server, monkeypatch):
+    """Issue 33 item 5: the first Live start (the engine's kernels compiled) gave 30-40 s of
+    silence and repeat clicks queued; now Start is disabled at once, the page says what runs,
+    and another start meanwhile is refused."""
+    import threading
+
+    url, app = server
+    from skinloc.sources.base import SourceOptions
+
+    sync_api.expect.set_options(timeout=60_000)
+    expect = sync_api.expect
+    ws = app.state.workspace
+    ws.config.influence_suspects = 0
+    ws.connect(SourceOptions(source="sim", rate_hz=400.0, seed=3))
+    ws.create_session("live", n_points=8, samples=10, baseline_frames=20)
+    ws.set_finger(True)
+    ws.start_calibration()
+    _wait(lambda: ws.message == "calibration complete", "calibration")
+    ws.train()
+    _wait(lambda: ws.training and not ws.training.get("running"), "training", 300)
+    # The preparation held until the test lets it go: a slow first start, made certain.
+    release = threading.Event()
+    make = ws._make_live_pipeline
+
+    def slow(model, queue):
+        release.wait(60)
+        return make(model, queue)
+
+    monkeypatch.setattr(ws, "_make_live_pipeline", slow)
+    errors: list[str] = []
+    with open_browser(chromium) as browser:
+        page = browser.new_page(viewport={"width": 1440, "height": 900})
+        watch(page, errors)
+        page.goto(url)
+        page.click("#nav button[data-page=live]")
+        start = page.locator("#live-start")
+        start.click()
+        expect(start).to_be_disabled()
+        expect(page.locator("#message")).to_contain_text("preparing the localiser")
+        with pytest.raises(ValueError, match="live is starting"):
+            ws.start_live()  # another start meanwhile (another tab, a key) is refused
+        release.set()
+        _wait(lambda: ws.mode.value == "live", "live")
+        expect(start).to_be_enabled()
+        expect(page.locator("#message")).to_contain_text("live: touch the skin")
+        ws.stop()
+    assert not [e for e in errors if "status of 400" not in e], errors

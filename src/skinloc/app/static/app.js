@@ -729,7 +729,11 @@ $("#train-result").addEventListener("click", async (ev) => {
     if (await act("/api/capture/retake", { index: Number(d.retakeTouch), recording: "calibration" })) showPage("calibrate");
   }
 });
-$("#train-btn").addEventListener("click", () => act("/api/train"));
+$("#train-btn").addEventListener("click", async (ev) => {
+  ev.currentTarget.disabled = true; // at once: a second click would only be refused
+  await act("/api/train");
+  renderTraining();
+});
 function renderTraining(t) {
   t = t || app.state?.training;
   const bar = $("#train-bar");
@@ -799,11 +803,21 @@ function influenceHtml(h) {
 }
 
 // ------------------------------------------------------------------ live page
-$("#live-start").addEventListener("click", () => {
+$("#live-start").addEventListener("click", async (ev) => {
+  // Disabled at once: the start takes a while (the first one compiles), a repeat click would
+  // queue behind it; the server's state says when it may be pressed again.
+  ev.currentTarget.disabled = true;
   app.live.clear(true);
   app.plot.clear();
-  act("/api/live/start");
+  await act("/api/live/start");
+  renderLiveButtons();
 });
+// Start waits while a start prepares the pipeline or captures its baseline.
+function renderLiveButtons() {
+  const st = app.state;
+  $("#live-start").disabled = !!st?.live_starting || st?.mode === "baseline";
+  $("#live-start").textContent = st?.live_starting ? "Starting..." : "Start";
+}
 $("#live-stop").addEventListener("click", () => act("/api/capture/stop"));
 
 // ------------------------------------------------------------------ rendering the state
@@ -851,6 +865,7 @@ function renderState(prev) {
     refreshSession();
   }
   if (st.mode !== prev?.mode) app.live.render();
+  if (st.live_starting !== prev?.live_starting || st.mode !== prev?.mode) renderLiveButtons();
   if (app.page === "calibrate") renderGuided("calibrate");
   if (app.page === "validate") renderGuided("validate");
   if (app.page === "train") renderTraining(st.training);

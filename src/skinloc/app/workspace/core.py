@@ -165,6 +165,7 @@ class Workspace(
                 },
                 "guided": guided,
                 "recording": None if self.recorder is None else self.recorder.status(),
+                "live_starting": self.live_starting,
                 "training": self._session_training(),
                 "data_dir": str(self.store.root),
                 "default_mesh": self.config.mesh_name,

@@ -300,3 +300,4 @@ class TrainingJobs(WorkspaceState):
                 )
             self.training = {"running": False, "result": holdout, "session": session}
             self._publish_state()
+        self.warm_live(model)  # its engine built now: the Live page starts at once

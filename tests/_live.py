@@ -35,8 +35,13 @@ else:
     atexit.register(shutil.rmtree, _DIR, ignore_errors=True)
 
 
+def shared_file(name: str) -> Path:
+    """``name`` in the folder the workers of this run share (build it under ``build_once``)."""
+    return _DIR / name
+
+
 @contextlib.contextmanager
-def _once(path: Path) -> Iterator[bool]:
+def build_once(path: Path) -> Iterator[bool]:
     """Held while ``path`` is found or built, one process at a time: yields True when it is
     not there yet (the caller builds it). A build that fails leaves no file behind."""
     import fcntl
@@ -61,7 +66,7 @@ def calibration():
     from skinloc.sim.skin import SimulatedSkin
 
     path = _DIR / "cal.h5"
-    with _once(path) as build:
+    with build_once(path) as build:
         if not build:
             return read_recording(path)  # simulate_session returns the file read back too
         mesh = cone_skin()
@@ -81,7 +86,7 @@ def model_path(kind: str) -> Path:
     if kind not in ("map", "mlp", "paper", "gelu"):
         raise ValueError(kind)
     path = _DIR / f"{kind}.h5"
-    with _once(path) as build:
+    with build_once(path) as build:
         if build:
             _train(kind).save(path)
     return path
@@ -127,7 +132,7 @@ def stream_recording() -> Path:
     from skinloc.sources.replay import write_stream_recording
 
     path = _DIR / "stream.h5"
-    with _once(path) as build:
+    with build_once(path) as build:
         if not build:
             return path
         frames, _ = stream()
@@ -152,7 +157,7 @@ def gesture_recording() -> Path:
     swipe along the cone's long axis toward its base (about 50 mm), each 1.2 s apart.
     """
     path = _DIR / "gestures.h5"
-    with _once(path) as build:
+    with build_once(path) as build:
         if build:
             _write_gestures(path)
     return path
@@ -215,7 +220,7 @@ def held_recording(held_s: float, rate_hz: float = 100.0) -> Path:
     """A recording of the simulated skin (seed 0) that ends touched: 1.5 s untouched, then a
     firm press held for ``held_s`` up to the last frame (a replay that stops mid-touch)."""
     path = _DIR / f"held_{held_s:g}s_{rate_hz:g}hz.h5"
-    with _once(path) as build:
+    with build_once(path) as build:
         if build:
             _write_held(path, held_s, rate_hz)
     return path

@@ -823,6 +823,10 @@ def test_a_long_press_says_how_long_it_was_held(chromium, server):
                 row = page.locator("#live-gestures li", has_text="long press")
                 sync_api.expect(row).to_contain_text("held 0.60 s")
                 sync_api.expect(page.locator("#live-tracks")).to_contain_text("No contact.")
+            if k == 7:  # speaking again, the track goes on: its mark is live, its trail kept
+                page.wait_for_function(
+                    "() => window.skinloc.viewer.marks.some((m) => m.key === 't5' && m.live)"
+                )
             time.sleep(0.02)
         row = page.locator("#live-gestures li", has_text="long press")
         sync_api.expect(row).to_contain_text("held 3.00 s", timeout=30_000)

@@ -20,6 +20,8 @@ from pathlib import Path
 import pytest
 
 from skinloc._lazy import EXTRAS
+from tests._live import build_once, shared_file
+from tests.cli.conftest import GOLDEN_MODEL
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -30,12 +32,27 @@ pytestmark = [
 
 
 @pytest.fixture(scope="session")
-def plain(tmp_path_factory) -> Path:
-    """The ``skinloc`` script of a fresh venv holding ``pip install .`` only."""
-    base = tmp_path_factory.mktemp("plain-install")
+def plain() -> Path:
+    """The ``skinloc`` script of a fresh venv holding ``pip install .`` only (built once per
+    run: under ``pytest -n`` the workers share it, ``tests/_live.py``)."""
+    base = shared_file("plain-install")
+    with build_once(base.with_name("plain-install.done")) as build:
+        if build:
+            shutil.rmtree(base, ignore_errors=True)  # a build that failed part way
+            try:
+                _build(base)
+            except BaseException:
+                shutil.rmtree(base, ignore_errors=True)
+                raise
+            base.with_name("plain-install.done").touch()
+    return base / "venv" / "bin" / "skinloc"
+
+
+def _build(base: Path) -> None:
+    """``pip install .`` of a copy of this checkout into a new venv ``base / "venv"``."""
     # a copy, so that the build leaves nothing (build/, *.egg-info) in the checkout
     src = base / "checkout"
-    src.mkdir()
+    src.mkdir(parents=True)
     for name in ("pyproject.toml", "README.md"):
         shutil.copy2(ROOT / name, src / name)
     shutil.copytree(
@@ -64,7 +81,14 @@ def plain(tmp_path_factory) -> Path:
         [str(python), "-c", probe, *EXTRAS], capture_output=True, text=True, env=env, timeout=120
     )
     assert found.returncode == 0 and found.stdout.strip() == "", found.stdout + found.stderr
-    return venv / "bin" / "skinloc"
+    # The first live run compiles the pipeline's kernels into the install (numba's cache,
+    # about 25 s of CPU): once here, not in two of the commands below side by side.
+    warm = subprocess.run(
+        [str(venv / "bin" / "skinloc"), "run", "--model", str(GOLDEN_MODEL), "--source", "sim",
+         "--duration", "0.2", "--sink", f"jsonl:{base / 'warm.jsonl'}"],
+        capture_output=True, text=True, env=env, timeout=1800,
+    )  # fmt: skip
+    assert warm.returncode == 0, warm.stderr[-3000:]
 
 
 LIVE = "pip install 'skinloc[live]'"

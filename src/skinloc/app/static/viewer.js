@@ -84,6 +84,12 @@ class TrackMark {
     this.line.geometry.setDrawRange(0, this.n);
   }
 
+  resume() {
+    // ended for its silence only (the live page's stale rule): the same track goes on
+    this.live = true;
+    this.line.material.opacity = 1;
+  }
+
   end() {
     this.live = false;
     this.dot.visible = this.halo.visible = false;
@@ -361,6 +367,8 @@ export class Viewer {
       if (ended) return;
       mark = this._freeMark();
       mark.begin(key, TRACK_COLOURS[colour % TRACK_COLOURS.length]);
+    } else if (!mark.live && !ended) {
+      mark.resume(); // a track's end comes once: it was only late (a lagging tab or server)
     }
     if (point) mark.add(point[0] * MM, point[1] * MM, point[2] * MM, uncertaintyMm);
     if (ended) mark.end();

@@ -37,6 +37,7 @@ from skinloc.geometry.mesh import nearest_on_surface
 
 __all__ = [
     "CHECK_FRAMES",
+    "check_depth",
     "PressReport",
     "Probe",
     "ProbeError",
@@ -149,6 +150,15 @@ class ProbeSettings:
     def as_meta(self) -> dict[str, Any]:
         """The settings as a recording's meta stores them."""
         return asdict(self)
+
+
+def check_depth(depth_m: float, max_depth_m: float) -> None:
+    """Refuse a press ``depth_m`` m that is not finite, not positive or past ``max_depth_m``."""
+    if not (math.isfinite(depth_m) and 0 < depth_m <= max_depth_m):
+        raise ProbeSafetyError(
+            f"press depth {1e3 * depth_m:g} mm is beyond the probe's limit of "
+            f"{1e3 * max_depth_m:g} mm"
+        )
 
 
 def check_press(settings: ProbeSettings) -> None:
@@ -286,11 +296,8 @@ class SimulatedProbe:
         self._check_running()
         if (depth_m is None) == (force_n is None):
             raise ValueError("give the press as depth_m or force_n, one of them")
-        if depth_m is not None and not 0 < depth_m <= self.max_depth_m:
-            raise ProbeSafetyError(
-                f"press depth {1e3 * depth_m:g} mm is beyond the probe's limit of "
-                f"{1e3 * self.max_depth_m:g} mm"
-            )
+        if depth_m is not None:
+            check_depth(depth_m, self.max_depth_m)
         if force_n is not None and not 0 < force_n <= self.max_force_n:
             raise ProbeSafetyError(
                 f"press force {force_n:g} N is beyond the probe's limit of {self.max_force_n:g} N"

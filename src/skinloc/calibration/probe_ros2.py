@@ -42,7 +42,7 @@ from typing import Any
 
 import numpy as np
 
-from skinloc.calibration.probe import PressReport, ProbeError, ProbeLinkError, ProbeSafetyError
+from skinloc.calibration.probe import PressReport, ProbeError, ProbeLinkError, check_depth
 
 __all__ = ["DEFAULT_PREFIX", "STATES", "Ros2Probe", "tool_orientation"]
 
@@ -252,11 +252,7 @@ class Ros2Probe:
         """
         if force_n is not None or depth_m is None:
             raise ProbeError("the ROS 2 probe presses to a depth, not a force: give a depth")
-        if not (math.isfinite(depth_m) and 0 < depth_m <= self.max_depth_m):
-            raise ProbeSafetyError(
-                f"press depth {1e3 * depth_m:g} mm is beyond the probe's limit of "
-                f"{1e3 * self.max_depth_m:g} mm"
-            )
+        check_depth(depth_m, self.max_depth_m)
         if self._above is None:
             raise ProbeError("move above the target before pressing")
         d = np.asarray(press_direction, dtype=np.float64).reshape(3)

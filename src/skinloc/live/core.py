@@ -38,14 +38,13 @@ from typing import Any
 import numpy as np
 
 from skinloc._jit import all_finite
-from skinloc.live.baseline import BaselineCapture
-from skinloc.live.baseline import subtract_baseline as _prep
+from skinloc.live.baseline import BaselineCapture, subtract_baseline
 from skinloc.live.config import PipelineConfig, TouchState
 from skinloc.live.contact import Contact
 from skinloc.live.footprint import FootprintWatch
 from skinloc.live.gestures import GestureConfig, GestureRecognizer, SkinFrame
 from skinloc.live.landing import LandingWatch
-from skinloc.live.one_euro import one_euro as _one_euro
+from skinloc.live.one_euro import one_euro
 from skinloc.live.pair_prior import pair_prior
 from skinloc.live.tracking import Track, Tracker, frame_contacts
 from skinloc.models.engine import Engine, load_engine
@@ -287,9 +286,9 @@ class SkinCore:
         n = self.n_sensors
         scratch, base = np.zeros(n, dtype=np.float32), self._baseline.copy()
         for dtype in (np.float32, np.uint16):
-            _prep(np.zeros(n, dtype=dtype), base, self._inv_sigma, scratch, 0.0, 1.0, 0)
+            subtract_baseline(np.zeros(n, dtype=dtype), base, self._inv_sigma, scratch, 0.0, 1.0, 0)
             all_finite(np.zeros(n, dtype=dtype))
-        _one_euro(np.zeros(8), 0.0, 0.0, 0.0, 0.0, self._filt_prm, np.zeros(3))
+        one_euro(np.zeros(8), 0.0, 0.0, 0.0, 0.0, self._filt_prm, np.zeros(3))
         self.engine.constrain_into(0.0, 0.0, 0.0, np.zeros(3))
         if self._tracker is not None and self._tracker.pair is not None:
             # the pair prior fits in a touch's first frames: compiled there, it stalled the
@@ -572,7 +571,7 @@ class SkinCore:
                 mode = 3  # only sensors away from the finger: the touch is never tracked away
             elif self._above == 0 and self._holdoff == 0:
                 mode = 2 if self._frozen_s > cfg.max_freeze_s else 1
-        z = _prep(
+        z = subtract_baseline(
             values, self._baseline, self._inv_sigma, self._delta, self._alpha, cfg.quiet_z, mode
         )
         if mode == 1 and z >= cfg.quiet_z:
@@ -625,7 +624,7 @@ class SkinCore:
         engine = self.engine
         engine.localise_into(self._delta, out)
         if self.config.filter == "one-euro":
-            _one_euro(self._filt_state, out[3], out[4], out[5], ts, self._filt_prm, self._tmp)
+            one_euro(self._filt_state, out[3], out[4], out[5], ts, self._filt_prm, self._tmp)
             engine.constrain_into(self._tmp[0], self._tmp[1], self._tmp[2], self._pos)
         else:
             self._pos[:] = out[3:6]

@@ -45,6 +45,11 @@ def image_topics(path: str | Path) -> list[str]:
         raise RecordingError(f"cannot read the ROS 2 bag {path}: {exc}") from None
     if summary is None:
         raise RecordingError(f"{path} has no MCAP summary (not finished?)")
+    return _image_topics(summary)
+
+
+def _image_topics(summary: Any) -> list[str]:
+    """The CDR ``sensor_msgs/msg/Image`` topics of an MCAP summary, sorted."""
     return sorted(
         ch.topic
         for ch in summary.channels.values()
@@ -98,7 +103,7 @@ def bag_summary(path: str | Path) -> dict[str, Any]:
         "end_s": round(end, 6) if stats.message_count else None,
         "duration_s": round(end - start, 6) if stats.message_count else 0.0,
         "channels": channels,
-        "replayable": image_topics(path),
+        "replayable": _image_topics(summary),
     }
 
 

@@ -47,6 +47,11 @@ def wait(check: Callable[[], Any], what: str, timeout_s: float = 180.0) -> Any:
     return wait_until(check, what, timeout_s, interval_s=0.05)
 
 
+def ms(timeout_ms: float) -> float:
+    """A Playwright timeout (ms) stretched by the machine's load, as every other wait is."""
+    return scaled(timeout_ms / 1000.0) * 1000.0
+
+
 def settle(page) -> None:
     """Wait until what the page has is on screen: its transitions ended, then two animation
     frames drawn (what a screenshot or a layout check waits for, instead of a fixed pause).

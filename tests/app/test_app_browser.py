@@ -23,6 +23,7 @@ pytest.importorskip("uvicorn")
 # The fixtures (server, chromium) are tests/app/conftest.py's; the browser's setup, _app's.
 from tests.app._app import (  # noqa: E402
     ARTIFACTS,
+    ms,
     open_browser,
     settle,
     watch,
@@ -37,7 +38,7 @@ N_POINTS = int(os.environ.get("SKINLOC_APP_POINTS", "10"))
 def test_full_session_in_the_browser(chromium, server, tmp_path):
     url, app = server
     # Generous limits: a loaded 2-core machine renders WebGL in software.
-    sync_api.expect.set_options(timeout=60_000)
+    sync_api.expect.set_options(timeout=ms(60_000))
     expect = sync_api.expect
     ARTIFACTS.mkdir(parents=True, exist_ok=True)
     errors: list[str] = []
@@ -48,7 +49,7 @@ def test_full_session_in_the_browser(chromium, server, tmp_path):
         def shot(name: str, on=None) -> None:
             (on or page).screenshot(path=str(ARTIFACTS / f"{name}.png"))
 
-        def wait_state(js: str, timeout_ms: int = 60_000, on=None) -> None:
+        def wait_state(js: str, timeout_ms: float = ms(60_000), on=None) -> None:
             (on or page).wait_for_function(
                 f"() => {{ const s = window.skinloc.state; return !!s && ({js}); }}",
                 timeout=timeout_ms,
@@ -108,7 +109,7 @@ def test_full_session_in_the_browser(chromium, server, tmp_path):
         # Train.
         page.click("#nav button[data-page=train]")
         page.click("#train-btn")
-        page.wait_for_selector("#train-result .result", timeout=180_000)
+        page.wait_for_selector("#train-result .result", timeout=ms(180_000))
         expect(page.locator("#train-result")).to_contain_text("mm")
         shot("04-train")
 
@@ -187,7 +188,7 @@ def test_full_session_in_the_browser(chromium, server, tmp_path):
                 page.wait_for_function(
                     "() => /^[1-9] contacts?$/.test("
                     "document.querySelector('#live-state').textContent)",
-                    timeout=30_000,
+                    timeout=ms(30_000),
                 )
                 break
             except sync_api.TimeoutError:
@@ -282,7 +283,7 @@ def test_full_session_in_the_browser(chromium, server, tmp_path):
             page.click(f"#nav button[data-page={name}]")
             try:  # the layout settles after the click; a loaded machine takes its time
                 page.wait_for_function(
-                    "() => document.documentElement.scrollWidth <= 800", timeout=15_000
+                    "() => document.documentElement.scrollWidth <= 800", timeout=ms(15_000)
                 )
             except sync_api.TimeoutError:
                 pass
@@ -492,7 +493,7 @@ def link_lost(browser, page, url, wait_state, shot, tmp_path, errors) -> None:
 
         dev.stop()
         for tab in (page, other):
-            tab.wait_for_selector("#linklost:not(.hidden)", timeout=30_000)
+            tab.wait_for_selector("#linklost:not(.hidden)", timeout=ms(30_000))
             assert "link lost" in tab.inner_text("#pill-device")
         big = vpanel.locator(".big-state").inner_text()
         assert "Link lost" in big and "Touch" not in big
@@ -510,7 +511,7 @@ def link_lost(browser, page, url, wait_state, shot, tmp_path, errors) -> None:
 
         dev.start()  # the same port path: the app reconnects by itself
         for tab in (page, other):
-            tab.wait_for_selector("#linklost", state="hidden", timeout=60_000)
+            tab.wait_for_selector("#linklost", state="hidden", timeout=ms(60_000))
             tab.wait_for_function(
                 "() => document.querySelector('#pill-device').textContent.includes('Hz')"
             )
@@ -567,11 +568,11 @@ def test_a_tab_notices_a_silent_link_by_itself(chromium, server):
         )
         assert page.locator("#linklost").is_hidden()
         drop.set()
-        page.wait_for_selector("#linklost:not(.hidden)", timeout=30_000)
+        page.wait_for_selector("#linklost:not(.hidden)", timeout=ms(30_000))
         assert "link lost" in page.inner_text("#pill-device")
         assert app.state.workspace.device.link_up  # the server saw nothing wrong
         drop.clear()
-        page.wait_for_selector("#linklost", state="hidden", timeout=30_000)
+        page.wait_for_selector("#linklost", state="hidden", timeout=ms(30_000))
         browser.close()
     assert not errors, f"the page logged errors: {errors}"
 
@@ -607,7 +608,7 @@ def test_sessions_own_their_state_and_flagged_touches_are_gated(chromium, server
     url, app = server
     from skinloc.sources.base import SourceOptions
 
-    sync_api.expect.set_options(timeout=60_000)
+    sync_api.expect.set_options(timeout=ms(60_000))
     expect = sync_api.expect
     ws = app.state.workspace
     ws.connect(SourceOptions(source="sim", rate_hz=400.0, seed=3))
@@ -672,7 +673,7 @@ def test_sessions_own_their_state_and_flagged_touches_are_gated(chromium, server
         page.wait_for_function("() => window.skinloc.state.training?.running")
         expect(page.locator("#train-result")).to_be_empty()  # no old result under the bar
         result = page.locator("#train-result")
-        expect(result.locator(".result")).to_be_visible(timeout=300_000)
+        expect(result.locator(".result")).to_be_visible(timeout=ms(300_000))
         expect(result).to_contain_text("Trained on all 20 touches")
         expect(result).to_contain_text("#7 (off target)")
         expect(result.locator(".influence")).to_contain_text(
@@ -683,7 +684,7 @@ def test_sessions_own_their_state_and_flagged_touches_are_gated(chromium, server
         result.locator("button[data-drop-touch='6']").click()
         page.wait_for_function("() => window.skinloc.state.training?.running")
         expect(result).to_be_empty()  # the earlier result is not left under the running bar
-        expect(result).to_contain_text("Trained on 19 of 20 touches", timeout=300_000)
+        expect(result).to_contain_text("Trained on 19 of 20 touches", timeout=ms(300_000))
         expect(result.locator(".left-out-list")).to_contain_text(
             "#7: left out by hand; flagged off target"
         )
@@ -829,6 +830,6 @@ def test_a_long_press_says_how_long_it_was_held(chromium, server):
                 )
             time.sleep(0.02)
         row = page.locator("#live-gestures li", has_text="long press")
-        sync_api.expect(row).to_contain_text("held 3.00 s", timeout=30_000)
+        sync_api.expect(row).to_contain_text("held 3.00 s", timeout=ms(30_000))
         browser.close()
     assert not errors, f"the page logged errors: {errors}"

@@ -12,13 +12,13 @@ sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not 
 pytest.importorskip("uvicorn")
 
 from skinloc.sources.base import SourceOptions  # noqa: E402
-from tests.app._app import open_browser, watch  # noqa: E402
+from tests.app._app import ms, open_browser, watch  # noqa: E402
 from tests.app._app import wait as _wait  # noqa: E402
 
 
 def test_double_click_reload_and_disconnect_mid_capture(chromium, server):
     url, app = server
-    sync_api.expect.set_options(timeout=60_000)
+    sync_api.expect.set_options(timeout=ms(60_000))
     expect = sync_api.expect
     ws = app.state.workspace
     ws.connect(SourceOptions(source="sim", rate_hz=400.0, seed=3))

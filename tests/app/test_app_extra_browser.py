@@ -18,7 +18,7 @@ from skinloc.data.recording import read_recording  # noqa: E402
 from skinloc.models.localizer import ContactLocalizer  # noqa: E402
 from skinloc.sources.base import SourceOptions  # noqa: E402
 from tests.app import test_app_browser as base  # noqa: E402
-from tests.app._app import open_browser, settle, watch  # noqa: E402
+from tests.app._app import ms, open_browser, settle, watch  # noqa: E402
 from tests.app._app import wait as _wait  # noqa: E402
 
 
@@ -54,7 +54,7 @@ def _download(page, click, folder: Path) -> Path:
 @pytest.mark.slow  # a session in Chromium
 def test_export_downloads_every_file_and_view(chromium, server, tmp_path):
     url, app = server
-    sync_api.expect.set_options(timeout=60_000)
+    sync_api.expect.set_options(timeout=ms(60_000))
     expect = sync_api.expect
     ws = _prepared(app)
     sid = ws.active.folder.id
@@ -147,7 +147,7 @@ def test_record_the_live_stream_from_the_page(chromium, server, tmp_path):
     from skinloc.sources.replay import read_stream
 
     url, app = server
-    sync_api.expect.set_options(timeout=60_000)
+    sync_api.expect.set_options(timeout=ms(60_000))
     expect = sync_api.expect
     ws = _prepared(app, n_validation=0)
     folder = ws.active.folder.path
@@ -211,7 +211,7 @@ def test_record_the_live_stream_from_the_page(chromium, server, tmp_path):
 @pytest.mark.slow  # a session in Chromium
 def test_train_page_shows_each_touch_error_on_the_skin_and_as_a_histogram(chromium, server):
     url, app = server
-    sync_api.expect.set_options(timeout=60_000)
+    sync_api.expect.set_options(timeout=ms(60_000))
     expect = sync_api.expect
     ws = _prepared(app, n_points=8, n_validation=0)
     te = ws.active.info["holdout"]["touch_errors"]
@@ -276,7 +276,7 @@ def test_train_page_shows_each_touch_error_on_the_skin_and_as_a_histogram(chromi
 @pytest.mark.slow  # a session in Chromium
 def test_traces_of_a_sensor_a_live_track_and_a_touch(chromium, server):
     url, app = server
-    sync_api.expect.set_options(timeout=60_000)
+    sync_api.expect.set_options(timeout=ms(60_000))
     expect = sync_api.expect
     ws = _prepared(app, n_validation=0)
     errors: list[str] = []
@@ -342,7 +342,7 @@ def test_live_settings_are_saved_to_the_skins_file_and_latency_is_shown(chromium
     from skinloc.live.skins_file import load_skins
 
     url, app = server
-    sync_api.expect.set_options(timeout=60_000)
+    sync_api.expect.set_options(timeout=ms(60_000))
     expect = sync_api.expect
     ws = _prepared(app, n_validation=0)
     errors: list[str] = []

@@ -15,7 +15,7 @@ sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not 
 pytest.importorskip("uvicorn")
 
 # The fixtures (server, chromium) are tests/app/conftest.py's; the browser's setup, _app's.
-from tests.app._app import ARTIFACTS, open_browser, settle, watch  # noqa: E402
+from tests.app._app import ARTIFACTS, ms, open_browser, settle, watch  # noqa: E402
 from tests.app._app import wait as _wait  # noqa: E402
 
 N = 10
@@ -29,7 +29,7 @@ def test_numbers_stay_touches_stay_out_and_the_figures_are_honest(chromium, serv
     url, app = server
     from skinloc.sources.base import SourceOptions
 
-    sync_api.expect.set_options(timeout=60_000)
+    sync_api.expect.set_options(timeout=ms(60_000))
     expect = sync_api.expect
     ws = app.state.workspace
     ws.config.influence_suspects = 0  # the cross-validation alone: quicker
@@ -64,7 +64,7 @@ def test_numbers_stay_touches_stay_out_and_the_figures_are_honest(chromium, serv
         page.click("#train-btn")
         result = page.locator("#train-result")
         expect(result.locator(".left-out-list")).to_contain_text(
-            "#2: left out by hand", timeout=300_000
+            "#2: left out by hand", timeout=ms(300_000)
         )
         expect(result).to_contain_text(f"Trained on {N - 1} of {N} touches")
         # Another box ticked: the first stays out (it was silently put back before).
@@ -74,7 +74,7 @@ def test_numbers_stay_touches_stay_out_and_the_figures_are_honest(chromium, serv
         page.click("#train-btn")
         page.wait_for_function("() => window.skinloc.state.training?.running")
         out = result.locator(".left-out-list")
-        expect(out).to_contain_text("#6: left out by hand", timeout=300_000)
+        expect(out).to_contain_text("#6: left out by hand", timeout=ms(300_000))
         expect(out).to_contain_text("#2: left out by hand")
         expect(result).to_contain_text(f"Trained on {N - 2} of {N} touches")
         went_in = result.locator(".went-in")
@@ -111,7 +111,7 @@ def test_numbers_stay_touches_stay_out_and_the_figures_are_honest(chromium, serv
         _wait(lambda: (ws.active.info.get("validation") or {}).get("n") == 3, "validation")
         page.click("#train-btn")
         page.wait_for_function("() => window.skinloc.state.training?.running")
-        expect(result.locator(".left-out-list")).to_contain_text("#6", timeout=300_000)
+        expect(result.locator(".left-out-list")).to_contain_text("#6", timeout=ms(300_000))
         page.click("#nav button[data-page=validate]")
         expect(page.locator(".guided[data-kind=validate] .val-result")).to_contain_text(
             "The model was trained again"
@@ -132,7 +132,7 @@ def test_live_start_says_what_it_does_and_takes_one_click(chromium, server, monk
     url, app = server
     from skinloc.sources.base import SourceOptions
 
-    sync_api.expect.set_options(timeout=60_000)
+    sync_api.expect.set_options(timeout=ms(60_000))
     expect = sync_api.expect
     ws = app.state.workspace
     ws.config.influence_suspects = 0

@@ -17,7 +17,7 @@ import pytest
 
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed")
 
-from tests.app._app import ARTIFACTS, open_browser, watch  # noqa: E402
+from tests.app._app import ARTIFACTS, ms, open_browser, watch  # noqa: E402
 from tests.app._app import wait as _wait  # noqa: E402
 
 # Every shown number's box on the page, and the view's own boxes.
@@ -95,7 +95,7 @@ def test_the_3d_view_is_readable_at_1440_and_800(chromium, server):  # noqa: F81
     ws = app.state.workspace
     _session_waiting_at_a_target(ws, n_points=40, n_done=12)
     index = ws.active.cal.n_done  # the current target, 0-based
-    sync_api.expect.set_options(timeout=60_000)
+    sync_api.expect.set_options(timeout=ms(60_000))
     expect = sync_api.expect
     ARTIFACTS.mkdir(parents=True, exist_ok=True)
     errors: list[str] = []
@@ -220,7 +220,7 @@ def test_dragging_on_the_skin_moves_the_simulated_finger(chromium, server):  # n
         real(path)
 
     ws.sim_path = record
-    sync_api.expect.set_options(timeout=60_000)
+    sync_api.expect.set_options(timeout=ms(60_000))
     expect = sync_api.expect
     errors: list[str] = []
     with open_browser(chromium) as browser:

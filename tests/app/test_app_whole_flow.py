@@ -34,7 +34,7 @@ pytest.importorskip("uvicorn")
 from skinloc.data.recording import read_recording  # noqa: E402
 from skinloc.models.localizer import ContactLocalizer  # noqa: E402
 from tests._helpers import SRC, scaled  # noqa: E402
-from tests.app._app import open_browser, settle, watch  # noqa: E402
+from tests.app._app import ms, open_browser, settle, watch  # noqa: E402
 
 #: A folder for the screenshots of every page at both widths (docs/app.md), or None: none.
 SHOTS = os.environ.get("SKINLOC_APP_SHOTS")
@@ -151,7 +151,7 @@ def _svg_root(data: bytes) -> ET.Element:
 def test_the_whole_flow_as_a_user(chromium, server, tmp_path):
     url, app = server
     ws = app.state.workspace
-    sync_api.expect.set_options(timeout=60_000)
+    sync_api.expect.set_options(timeout=ms(60_000))
     expect = sync_api.expect
     errors: list[str] = []
     got = tmp_path / "downloads"
@@ -163,7 +163,7 @@ def test_the_whole_flow_as_a_user(chromium, server, tmp_path):
         page = browser.new_page(viewport={"width": 1440, "height": 900}, accept_downloads=True)
         watch(page, errors)
 
-        def wait_state(js: str, timeout_ms: int = 60_000) -> None:
+        def wait_state(js: str, timeout_ms: float = ms(60_000)) -> None:
             page.wait_for_function(
                 f"() => {{ const s = window.skinloc.state; return !!s && ({js}); }}",
                 timeout=timeout_ms,
@@ -243,7 +243,7 @@ def test_the_whole_flow_as_a_user(chromium, server, tmp_path):
         # Space captures now, though nothing touches the skin: a bad touch, flagged forced.
         page.keyboard.press("Space")
         page.wait_for_function(
-            "() => window.skinloc.session?.calibration?.done?.length === 1", timeout=120_000
+            "() => window.skinloc.session?.calibration?.done?.length === 1", timeout=ms(120_000)
         )
         # The scripted finger does the other 19.
         panel.locator(".finger").check()
@@ -292,7 +292,7 @@ def test_the_whole_flow_as_a_user(chromium, server, tmp_path):
         go("train")
         page.click("#train-btn")
         result = page.locator("#train-result")
-        expect(result.locator(".result")).to_be_visible(timeout=300_000)
+        expect(result.locator(".result")).to_be_visible(timeout=ms(300_000))
         expect(result).to_contain_text("Trained on")
         expect(result).to_contain_text("mm")
         # the retaken touch went in (it is flagged no more)

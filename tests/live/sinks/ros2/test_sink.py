@@ -907,6 +907,8 @@ def test_bench_functions_with_the_ros2_sink_run_small(domain):
     from skinloc.bench.sinks import sink_cost
     from tests._live import model_path
 
+    import sklearn  # noqa: F401 - sets OpenMP variables on import, which is not the bench's doing
+
     env = dict(os.environ)
     cost = sink_cost(300, n_skins=3, rounds=1)
     assert set(cost) == {

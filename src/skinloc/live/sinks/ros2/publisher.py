@@ -44,6 +44,7 @@ __all__ = ["Ros2Publisher", "main"]
 
 _DEPTH = 10  # keep-last depth of the data topics (rclpy's default QoS profile)
 _DELAYS = 1 << 17  # publishing delays kept for the statistics (the latest ones)
+_CLOSE_S = 5.0  # the longest the node's teardown is waited for before the process exits
 
 
 class _DdsBackend:
@@ -343,7 +344,21 @@ def _serve(fd_in: int, reply: Any, config: dict[str, Any]) -> int:
         say(final=stats.as_dict())
         return 0
     finally:
-        pub.close()
+        _close_within(pub, _CLOSE_S)
+
+
+def _close_within(pub: Ros2Publisher, timeout_s: float) -> None:
+    """``pub.close()``, waited for at most ``timeout_s``.
+
+    The sink waits for this process to end, and a DDS or rclpy teardown that stalls on a loaded
+    machine must not hold its owner's Ctrl-C (the process then exits without Python's
+    finalisation, see ``__main__``).
+    """
+    closing = threading.Thread(target=pub.close, name="skinloc-ros2-close", daemon=True)
+    closing.start()
+    closing.join(timeout_s)
+    if closing.is_alive():
+        log.warning("closing the ROS 2 node took over %.0f s; exiting without it", timeout_s)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -368,4 +383,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    code = main()
+    logging.shutdown()
+    # everything is closed (or given up on): skip the interpreter's finalisation, where a
+    # daemon thread of rclpy or Cyclone DDS could hold the exit
+    os._exit(code)

@@ -534,9 +534,11 @@ class Ros2Sink(Sink):
             os.close(self._w)  # the end of the records: the publisher drains and ends
             self._w = -1
         if proc is not None:
+            # one bound for both waits: the owner's Ctrl-C waits on this
+            end = time.monotonic() + timeout_s
             self._read_final(timeout_s)
             try:
-                proc.wait(timeout_s)
+                proc.wait(max(end - time.monotonic(), 0.1))
             except subprocess.TimeoutExpired:
                 log.warning("the ROS 2 publisher did not end within %.0f s; killed", timeout_s)
                 proc.kill()

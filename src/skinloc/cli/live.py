@@ -304,15 +304,18 @@ def register(app: typer.Typer) -> None:
 
         Example: skinloc run --model model.h5 --source /dev/ttyACM0 --sink jsonl --sink ws://127.0.0.1:8767
         """
-        from skinloc.live.core import PipelineConfig
-        from skinloc.live.runner import Runner, SkinConfig
+        from skinloc.live.sinks.base import check_sink
 
         sinks = list(sink) if sink else ["jsonl"]
         inputs = [model, baseline, config, *([Path(source)] if source else [])]
         for spec_text in sinks:
+            check_sink(spec_text)  # before the pipeline's imports: a bad sink fails at once
             for path in _sink_files(spec_text):
                 # Sink files are logs that may be appended to; only an input is off limits.
                 check_output(path, option="--sink", inputs=inputs, force=True)
+        from skinloc.live.core import PipelineConfig
+        from skinloc.live.runner import Runner, SkinConfig
+
         if config is not None:
             from skinloc.live.skins_file import load_skins
 

@@ -20,7 +20,7 @@ from urllib.parse import parse_qs, urlsplit
 
 import numpy as np
 
-from skinloc._lazy import resolve
+from skinloc._lazy import require_extra, resolve
 
 if TYPE_CHECKING:
     from skinloc.live.contact import Contact
@@ -35,6 +35,7 @@ __all__ = [
     "SinkSpec",
     "SinkType",
     "SkinInfo",
+    "check_sink",
     "gesture_json",
     "make_sink",
     "register_sink",
@@ -564,6 +565,21 @@ def sink_files(spec: str) -> list[str]:
     parsed = SinkSpec.parse(spec)
     entry = sink_type(parsed.scheme)
     return [] if entry is None else entry.files(parsed)
+
+
+def check_sink(spec: str) -> None:
+    """Refuse ``spec`` up front, before a command loads its model.
+
+    An unknown scheme is a ``ValueError``; a sink whose optional dependency is missing a
+    ``MissingExtraError`` naming the extra. What only the backend can judge (a bad port, a
+    missing file name) is left to ``make_sink``.
+    """
+    parsed = SinkSpec.parse(spec)
+    entry = sink_type(parsed.scheme)
+    if entry is None:
+        raise ValueError(f"unknown sink {parsed.text!r}; use one of: {'; '.join(sink_forms())}")
+    if entry.requires is not None:
+        require_extra(entry.requires, f"the {entry.scheme} sink")
 
 
 def make_sink(spec: str | Sink) -> Sink:

@@ -342,3 +342,17 @@ def test_the_registry_names_the_files_a_spec_writes():
     finally:
         unregister_sink("toyname")
         unregister_sink("toyfile")
+
+
+def test_check_sink_refuses_an_unknown_sink_or_a_missing_extra_up_front(monkeypatch):
+    import sys
+
+    from skinloc.errors import MissingExtraError
+    from skinloc.live.sinks.base import check_sink
+
+    check_sink("jsonl:out.jsonl")  # nothing to say, and nothing written
+    with pytest.raises(ValueError, match="unknown sink 'bogus'"):
+        check_sink("bogus")
+    monkeypatch.setitem(sys.modules, "pylsl", None)  # as if not installed
+    with pytest.raises(MissingExtraError, match=r"pip install 'skinloc\[live\]'"):
+        check_sink("lsl:skin")

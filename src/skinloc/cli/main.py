@@ -25,6 +25,7 @@ from skinloc.cli import skin as cli_skin
 from skinloc.cli import webapp as app_cli
 from skinloc.cli.common import (
     Arch,
+    Change,
     Constraint,
     Mode,
     Units,
@@ -160,6 +161,16 @@ def simulate(
         int | None,
         typer.Option(help="With --gestures: touches that are not gestures (default N/4)."),
     ] = None,
+    session_change: Annotated[
+        Change,
+        typer.Option(
+            help="Record a later session of the skin: 'real' changes it as much as the real "
+            "skin changed in five months, 'mild' a little (docs/simulator.md)."
+        ),
+    ] = Change.none,
+    change_seed: Annotated[
+        int, typer.Option(min=0, help="Seed of the --session-change draws.")
+    ] = 0,
 ) -> None:
     """Record a whole calibration session from the simulated skin.
 
@@ -168,6 +179,10 @@ def simulate(
 
     With --gestures N it records instead a raw stream in which a scripted hand performs N
     gestures and some other touches, with the truth in the file (docs/multitouch.md).
+
+    With --session-change real|mild the skin of --skin-seed is recorded as in a later session
+    (gains, footprint and crossings moved; the same wiring), to test recalibration
+    (skinloc train LATER --init MODEL).
 
     Example: skinloc simulate --points 80 --mode even --samples 50 --seed 0 --out cal.h5
     """
@@ -178,6 +193,8 @@ def simulate(
 
         if gestures is None:
             raise ValueError("--other-touches needs --gestures N")
+        if session_change is not Change.none:
+            raise ValueError("--session-change records a calibration session, not --gestures")
         simulate_gestures(
             out,
             n_gestures=gestures,
@@ -205,13 +222,19 @@ def simulate(
     skin = SimulatedSkin(surface, n_tx=tx, n_rx=rx, random_state=skin_seed)
     if mesh is not None:
         check_skin_covers(skin, mesh)
+    description = f"simulated skin (skin seed {skin_seed})"
+    if session_change is not Change.none:
+        from skinloc.sim.session_change import later_session
+
+        skin = later_session(skin, session_change.value, change_seed)
+        description += f", later session ({session_change.value} change, seed {change_seed})"
     skin.reseed(seed)
     cfg = SessionConfig(
         n_points=points,
         mode=mode.value,
         samples_per_touch=samples,
         random_state=seed,
-        description=f"simulated skin (skin seed {skin_seed})",
+        description=description,
     )
     as_mat = out.suffix.lower() == ".mat"
     with progress_steps() as step, tempfile.TemporaryDirectory() as tmp:

@@ -319,12 +319,12 @@ def train(
         from skinloc.models.map_prior import load_prior
 
         load_prior(prior)  # a bad file fails here, in one line, before anything else
-    recs = read_recordings(data, calibration=True)
+    recs = read_recordings(data, calibration=init is None)  # --init: a baseline capture will do
     if select is not None:
         choose_with = "none" if no_prior else ("package" if prior is None else str(prior))
         recs = _select_point_logs(recs, select, strategy, seed, choose_with)
     n_logs = sum(r.n_point_logs for r in recs)
-    if n_logs == 0:
+    if n_logs == 0 and init is None:
         raise ValueError("the recordings hold no point logs: record a calibration session first")
     if n_logs < FEW_POINT_LOGS and init is None:
         err_console.print(
@@ -340,10 +340,11 @@ def train(
                 old, recs, progress=lambda d, t: step("recalibrating", d, t)
             )
         model.save(out)
-        n = sum(r.n_point_logs for r in recs)
         console.print(
-            f"Recalibrated {init} with {n} point logs in {model.fit_time_s_:.1f} s; wrote {out}"
+            f"Recalibrated {init} with {n_logs} point logs in {model.fit_time_s_:.1f} s; "
+            f"wrote {out}"
         )
+        console.print(f"Recalibration: {model.recalibration_['summary']}", highlight=False)
         return
     surface = load_mesh(mesh, units.value) if mesh is not None else None
     overrides: dict = {"epochs": epochs} if epochs is not None else {}

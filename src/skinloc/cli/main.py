@@ -272,8 +272,9 @@ def train(
     init: Annotated[
         Path | None,
         typer.Option(
-            help="Recalibrate this model to DATA (a new session: fresh baseline, a few touches) "
-            "instead of training from scratch."
+            help="Recalibrate this model to DATA (a new session: fresh baseline, a few touches; "
+            "a baseline capture alone keeps it): cross-validation over the new touches chooses "
+            "the old map, corrected, blended or replaced by the new touches alone."
         ),
     ] = None,
     force: Annotated[bool, typer.Option("--force", help="Replace an existing --out.")] = False,

@@ -372,10 +372,11 @@ class ContactLocalizer:
                 "summary": "kept the old model (no new touch to judge it by)",
             }
         else:
-            new.recalibration_ = {
-                "method": "fine-tuned",
-                "n_touches": int(len(np.unique(groups)) if groups is not None else len(X)),
-                "summary": "fine-tuned the network on the new touches",
+            n = int(len(np.unique(groups)) if groups is not None else len(X))
+            new.recalibration_ = {  # a kind that says more replaces it
+                "method": "adapted",
+                "n_touches": n,
+                "summary": f"adapted the {self.kind.name} model to {n} new touches",
             }
             self.kind.recalibrate(self, new, X, y, groups, progress)
         new.fit_time_s_ = time.perf_counter() - t0

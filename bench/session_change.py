@@ -13,6 +13,10 @@ crossing's position, gain and footprint, the no-touch noise, the health classifi
   (mm) and the rigid part of it (the best rotation and translation, Kabsch, over the crossings).
 
     python bench/session_change.py --data ../shared/data/hiro-cone-skin --out change.json
+
+``--simulated CHANGE`` measures a simulated pair the same way instead (``skinloc.sim.
+session_change``; skin seed 0: 130 touches, then 60 of the same session and 60 of a later one,
+20 frames a touch): what the simulated change looks like through the real figures' lens.
 """
 
 from __future__ import annotations
@@ -88,21 +92,49 @@ def compare(ref_recs, ref_map, recs, smap, n_tx: int, n_rx: int) -> dict:
     }
 
 
+def simulated_groups(change: str, skin_seed: int = 0, change_seed: int = 3) -> dict:
+    """Recordings of a simulated pair: the reference, the same day, and a later session."""
+    import tempfile
+
+    from skinloc.calibration.session import SessionConfig, simulate_session
+    from skinloc.geometry.mesh import cone_skin
+    from skinloc.sim.session_change import later_session
+    from skinloc.sim.skin import SimulatedSkin
+
+    mesh, tmp = cone_skin(), Path(tempfile.mkdtemp())
+    skin = SimulatedSkin(mesh, random_state=skin_seed)
+
+    def session(s: SimulatedSkin, n: int, seed: int, name: str):
+        s.reseed(seed)
+        cfg = SessionConfig(n_points=n, mode="random", samples_per_touch=20, random_state=seed)
+        return [simulate_session(s, mesh, tmp / f"{name}.h5", cfg)]
+
+    return {
+        "reference": session(skin, 130, 1, "reference"),
+        "same_day": session(skin, 60, 2, "same"),
+        "later": session(later_session(skin, change, change_seed), 60, 4, "later"),
+    }
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=Path("../shared/data/hiro-cone-skin"))
     ap.add_argument("--out", type=Path, default=None, help="write the figures as JSON")
+    ap.add_argument("--simulated", choices=["real", "mild"], help="a simulated pair instead")
     args = ap.parse_args(argv)
-    names = (*REFERENCE, *SAME_DAY, *REAL_MAY)
-    missing = [n for n in names if not (args.data / n).is_file()]
-    if missing:
-        raise SystemExit(f"error: {args.data} lacks {', '.join(missing)} (give --data)")
-    load = {n: read_recording(args.data / n) for n in names}
-    groups = {
-        "reference": [load[n] for n in REFERENCE],
-        "same_day": [load[n] for n in SAME_DAY],
-        "five_months": [load[n] for n in REAL_MAY],
-    }
+    if args.simulated:
+        groups = simulated_groups(args.simulated)
+    else:
+        names = (*REFERENCE, *SAME_DAY, *REAL_MAY)
+        missing = [n for n in names if not (args.data / n).is_file()]
+        if missing:
+            raise SystemExit(f"error: {args.data} lacks {', '.join(missing)} (give --data)")
+        load = {n: read_recording(args.data / n) for n in names}
+        groups = {
+            "reference": [load[n] for n in REFERENCE],
+            "same_day": [load[n] for n in SAME_DAY],
+            "five_months": [load[n] for n in REAL_MAY],
+        }
     maps = {k: sensor_map_from_recordings(v, n_boot=0) for k, v in groups.items()}
     first = groups["reference"][0]
     out = {
@@ -112,7 +144,7 @@ def main(argv: list[str] | None = None) -> int:
             first.n_tx, first.n_rx,
         )["flags"],
     }  # fmt: skip
-    for k in ("same_day", "five_months"):
+    for k in [g for g in groups if g != "reference"]:
         out[k] = compare(
             groups["reference"], maps["reference"], groups[k], maps[k], first.n_tx, first.n_rx
         )

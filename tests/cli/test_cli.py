@@ -6,6 +6,7 @@ from typer.testing import CliRunner
 
 from skinloc.cli.main import app
 from skinloc.data.recording import write_recording
+from skinloc.models.localizer import ContactLocalizer
 from tests.conftest import make_recording
 
 runner = CliRunner()
@@ -81,6 +82,24 @@ def test_default_train_then_recalibrate(rec_path, tmp_path):
     res = run("train", later, "--init", model, "--out", new)
     assert res.exit_code == 0, res.output
     assert "Recalibrated" in res.output
+    # what it did, in one line and in the model file
+    line = next(x for x in res.output.splitlines() if x.startswith("Recalibration: "))
+    assert "cross-validation over 5 new touches" in line
+    done = ContactLocalizer.load(new).meta_["training"]["recalibration"]
+    assert done["n_touches"] == 5 and done["method"] in line and done["summary"] in line
+    # a baseline capture alone (no touch): the old model, unchanged
+    capture = tmp_path / "capture.h5"
+    write_recording(make_recording(2, 4, random_state=8).subset(np.array([], dtype=int)), capture)
+    kept = tmp_path / "kept.h5"
+    res = run("train", capture, "--init", model, "--out", kept)
+    assert res.exit_code == 0, res.output
+    assert "Recalibration: kept the old model (no new touch to judge it by)" in res.output
+    X = make_recording(4, 4, random_state=9).touch_means
+    np.testing.assert_allclose(
+        ContactLocalizer.load(kept).predict(X), ContactLocalizer.load(model).predict(X)
+    )
+    res = run("train", capture, "--out", tmp_path / "none.h5")  # without --init: no model
+    assert res.exit_code == 1 and "without point logs" in res.output
     out = json.loads(run("evaluate", new, later, "--json").output)
     assert out["n"] == 5 and "uncertainty_spearman" in out
     small = tmp_path / "small.h5"

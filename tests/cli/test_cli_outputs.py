@@ -98,3 +98,23 @@ def test_evaluate_and_recalibrate_refuse_a_recording_of_another_mesh(tmp_path, g
     res = runner.invoke(app, ["evaluate", str(model), str(golden_recording), "--json"])
     assert res.exit_code == 0, res.output
     assert np.isfinite(__import__("json").loads(res.output)["mean_mm"])
+
+
+def test_simulate_records_a_later_session_of_the_same_skin(tmp_path):
+    first, later = tmp_path / "first.h5", tmp_path / "later.h5"
+    common = ["simulate", "--points", "6", "--samples", "4", "--skin-seed", "2"]
+    assert runner.invoke(app, [*common, "--out", str(first)]).exit_code == 0
+    res = runner.invoke(
+        app, [*common, "--session-change", "real", "--change-seed", "1", "--out", str(later)]
+    )
+    assert res.exit_code == 0, res.output
+    a, b = read_recording(first), read_recording(later)
+    assert "later session (real change, seed 1)" in b.meta["description"]
+    np.testing.assert_allclose(a.targets, b.targets)  # the same session seed: the same targets
+    assert np.median(np.abs(a.baseline - b.baseline)) > 100  # the baselines moved
+    res = runner.invoke(app, [*common, "--session-change", "huge", "--out", str(tmp_path / "x")])
+    assert res.exit_code != 0 and "Traceback" not in res.output
+    res = runner.invoke(
+        app, ["simulate", "--gestures", "2", "--session-change", "real", "--out", str(later)]
+    )
+    one_line_error(res, "--session-change")

@@ -261,4 +261,5 @@ def test_network_recalibration_fine_tunes(toy):
     m = ContactLocalizer(**FAST).fit(X, y, mesh=mesh)
     re = m.recalibrate(X[:20], y[:20])
     assert not np.array_equal(re.coefs_[0], m.coefs_[0])
+    assert re.recalibration_["method"] == "fine-tuned" and re.recalibration_["n_touches"] == 20
     assert re.predict(Xt).shape == yt.shape

@@ -128,6 +128,11 @@ def test_a_toy_kind_trains_saves_loads_and_predicts(toy, tmp_path):
     np.testing.assert_allclose(point, y[4], atol=1e-9)
     with pytest.raises(ValueError, match="sensor images must have shape \\(n, 64\\)"):
         loaded.predict(np.zeros((2, 65)))
+    # a kind that does not say how it recalibrated gets the common account
+    again = model.recalibrate(X[:6], y[:6], groups=groups[:6])
+    assert again.recalibration_["method"] == "adapted"
+    assert again.recalibration_["summary"] == "adapted the toy model to 2 new touches"
+    assert model.recalibrate(X[:0], y[:0]).recalibration_["n_touches"] == 0
     with pytest.raises(ValueError, match="toy model has no ONNX export"):
         from skinloc.models.export import onnx_model
 

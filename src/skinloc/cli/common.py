@@ -90,6 +90,14 @@ class Mode(StrEnum):
     edge = "edge"
 
 
+class Change(StrEnum):
+    """Session changes of the simulated skin (``skinloc.sim.session_change``)."""
+
+    none = "none"
+    mild = "mild"
+    real = "real"
+
+
 class Units(StrEnum):
     """Mesh file units."""
 

@@ -25,6 +25,7 @@ from skinloc.cli import skin as cli_skin
 from skinloc.cli import webapp as app_cli
 from skinloc.cli.common import (
     Arch,
+    Change,
     Constraint,
     Mode,
     Units,
@@ -160,6 +161,16 @@ def simulate(
         int | None,
         typer.Option(help="With --gestures: touches that are not gestures (default N/4)."),
     ] = None,
+    session_change: Annotated[
+        Change,
+        typer.Option(
+            help="Record a later session of the skin: 'real' changes it as much as the real "
+            "skin changed in five months, 'mild' a little (docs/simulator.md)."
+        ),
+    ] = Change.none,
+    change_seed: Annotated[
+        int, typer.Option(min=0, help="Seed of the --session-change draws.")
+    ] = 0,
 ) -> None:
     """Record a whole calibration session from the simulated skin.
 
@@ -168,6 +179,10 @@ def simulate(
 
     With --gestures N it records instead a raw stream in which a scripted hand performs N
     gestures and some other touches, with the truth in the file (docs/multitouch.md).
+
+    With --session-change real|mild the skin of --skin-seed is recorded as in a later session
+    (gains, footprint and crossings moved; the same wiring), to test recalibration
+    (skinloc train LATER --init MODEL).
 
     Example: skinloc simulate --points 80 --mode even --samples 50 --seed 0 --out cal.h5
     """
@@ -178,6 +193,8 @@ def simulate(
 
         if gestures is None:
             raise ValueError("--other-touches needs --gestures N")
+        if session_change is not Change.none:
+            raise ValueError("--session-change records a calibration session, not --gestures")
         simulate_gestures(
             out,
             n_gestures=gestures,
@@ -205,13 +222,19 @@ def simulate(
     skin = SimulatedSkin(surface, n_tx=tx, n_rx=rx, random_state=skin_seed)
     if mesh is not None:
         check_skin_covers(skin, mesh)
+    description = f"simulated skin (skin seed {skin_seed})"
+    if session_change is not Change.none:
+        from skinloc.sim.session_change import later_session
+
+        skin = later_session(skin, session_change.value, change_seed)
+        description += f", later session ({session_change.value} change, seed {change_seed})"
     skin.reseed(seed)
     cfg = SessionConfig(
         n_points=points,
         mode=mode.value,
         samples_per_touch=samples,
         random_state=seed,
-        description=f"simulated skin (skin seed {skin_seed})",
+        description=description,
     )
     as_mat = out.suffix.lower() == ".mat"
     with progress_steps() as step, tempfile.TemporaryDirectory() as tmp:
@@ -249,8 +272,9 @@ def train(
     init: Annotated[
         Path | None,
         typer.Option(
-            help="Recalibrate this model to DATA (a new session: fresh baseline, a few touches) "
-            "instead of training from scratch."
+            help="Recalibrate this model to DATA (a new session: fresh baseline, a few touches; "
+            "a baseline capture alone keeps it): cross-validation over the new touches chooses "
+            "the old map, corrected, blended or replaced by the new touches alone."
         ),
     ] = None,
     force: Annotated[bool, typer.Option("--force", help="Replace an existing --out.")] = False,
@@ -296,12 +320,12 @@ def train(
         from skinloc.models.map_prior import load_prior
 
         load_prior(prior)  # a bad file fails here, in one line, before anything else
-    recs = read_recordings(data, calibration=True)
+    recs = read_recordings(data, calibration=init is None)  # --init: a baseline capture will do
     if select is not None:
         choose_with = "none" if no_prior else ("package" if prior is None else str(prior))
         recs = _select_point_logs(recs, select, strategy, seed, choose_with)
     n_logs = sum(r.n_point_logs for r in recs)
-    if n_logs == 0:
+    if n_logs == 0 and init is None:
         raise ValueError("the recordings hold no point logs: record a calibration session first")
     if n_logs < FEW_POINT_LOGS and init is None:
         err_console.print(
@@ -317,10 +341,11 @@ def train(
                 old, recs, progress=lambda d, t: step("recalibrating", d, t)
             )
         model.save(out)
-        n = sum(r.n_point_logs for r in recs)
         console.print(
-            f"Recalibrated {init} with {n} point logs in {model.fit_time_s_:.1f} s; wrote {out}"
+            f"Recalibrated {init} with {n_logs} point logs in {model.fit_time_s_:.1f} s; "
+            f"wrote {out}"
         )
+        console.print(f"Recalibration: {model.recalibration_['summary']}", highlight=False)
         return
     surface = load_mesh(mesh, units.value) if mesh is not None else None
     overrides: dict = {"epochs": epochs} if epochs is not None else {}

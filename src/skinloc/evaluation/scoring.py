@@ -22,8 +22,13 @@ __all__ = [
 ]
 
 
-def check_compatible(recordings: Sequence[Recording], n_sensors: int | None = None) -> int:
-    """Check that all recordings share one sensor count (and ``n_sensors`` if given)."""
+def check_compatible(
+    recordings: Sequence[Recording], n_sensors: int | None = None, *, touches: bool = True
+) -> int:
+    """Check that all recordings share one sensor count (and ``n_sensors`` if given).
+
+    With ``touches`` (the default) each must hold point logs too.
+    """
     if not recordings:
         raise RecordingError("no recordings given")
     counts = {r.n_sensors for r in recordings}
@@ -33,7 +38,7 @@ def check_compatible(recordings: Sequence[Recording], n_sensors: int | None = No
     if n_sensors is not None and count != n_sensors:
         raise RecordingError(f"the recording has {count} sensors but the model expects {n_sensors}")
     for r in recordings:
-        if r.n_point_logs == 0:
+        if touches and r.n_point_logs == 0:
             raise RecordingError("a recording holds no point logs")
     return count
 
@@ -180,17 +185,24 @@ def recalibrate_localizer(model, recordings: Sequence[Recording], *, progress=No
     """Adapt a trained model to new recordings of the same skin (``ContactLocalizer.recalibrate``).
 
     Each recording's frames are taken against its own (fresh) baseline, so a moved baseline
-    is absorbed here; the model then corrects for the moved response.
+    is absorbed here; the model then keeps, corrects or replaces its response as the new
+    touches show (``ContactLocalizer.recalibrate``). Recordings without point logs (a baseline
+    capture) give the model unchanged. The decision is in ``training_meta_["recalibration"]``.
     """
-    check_compatible(recordings, getattr(model, "n_features_in_", None))
+    n = check_compatible(recordings, getattr(model, "n_features_in_", None), touches=False)
     check_same_skin(model, recordings)
-    X, y, groups = training_arrays(recordings)
+    touched = [r for r in recordings if r.n_point_logs]
+    if touched:
+        X, y, groups = training_arrays(touched)
+    else:  # a baseline capture only
+        X, y, groups = np.zeros((0, n)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
     new = model.recalibrate(X, y, groups=groups, progress=progress)
     previous = getattr(model, "meta_", {}).get("training") or getattr(model, "training_meta_", {})
     new.training_meta_ = {
         "recalibrated_from": previous,
         "n_recordings": len(recordings),
         "n_point_logs": int(sum(r.n_point_logs for r in recordings)),
+        "recalibration": new.recalibration_,
     }
     return new
 

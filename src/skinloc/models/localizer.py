@@ -348,20 +348,37 @@ class ContactLocalizer:
 
         ``X (n, n_sensors)`` are baseline-subtracted images from the new session (with its own
         fresh baseline) and ``y (n, 3)`` their touch positions, m; a handful of touches is
-        enough. A response map gains a correction layer fitted to the new touches; a network
-        is fine-tuned from its weights with a short, gentle schedule.
+        enough, and none (a baseline capture only) gives the model unchanged. A response map
+        keeps, corrects, blends or replaces its map as cross-validation over the new touches
+        decides (``models.recalibration``); a network is fine-tuned from its weights with a
+        short, gentle schedule. ``recalibration_`` says what was done.
         """
         import copy
 
         self._check_fitted()
-        X = self._check_X(X)
+        X = self._check_X(X) if len(X) else np.zeros((0, self.n_features_in_))
         y = np.asarray(y, dtype=np.float64)
-        if y.shape != (len(X), 3) or len(X) < 1:
+        if len(X) == 0 and y.size == 0:
+            y = y.reshape(0, 3)
+        if y.shape != (len(X), 3):
             raise ValueError(f"touch positions must have shape ({len(X)}, 3), got {y.shape}")
         new = copy.deepcopy(self)
         new._engine = None
         t0 = time.perf_counter()
-        self.kind.recalibrate(self, new, X, y, groups, progress)
+        if len(X) == 0:
+            new.recalibration_ = {
+                "method": "old map" if self.kind.name == "map" else "old model",
+                "n_touches": 0,
+                "summary": "kept the old model (no new touch to judge it by)",
+            }
+        else:
+            n = int(len(np.unique(groups)) if groups is not None else len(X))
+            new.recalibration_ = {  # a kind that says more replaces it
+                "method": "adapted",
+                "n_touches": n,
+                "summary": f"adapted the {self.kind.name} model to {n} new touches",
+            }
+            self.kind.recalibrate(self, new, X, y, groups, progress)
         new.fit_time_s_ = time.perf_counter() - t0
         return new
 

@@ -108,13 +108,27 @@ class MapKind:
         groups: np.ndarray | None,
         progress: Callable[[int, int], None] | None,
     ) -> None:
-        """A correction layer fitted to the new touches (their means when grouped)."""
+        """The old map kept, corrected, blended or replaced, as the new touches decide.
+
+        Cross-validation over the new touches (their means when grouped) chooses
+        (``models.recalibration``); the decision is ``new.recalibration_``.
+        """
         from skinloc.models.localizer import group_means
+        from skinloc.models.recalibration import choose_recalibration
         from skinloc.models.response_map import shape_features
 
         if groups is not None:
             X, y = group_means(X, y, groups)
-        new.map_ = model.map_.refined(y, shape_features(X, model.config_["clip_negative"]))
+        cfg = MapConfig.from_config(model.config_)
+        new.map_, choice = choose_recalibration(
+            model.map_,
+            y,
+            shape_features(X, model.config_["clip_negative"]),
+            model.map_prior(),
+            length_scale_mm=cfg.length_scale_mm,
+            random_state=model.random_state,
+        )
+        new.recalibration_ = choice.as_meta()
 
     def spec(self, model: Any, common: dict[str, Any]) -> Any:
         """The map's ``MapSpec``."""

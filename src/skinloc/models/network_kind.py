@@ -112,6 +112,11 @@ class NetworkKind:
             X, y = group_means(X, y, groups)
         epochs = max(50, model.config_["epochs"] // 4)
         fit_network(new, X, y, epochs, model.config_["lr"] / 10, progress)
+        new.recalibration_ = {
+            "method": "fine-tuned",
+            "n_touches": int(len(np.unique(groups)) if groups is not None else len(X)),
+            "summary": f"fine-tuned the network on the new touches ({epochs} epochs)",
+        }
 
     def spec(self, model: Any, common: dict[str, Any]) -> Any:
         """The ensemble's ``NetworkSpec``."""

@@ -306,6 +306,16 @@ class ResponseMap:
             self._sq = (self._table**2).sum(axis=1)
         return self._table
 
+    def nearest(self, F: np.ndarray) -> Points:
+        """The candidate whose map value is nearest each of ``F (m, k)``: ``(m, 3)`` m.
+
+        An exhaustive search of the table, without the engine's coarse level, noise model or
+        output constraint: what scoring a map on touch means needs.
+        """
+        table = self.table.astype(np.float64)
+        d = (table**2).sum(1)[None, :] - 2.0 * np.asarray(F, dtype=np.float64) @ table.T
+        return self.candidates[d.argmin(axis=1)]
+
     def spec(self, **common: Any) -> MapSpec:
         """The map as its engine's arrays; ``common`` are the ``ModelSpec`` fields.
 

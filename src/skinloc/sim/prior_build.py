@@ -116,9 +116,7 @@ def skin_hyperparameters(seed: int, n_touches: int) -> tuple[np.ndarray, float]:
 
 def errors_mm(rmap: Any, F_test: np.ndarray, y_test: np.ndarray) -> np.ndarray:
     """Touch errors, mm, of matching ``F_test (m, k)`` against ``rmap``'s table."""
-    table = rmap.table.astype(np.float64)
-    d = (table**2).sum(1)[None, :] - 2.0 * F_test @ table.T
-    return 1e3 * np.linalg.norm(rmap.candidates[d.argmin(axis=1)] - y_test, axis=1)
+    return 1e3 * np.linalg.norm(rmap.nearest(F_test) - y_test, axis=1)
 
 
 def _candidates(base: MapPrior) -> dict[tuple[float, float], MapPrior]:

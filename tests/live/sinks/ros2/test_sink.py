@@ -903,11 +903,11 @@ def test_a_touch_held_when_skinloc_run_stops_ends_for_a_subscriber_in_another_pr
 
 @pytest.mark.slow  # a multi-process benchmark
 def test_bench_functions_with_the_ros2_sink_run_small(domain):
+    import sklearn  # noqa: F401 - sets OpenMP variables on import, which is not the bench's doing
+
     from skinloc.bench.online import many_skins
     from skinloc.bench.sinks import sink_cost
     from tests._live import model_path
-
-    import sklearn  # noqa: F401 - sets OpenMP variables on import, which is not the bench's doing
 
     env = dict(os.environ)
     cost = sink_cost(300, n_skins=3, rounds=1)

@@ -201,6 +201,17 @@ def test_map_learns_toy_skin(toy):
     assert np.mean(err) < 6.0
 
 
+def test_a_map_fitted_without_its_count_rule_predicts_the_same_points(toy):
+    """count_rule=False (cross-validation folds): the same single-touch answers, no rule."""
+    mesh, X, y, Xt, yt = toy
+    full = ContactLocalizer().fit(X, y, mesh=mesh)
+    light = ContactLocalizer(count_rule=False).fit(X, y, mesh=mesh)
+    assert full.contact_rule_ is not None and light.contact_rule_ is None
+    a, b = full.predict_full(Xt), light.predict_full(Xt)
+    assert_same_points(a.points, b.points)
+    np.testing.assert_allclose(a.uncertainty_mm, b.uncertainty_mm, rtol=1e-9, atol=1e-9)
+
+
 def test_map_outputs_are_surface_points_with_uncertainty(toy):
     from skinloc.geometry.mesh import nearest_on_surface
 

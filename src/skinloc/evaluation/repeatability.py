@@ -70,7 +70,7 @@ def session_repeatability(recording: Any) -> dict[str, float] | None:
     pa, pb = [], []
     for _, i, _, j in pairs:
         rest = np.setdiff1d(np.arange(recording.n_point_logs), [i, j])
-        model = train_localizer([recording.subset(rest)])
+        model = train_localizer([recording.subset(rest)], count_rule=False)  # single touches
         pred = model.predict(recording.touch_means[[i, j]])
         pa.append(pred[0])
         pb.append(pred[1])

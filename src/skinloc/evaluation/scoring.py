@@ -236,11 +236,14 @@ def prior_curve(
     out: dict[str, list] = {"sizes": ns, "prior_mm": [], "no_prior_mm": [], "prior_applied": []}
     for k in ns:
         sub = train if k == n else train.subset(farthest_point_sampling(train.targets, k, 0))
-        with_prior = train_localizer([sub], mesh=mesh, **overrides)
+        # scored on single touches only: no count rule (models.localizer, count_rule)
+        with_prior = train_localizer([sub], mesh=mesh, count_rule=False, **overrides)
         used = bool(getattr(with_prior, "prior_used_", False))
         mm = round(float(evaluate(with_prior, tests).stats.mean_mm), 1)
         if used:
-            plain = train_localizer([sub], mesh=mesh, **{**overrides, "prior": "none"})
+            plain = train_localizer(
+                [sub], mesh=mesh, count_rule=False, **{**overrides, "prior": "none"}
+            )
             plain_mm = round(float(evaluate(plain, tests).stats.mean_mm), 1)
         else:
             plain_mm = mm

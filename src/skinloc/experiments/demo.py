@@ -93,7 +93,7 @@ def real_skin_errors(
     out = {}
     for n in sizes:
         sub = train.subset(_even_subset(train.targets, n))
-        model = train_localizer([sub], random_state=0, **kw)
+        model = train_localizer([sub], random_state=0, count_rule=False, **kw)
         out[n] = round(float(evaluate(model, tests).stats.mean_mm), 1)
     return out
 
@@ -304,7 +304,9 @@ def _run(cfg: DemoConfig, step: Callable[[str, int, int], None] | None) -> DemoR
                     say("error against point logs" + tag, i, len(sizes))
                     sub = c if n == c.n_point_logs else c.subset(_even_subset(c.targets, n))
                     kw = {"prior": "none"} if arch == NO_PRIOR else {"arch": arch}
-                    m = train_localizer([sub], random_state=seed, **kw)
+                    kept = first and arch == cfg.arch and n == c.n_point_logs
+                    # only the kept model goes live: the others need no count rule
+                    m = train_localizer([sub], random_state=seed, count_rule=kept, **kw)
                     prior_used.setdefault(n, bool(getattr(m, "prior_used_", False)))
                     e = evaluate(m, [v])
                     row.append(e.stats.mean_mm)

@@ -157,6 +157,10 @@ class ContactLocalizer:
         How predictions are put on the surface (needs a mesh at ``fit``).
     random_state : int, default=0
         Seed; training is deterministic under it.
+    count_rule : bool, default=True
+        Calibrate the multi-contact count rule (a response map's). False keeps the default
+        rule: for a model that is only scored on single touches (cross-validation folds,
+        learning curves), whose predictions it does not change, at a fraction of the fit.
     """
 
     def __init__(
@@ -177,6 +181,7 @@ class ContactLocalizer:
         noise_std: float | None = None,
         constraint: str = "snap",
         random_state: int = 0,
+        count_rule: bool = True,
     ) -> None:
         self.arch = arch
         self.length_scale_mm = length_scale_mm
@@ -193,6 +198,7 @@ class ContactLocalizer:
         self.noise_std = noise_std
         self.constraint = constraint
         self.random_state = random_state
+        self.count_rule = count_rule
 
     # ---------------------------------------------------------------- configuration
     def get_config(self) -> dict[str, Any]:

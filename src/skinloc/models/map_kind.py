@@ -89,8 +89,12 @@ class MapKind:
         if prior is not None and not prior.applies(len(F)):
             prior = None
         model.prior_used_ = prior is not None
+        rmap = ResponseMap.fit(y, F, model.surface_points_, cfg.length_scale_mm, prior=prior)
+        if not getattr(model, "count_rule", True):  # scored on single touches only
+            model.map_, model.contact_rule_ = rmap.with_amplitude(y, X), None
+            return
         model.map_, model.contact_rule_ = fit_contact_model(
-            ResponseMap.fit(y, F, model.surface_points_, cfg.length_scale_mm, prior=prior),
+            rmap,
             X,
             y,
             frames[0] if frames[1] is not None else None,

@@ -202,8 +202,8 @@ class TrainingJobs(WorkspaceState):
 
             return cb
 
-        def fit(r: Recording):
-            return train_localizer([r], mesh=a.mesh, **opts)
+        def fit(r: Recording):  # a fold's model: scored on single touches, never kept
+            return train_localizer([r], mesh=a.mesh, count_rule=False, **opts)
 
         try:
             # Every touch predicted by a model that did not see it: k folds over all touches.

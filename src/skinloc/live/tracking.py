@@ -20,7 +20,14 @@ surface, strongest first) and:
    settled track never follows a contact beyond the gate (a finger does not move 30 mm in one
    frame: that is a second finger arriving, the first one lifting beside it, or a slip of a
    weakening image): the track is held, and the contact is a candidate (step 3); if that
-   candidate becomes a track, the held one ends. When the track's recent answers jumped (two
+   candidate becomes a track, the held one ends, unless the touch never had a second track:
+   then no second finger was ever seen (a contact beside the track for fewer than
+   ``confirm_frames`` frames is a ghost), the contact is the same finger whose answer leapt (a
+   coarse map's answer stays near where a quick stroke landed, then jumps to where the finger
+   is), and the held track moves there (``leapt`` names it for the gesture recogniser). A
+   landing track that jumps restarts its filter there (its earlier answers were the weak
+   landing image's, not places the finger was; ``relanded`` names it). When the track's
+   recent answers jumped (two
    consecutive ones over half the gate apart), the gate holds from any of its last ``RECENT``
    answers, not only the last: one wrong answer within the gate (the localiser's contact
    slipping back 20-30 mm for a frame or two on a moving finger) moved the last one, and the
@@ -257,6 +264,12 @@ class Tracker:
         self.pair = pair
         self.next_id = 1
         self._tmp = np.zeros(3)
+        #: Whether the touch so far never had two tracks at once (no second finger confirmed)
+        self.single = True
+        #: Track ids the last ``update`` moved over a leap (no second finger in the touch)
+        self.leapt: list[int] = []
+        #: Track ids whose landing answer jumped beyond the gate in the last ``update``
+        self.relanded: list[int] = []
 
     @property
     def tracks(self) -> list[Track]:
@@ -281,6 +294,11 @@ class Tracker:
             one_euro(t.filt, x, y, z, ts, self._prm, self._tmp)
             self._constrain(self._tmp[0], self._tmp[1], self._tmp[2], t.position_m)
 
+    def _reland(self, t: Track) -> None:
+        """A landing track's answer jumped beyond the gate: its filter restarts at the next."""
+        t.filt[0] = 0.0
+        self.relanded.append(t.track_id)
+
     def update(
         self,
         ts: float,
@@ -301,6 +319,12 @@ class Tracker:
         """
         live = [t for t in self.slots if t is not None]
         k = len(positions)
+        if touch_start and not live:
+            self.single = True
+        if self.leapt:
+            self.leapt = []
+        if self.relanded:
+            self.relanded = []
         pair_second = -1
         if self.pair is not None:
             if k == 1 and live and new_fingers:
@@ -321,9 +345,12 @@ class Tracker:
         held: Track | None = None
         if len(live) == 1 and k == 1 and not self.candidates:
             t = live[0]
-            if t.seen < self.settle_frames or t.near(positions[0], self.gate_m):
+            near = t.near(positions[0], self.gate_m)
+            if near or t.seen < self.settle_frames:
                 # one finger, one contact near it (the common frame), or a landing finger:
                 # the same finger, as in step 1; no assignment to compute
+                if not near:
+                    self._reland(t)
                 self._measure(t, ts, positions[0], raw[0], strength[0], uncertainty_mm[0])
                 return [(t, "move")]
         if live and k:
@@ -336,10 +363,13 @@ class Tracker:
             lone_d = [j for j in range(k) if not used[j]]
             if len(lone_t) == 1 and len(lone_d) == 1:
                 i, j = lone_t[0], lone_d[0]
-                if live[i].seen < self.settle_frames or live[i].near(positions[j], self.gate_m):
+                near = live[i].near(positions[j], self.gate_m)
+                if near or live[i].seen < self.settle_frames:
                     # a landing finger (its first frames, a weak and changing image) and one
                     # contact left: the same finger, whose position jumped; or a contact
                     # within the gate of the track's recent path (its last answer was wrong)
+                    if not near:
+                        self._reland(live[i])
                     self._measure(live[i], ts, positions[j], raw[j], strength[j], uncertainty_mm[j])
                     used[j] = True
                     matched.add(i)
@@ -385,6 +415,13 @@ class Tracker:
         # debounced the touch); any other contact, like every later finger, must last.
         at_once = touch_start and not live
         for n, c in enumerate(keep):
+            if held is not None and self.single and c.seen >= self.confirm_frames:
+                # the touch never had a second track: no second finger was ever seen, the held
+                # finger's answer leapt and stayed there. The same track goes on
+                self._measure(held, ts, c.last_m, c.raw_m, c.strength, c.uncertainty_mm)
+                self.leapt.append(held.track_id)
+                held = None
+                continue
             if ((at_once and n == 0) or c.seen >= self.confirm_frames) and None in self.slots:
                 c.slot = self.slots.index(None)
                 c.track_id = self.next_id
@@ -398,6 +435,8 @@ class Tracker:
                     held = None
             else:
                 self.candidates.append(c)
+        if self.single and sum(t is not None for t in self.slots) > 1:
+            self.single = False
         events.sort(key=lambda e: e[0].slot)
         return events
 
@@ -408,4 +447,7 @@ class Tracker:
         out = [t for t in self.slots if t is not None]
         self.slots = [None] * self.max_contacts
         self.candidates = []
+        self.single = True
+        self.leapt = []
+        self.relanded = []
         return out

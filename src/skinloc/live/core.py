@@ -487,10 +487,9 @@ class SkinCore:
             change = self._landing.most if self._landing is not None else 0.0
             fw = self._footprint
             foot = fw.mean if fw is not None and fw.n else None
-            tr = self._tracker
-            leapt, relanded = (tr.leapt, tr.relanded) if tr is not None else ((), ())
+            leapt = self._tracker.leapt if self._tracker is not None else ()
             g = (
-                rec.update(timestamp_s, out, releasing, change, foot, leapt, relanded)
+                rec.update(timestamp_s, out, releasing, change, foot, leapt)
                 if out
                 else rec.tick(timestamp_s)
             )

@@ -198,7 +198,6 @@ class _Finger:
     max_from_first: float = 0.0  # m
     uncertain: bool = False  # a tap whose image changed too much to be sure it was one finger
     main_n: int = 0  # points of the episode's first finger's path when this one started
-    settled: int = 0  # index in ``path`` after its last landing jump (the tracker's)
     leaps: list[int] = field(default_factory=list)  # path indices the tracker leapt to
 
     @property
@@ -297,7 +296,6 @@ class GestureRecognizer:
         change: float = 0.0,
         footprint: float | None = None,
         leapt: Collection[int] = (),
-        relanded: Collection[int] = (),
     ) -> list[dict[str, Any]]:
         """One frame's contacts (one per track) at stream time ``ts``; returns due events.
 
@@ -308,9 +306,7 @@ class GestureRecognizer:
         footprint score so far (``live.footprint.FootprintWatch``; None: not measured).
         ``leapt``: track ids the tracker moved over a leap this frame, sure it was the same
         finger (``Tracker.leapt``: no second finger in the touch); such a step does not make
-        a swipe unsteady. ``relanded``: track ids whose landing answer jumped this frame
-        (``Tracker.relanded``): their earlier answers were a weak image's, and a swipe is
-        measured from here.
+        a swipe unsteady.
         """
         for c in contacts:
             tid = c.track_id
@@ -339,8 +335,6 @@ class GestureRecognizer:
                 f.path.append(p)
                 if tid in leapt:
                     f.leaps.append(len(f.path) - 1)
-                if tid in relanded:
-                    f.settled = len(f.path) - 1
                 if c.timestamp_s - f.start_s < self.cfg.landing_s:
                     # still landing (the pressure rising, the image weak): the position
                     # settles; stillness is measured from where it settled
@@ -404,21 +398,19 @@ class GestureRecognizer:
     def _steady(self, f: _Finger) -> bool:
         """Whether a path moves steadily (its 2 largest steps <= ``swipe_max_jump_frac``).
 
-        The two largest frame-to-frame steps, from the track's last landing jump (its answers
-        before were a weak image's), against the path's length. A swiping finger's speed
-        rises and falls smoothly (its largest steps are a few millimetres of several
+        The two largest frame-to-frame steps against the path's length. A swiping finger's
+        speed rises and falls smoothly (its largest steps are a few millimetres of several
         centimetres); a track whose position leaps across in one or two frames followed another
         finger (landing or lifting beside it) or a fading image. A step the tracker leapt over
         sure it was the same finger (``update``'s ``leapt``) counts in the length but is not
         one of the steps weighed.
         """
         path = f.path
-        k0 = f.settled
-        if len(path) - k0 < 3:
+        if len(path) < 3:
             return False
-        steps = [math.dist(path[i - 1], path[i]) for i in range(k0 + 1, len(path))]
+        steps = [math.dist(path[i - 1], path[i]) for i in range(1, len(path))]
         length = sum(steps)
-        weighed = sorted(d for i, d in enumerate(steps, k0 + 1) if i not in f.leaps)
+        weighed = sorted(d for i, d in enumerate(steps, 1) if i not in f.leaps)
         if len(weighed) < 2:
             return False
         return length > 0.0 and weighed[-1] + weighed[-2] <= self.cfg.swipe_max_jump_frac * length
@@ -595,7 +587,7 @@ class GestureRecognizer:
                 # track of a few frames, or a brief trail where the finger has been, is a piece
                 # of the moving finger's image split off)
                 return out
-            dist = math.dist(f.path[f.settled], f.path[-1])
+            dist = math.dist(f.path[0], f.path[-1])
             dur = max(f.end_s - f.start_s, 1e-6)
             if (
                 dist >= cfg.swipe_min_mm * 1e-3
@@ -649,7 +641,7 @@ class GestureRecognizer:
             if len(path) > MAX_PATH_POINTS:
                 idx = np.linspace(0, len(path) - 1, MAX_PATH_POINTS).round().astype(int)
                 path = [path[i] for i in idx]
-            a, b = np.array(f.path[f.settled]), np.array(f.path[-1])
+            a, b = np.array(f.path[0]), np.array(f.path[-1])
             ev["direction"] = self.frame.direction(a, b)
             ev["path_m"] = [list(p) for p in path]
             length = sum(math.dist(p, q) for p, q in zip(f.path, f.path[1:], strict=False))

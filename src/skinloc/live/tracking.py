@@ -24,10 +24,8 @@ surface, strongest first) and:
    then no second finger was ever seen (a contact beside the track for fewer than
    ``confirm_frames`` frames is a ghost), the contact is the same finger whose answer leapt (a
    coarse map's answer stays near where a quick stroke landed, then jumps to where the finger
-   is), and the held track moves there (``leapt`` names it for the gesture recogniser). A
-   landing track that jumps restarts its filter there (its earlier answers were the weak
-   landing image's, not places the finger was; ``relanded`` names it). When the track's
-   recent answers jumped (two
+   is), and the held track moves there (``leapt`` names it for the gesture recogniser). When
+   the track's recent answers jumped (two
    consecutive ones over half the gate apart), the gate holds from any of its last ``RECENT``
    answers, not only the last: one wrong answer within the gate (the localiser's contact
    slipping back 20-30 mm for a frame or two on a moving finger) moved the last one, and the
@@ -264,12 +262,12 @@ class Tracker:
         self.pair = pair
         self.next_id = 1
         self._tmp = np.zeros(3)
-        #: Whether the touch so far never had two tracks at once (no second finger confirmed)
+        #: Whether the touch so far never showed a second finger: never two tracks at once, never
+        #: more than one contact in two frames running (one such frame is a ghost)
         self.single = True
+        self._multi = False  # the last frame had more than one contact
         #: Track ids the last ``update`` moved over a leap (no second finger in the touch)
         self.leapt: list[int] = []
-        #: Track ids whose landing answer jumped beyond the gate in the last ``update``
-        self.relanded: list[int] = []
 
     @property
     def tracks(self) -> list[Track]:
@@ -294,11 +292,6 @@ class Tracker:
             one_euro(t.filt, x, y, z, ts, self._prm, self._tmp)
             self._constrain(self._tmp[0], self._tmp[1], self._tmp[2], t.position_m)
 
-    def _reland(self, t: Track) -> None:
-        """A landing track's answer jumped beyond the gate: its filter restarts at the next."""
-        t.filt[0] = 0.0
-        self.relanded.append(t.track_id)
-
     def update(
         self,
         ts: float,
@@ -321,10 +314,9 @@ class Tracker:
         k = len(positions)
         if touch_start and not live:
             self.single = True
+            self._multi = False
         if self.leapt:
             self.leapt = []
-        if self.relanded:
-            self.relanded = []
         pair_second = -1
         if self.pair is not None:
             if k == 1 and live and new_fingers:
@@ -339,18 +331,18 @@ class Tracker:
                 self.pair.saw(ts, live, positions)
             else:
                 self.pair.reset()
+        if k > 1 and self._multi:
+            self.single = False
+        self._multi = k > 1
         used = [False] * k
         events: list[tuple[Track, str]] = []
         matched: set[int] = set()
         held: Track | None = None
         if len(live) == 1 and k == 1 and not self.candidates:
             t = live[0]
-            near = t.near(positions[0], self.gate_m)
-            if near or t.seen < self.settle_frames:
+            if t.seen < self.settle_frames or t.near(positions[0], self.gate_m):
                 # one finger, one contact near it (the common frame), or a landing finger:
                 # the same finger, as in step 1; no assignment to compute
-                if not near:
-                    self._reland(t)
                 self._measure(t, ts, positions[0], raw[0], strength[0], uncertainty_mm[0])
                 return [(t, "move")]
         if live and k:
@@ -363,13 +355,10 @@ class Tracker:
             lone_d = [j for j in range(k) if not used[j]]
             if len(lone_t) == 1 and len(lone_d) == 1:
                 i, j = lone_t[0], lone_d[0]
-                near = live[i].near(positions[j], self.gate_m)
-                if near or live[i].seen < self.settle_frames:
+                if live[i].seen < self.settle_frames or live[i].near(positions[j], self.gate_m):
                     # a landing finger (its first frames, a weak and changing image) and one
                     # contact left: the same finger, whose position jumped; or a contact
                     # within the gate of the track's recent path (its last answer was wrong)
-                    if not near:
-                        self._reland(live[i])
                     self._measure(live[i], ts, positions[j], raw[j], strength[j], uncertainty_mm[j])
                     used[j] = True
                     matched.add(i)
@@ -448,6 +437,6 @@ class Tracker:
         self.slots = [None] * self.max_contacts
         self.candidates = []
         self.single = True
+        self._multi = False
         self.leapt = []
-        self.relanded = []
         return out

@@ -41,9 +41,11 @@ def _at_distance(vertices: np.ndarray, target: np.ndarray, d: float) -> np.ndarr
 
 def _manual(ws, index: int) -> None:
     """Stop the scripted finger before touch ``index`` and wait for its prompt."""
-    _wait(lambda: ws.active.cal.n_done >= index, f"{index} touches")
+    wait_until(lambda: ws.active.cal.n_done >= index, f"{index} touches", 180, 0.005)
     ws.stop()
     ws.set_finger(False)
+    while ws.active.cal.n_done > index:  # the scripted finger was quicker than the wait
+        ws.undo()
     ws.start_calibration()
     _wait(lambda: ws.capture is not None and ws.capture.phase.value == "wait_touch", "prompt")
 

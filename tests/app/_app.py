@@ -1,5 +1,6 @@
 """What the app's tests share besides fixtures (those are in ``conftest.py``): the bounded wait
-on the workspace, and the browser's setup (Debian's Chromium driven by Playwright).
+on the workspace, the browser's setup (Debian's Chromium driven by Playwright), and running a
+command the page prints as printed.
 
 Browser tests skip, saying why, where Playwright or a Chromium (Debian's ``chromium``, which
 ``make test`` installs) is missing.
@@ -9,7 +10,10 @@ from __future__ import annotations
 
 import contextlib
 import os
+import shlex
 import shutil
+import subprocess
+import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -109,3 +113,20 @@ def watch(page, errors: list[str]) -> None:
     page.on("console", console)
     # a page's own waits (clicks, wait_for_function) get the load's stretch, as wait_until does
     page.set_default_timeout(scaled(60.0) * 1000.0)
+
+
+def run_as_printed(command: str, cwd: Path) -> None:
+    """Run a ``skinloc ...`` command the page prints, as printed, in ``cwd`` (this checkout's
+    skinloc): it must exit 0 without a traceback."""
+    argv = shlex.split(command)
+    assert argv[0] == "skinloc", command
+    out = subprocess.run(
+        [sys.executable, "-m", "skinloc", *argv[1:]],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=600,
+        stdin=subprocess.DEVNULL,
+    )
+    assert out.returncode == 0, f"{command}: {out.stderr}"
+    assert "Traceback" not in out.stderr, command

@@ -27,6 +27,7 @@ from skinloc.app.workspace import AppConfig  # noqa: E402
 from skinloc.data.recording import read_recording  # noqa: E402
 from skinloc.models.localizer import ContactLocalizer  # noqa: E402
 from skinloc.sources.base import SourceOptions  # noqa: E402
+from tests.app._app import run_as_printed  # noqa: E402
 from tests.app._app import wait as _wait  # noqa: E402
 
 A = {"X-Skinloc-Client": "tab-a"}
@@ -90,8 +91,6 @@ def test_the_session_files_are_listed_and_download_whole(done, tmp_path):
 def test_every_command_the_page_prints_runs_as_printed(done, tmp_path):
     """Each file's "open with" command, run in the folder the files were downloaded to under
     their download names, exits 0; the skins file names the downloaded model and runs live."""
-    import shlex
-
     client, folder = done
     files = client.get("/api/export").json()["files"]
     names = {f["name"] for f in files}
@@ -108,18 +107,7 @@ def test_every_command_the_page_prints_runs_as_printed(done, tmp_path):
     assert commands["validation.h5"].startswith("skinloc evaluate ")
     assert commands["skins.toml"].startswith("skinloc run --config ")
     for command in commands.values():
-        argv = shlex.split(command)
-        assert argv[0] == "skinloc", command
-        out = subprocess.run(
-            [sys.executable, "-m", "skinloc", *argv[1:]],
-            cwd=tmp_path,
-            capture_output=True,
-            text=True,
-            timeout=600,
-            stdin=subprocess.DEVNULL,
-        )
-        assert out.returncode == 0, f"{command}: {out.stderr}"
-        assert "Traceback" not in out.stderr, command
+        run_as_printed(command, tmp_path)
 
 
 def test_validation_errors_as_csv(done):

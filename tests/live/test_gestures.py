@@ -241,6 +241,41 @@ def test_a_piece_of_a_swiping_finger_split_off_for_a_few_frames_leaves_the_swipe
     assert [e["kind"] for e in run(ghost)] == ["swipe"]
 
 
+def _run_leapt(frames, leapt_at):
+    """``run`` with the tracker's ``leapt`` track ids fed at the frames of ``leapt_at``."""
+    rec = GestureRecognizer("s", SkinFrame(None, None, up=(0.0, 1.0, 0.0)), CFG)
+    events = []
+    for k, (t, cs) in enumerate(frames):
+        events += rec.update(t, cs, leapt=leapt_at.get(k, ())) if cs else rec.tick(t)
+    events += rec.flush(frames[-1][0])
+    return events
+
+
+def test_a_leap_the_tracker_kept_as_the_same_finger_leaves_a_swipe():
+    # a quick stroke on a coarse map: the answer stays at the landing point for 10 frames, leaps
+    # 36 mm, moves on. Unsteady (a track jumping to another finger) unless the tracker moved
+    # the track over the leap sure it was the same finger (no second finger in the touch)
+    leap = lambda k: P if k < 110 else (0.0, 0.036 + 0.0004 * (k - 110), 0.0)  # noqa: E731
+    frames = stream([(1, 0, 100, 120, leap)], 200)
+    assert _run_leapt(frames, {}) == []
+    ev = _run_leapt(frames, {110: [1]})
+    assert [(e["kind"], e["direction"]) for e in ev] == [("swipe", "up")]
+    assert _run_leapt(frames, {110: [2]}) == []  # another track's leap
+
+
+def test_a_brief_trail_behind_a_quick_swipe_leaves_the_swipe():
+    # 60 mm in 0.2 s; a track of 70 ms (longer than GHOST_S) stays at the landing point while
+    # the finger moves away: its image's trail, not a second finger
+    swipe = line(P, (0.0, 0.06, 0.0), 100, 120)
+    at_landing = (0.0, 0.002, 0.0)
+    ev = run(stream([(1, 0, 100, 120, swipe), (2, 1, 106, 113, still(at_landing))], 200))
+    assert [(e["kind"], e["track_ids"]) for e in ev] == [("swipe", [1])]
+    # ahead of the finger (where it goes: the other finger of a two-finger tap it drifts to),
+    # beside its path, or longer than TRAIL_S: a second finger, no swipe
+    for pos, k1 in (((0.0, 0.05, 0.0), 113), (FAR, 113), (at_landing, 118)):
+        assert run(stream([(1, 0, 100, 120, swipe), (2, 1, 106, k1, still(pos))], 200)) == []
+
+
 def test_new_thresholds_are_checked():
     with pytest.raises(ValueError, match="swipe_max_jump_frac"):
         GestureConfig(swipe_max_jump_frac=1.5)

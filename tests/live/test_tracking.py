@@ -215,13 +215,17 @@ def test_pipeline_config_checks_the_tracking_fields():
 
 def test_a_settled_track_does_not_jump_to_a_far_contact_it_is_a_second_finger():
     # settled (seen >= settle_frames = confirm = 2): a contact 50 mm away in the next frame is
-    # not the finger moving (that would be 5 m/s) but another one; the first is held, then ends
+    # not the finger moving (that would be 5 m/s) but another one, in a touch that has had two
+    # fingers; the first is held, then ends
     tr = _tracker()
     _step(tr, 0.00, A, start=True)
-    _step(tr, 0.01, A)
-    assert _step(tr, 0.02, B) == [(1, 0, "move")]
+    _step(tr, 0.01, A, C)
+    assert _step(tr, 0.02, A, C) == [(1, 0, "move"), (2, 1, "start")]  # a second finger
+    _step(tr, 0.03, A)
+    assert _step(tr, 0.04, A) == [(1, 0, "move"), (2, 1, "end")]  # it lifts
+    assert _step(tr, 0.05, B) == [(1, 0, "move")]
     assert np.allclose(tr.tracks[0].last_m, A)  # held, not moved to B
-    assert _step(tr, 0.03, B) == [(1, 0, "end"), (2, 1, "start")]  # B took over
+    assert _step(tr, 0.06, B) == [(1, 0, "end"), (3, 1, "start")]  # B took over
     assert np.allclose(tr.tracks[0].last_m, B)
     # within the gate it is motion, even on the one-finger fast path
     tr = _tracker()
@@ -660,3 +664,44 @@ def test_pair_prior_starts_no_finger_again_on_the_evidence_that_started_the_last
     # fresh evidence over start_frames frames starts a finger again
     prior.refit.fits = [good]
     assert [len(_step(tr, t, A)) for t in (0.07, 0.08)] == [1, 2]
+
+
+def _identity(x, y, z, out):
+    out[:] = (x, y, z)
+
+
+def test_a_quick_strokes_answer_that_leaps_goes_on_as_the_same_track():
+    # a quick stroke on a coarse map (bench/app_strokes.py): the answer creeps near the landing
+    # point while the finger moves on, then leaps 52 mm to where it is. No second finger was
+    # confirmed in the touch (one contact a frame, bar a one-frame ghost beside it): the same
+    # finger, one track, moved there once the far answer has held for the confirm frames
+    tr = Tracker(3, 30.0, 1, 4, _identity, None)  # the pipeline's gate, misses and confirm
+    creep = np.array([0.0, 0.001, 0.0])
+    _step(tr, 0.00, A, start=True)
+    for k in range(1, 8):
+        assert _step(tr, 0.01 * k, A + k * creep) == [(1, 0, "move")]
+    far = A + np.array([0.0, 0.06, 0.0])
+    assert _step(tr, 0.08, A + 8 * creep, far) == [(1, 0, "move")]
+    for k in range(9, 11):  # held while the far answer's candidate waits
+        assert _step(tr, 0.01 * k, far) == [(1, 0, "move")]
+        assert np.allclose(tr.tracks[0].last_m, A + 8 * creep) and tr.leapt == []
+    assert _step(tr, 0.11, far) == [(1, 0, "move")]  # its 4th frame: the same finger, there
+    assert tr.leapt == [1] and np.allclose(tr.tracks[0].last_m, far)
+    for k in range(12, 16):
+        assert _step(tr, 0.01 * k, far + (k - 11) * 3 * creep) == [(1, 0, "move")]
+    assert tr.leapt == [] and tr.next_id == 2
+    assert [t.track_id for t in tr.end_all()] == [1] and tr.single
+
+
+def test_a_second_contact_in_two_frames_running_is_a_finger_the_held_track_ends():
+    # the same leap, but the far contact was seen beside the track in two frames running: a
+    # second finger may have landed, and the held track ends when the far one is confirmed
+    tr = Tracker(3, 30.0, 1, 4, _identity, None)
+    _step(tr, 0.00, A, start=True)
+    for k in range(1, 8):
+        _step(tr, 0.01 * k, A)
+    far = A + np.array([0.0, 0.06, 0.0])
+    _step(tr, 0.08, A, far)
+    assert _step(tr, 0.09, A, far) == [(1, 0, "move")] and not tr.single
+    assert _step(tr, 0.10, far) == [(1, 0, "move")]  # held
+    assert _step(tr, 0.11, far) == [(1, 0, "end"), (2, 1, "start")] and tr.leapt == []

@@ -487,8 +487,9 @@ class SkinCore:
             change = self._landing.most if self._landing is not None else 0.0
             fw = self._footprint
             foot = fw.mean if fw is not None and fw.n else None
+            leapt = self._tracker.leapt if self._tracker is not None else ()
             g = (
-                rec.update(timestamp_s, out, releasing, change, foot)
+                rec.update(timestamp_s, out, releasing, change, foot, leapt)
                 if out
                 else rec.tick(timestamp_s)
             )

@@ -50,7 +50,7 @@ Units: metres and seconds inside; thresholds in mm and s (``GestureConfig``).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass, field, fields
 from typing import Any
 
@@ -69,6 +69,13 @@ BRIEF_SLACK_S = 0.05
 #: Longest track, s, that is a piece of a moving finger's image (the search splitting it for
 #: a few frames) rather than a second finger: a second finger touches for 60 ms or more.
 GHOST_S = 0.045
+#: Longest track, s, that is a trail of a moving finger's image when it stays behind that
+#: finger (``TRAIL_BEHIND`` times nearer to its path so far than to its path on): a quick
+#: stroke leaves a contact at its landing point for a few frames while the finger moves on.
+TRAIL_S = 0.10
+#: How many times nearer to where the finger had been than to where it went a trail stays (a
+#: second finger beside a swipe is about as near to both).
+TRAIL_BEHIND = 2.0
 #: Confidence of a two-finger tap of one track told by its footprint alone (the time cue's is
 #: 0.5-0.9 with how far its change passed the skin's threshold).
 FOOTPRINT_CONFIDENCE = 0.7
@@ -190,6 +197,8 @@ class _Finger:
     last_s: float = math.nan
     max_from_first: float = 0.0  # m
     uncertain: bool = False  # a tap whose image changed too much to be sure it was one finger
+    main_n: int = 0  # points of the episode's first finger's path when this one started
+    leaps: list[int] = field(default_factory=list)  # path indices the tracker leapt to
 
     @property
     def ended(self) -> bool:
@@ -286,6 +295,7 @@ class GestureRecognizer:
         releasing: bool = False,
         change: float = 0.0,
         footprint: float | None = None,
+        leapt: Collection[int] = (),
     ) -> list[dict[str, Any]]:
         """One frame's contacts (one per track) at stream time ``ts``; returns due events.
 
@@ -294,6 +304,9 @@ class GestureRecognizer:
         out of the paths (the states still count). ``change``: the touch's largest image change
         so far (``live.landing.LandingWatch``), noise levels. ``footprint``: the touch's mean
         footprint score so far (``live.footprint.FootprintWatch``; None: not measured).
+        ``leapt``: track ids the tracker moved over a leap this frame, sure it was the same
+        finger (``Tracker.leapt``: no second finger in the touch); such a step does not make
+        a swipe unsteady.
         """
         for c in contacts:
             tid = c.track_id
@@ -312,12 +325,16 @@ class GestureRecognizer:
                         # contact's fit to both fingers' image: its stillness starts now
                         g.first = np.array(g.path[-1])
                         g.max_from_first = 0.0
+                if ep.fingers:
+                    f.main_n = len(ep.fingers[0].path)
                 ep.fingers.append(f)
                 ep.active += 1
                 continue
             f = self._fingers[tid]
             if p[0] == p[0] and not releasing:
                 f.path.append(p)
+                if tid in leapt:
+                    f.leaps.append(len(f.path) - 1)
                 if c.timestamp_s - f.start_s < self.cfg.landing_s:
                     # still landing (the pressure rising, the image weak): the position
                     # settles; stillness is measured from where it settled
@@ -384,14 +401,19 @@ class GestureRecognizer:
         The two largest frame-to-frame steps against the path's length. A swiping finger's
         speed rises and falls smoothly (its largest steps are a few millimetres of several
         centimetres); a track whose position leaps across in one or two frames followed another
-        finger (landing or lifting beside it) or a fading image.
+        finger (landing or lifting beside it) or a fading image. A step the tracker leapt over
+        sure it was the same finger (``update``'s ``leapt``) counts in the length but is not
+        one of the steps weighed.
         """
         path = f.path
         if len(path) < 3:
             return False
-        steps = sorted(math.dist(p, q) for p, q in zip(path, path[1:], strict=False))
+        steps = [math.dist(path[i - 1], path[i]) for i in range(1, len(path))]
         length = sum(steps)
-        return length > 0.0 and steps[-1] + steps[-2] <= self.cfg.swipe_max_jump_frac * length
+        weighed = sorted(d for i, d in enumerate(steps, 1) if i not in f.leaps)
+        if len(weighed) < 2:
+            return False
+        return length > 0.0 and weighed[-1] + weighed[-2] <= self.cfg.swipe_max_jump_frac * length
 
     def _main(self, ep: _Episode) -> _Finger | None:
         """The episode's one finger: its first, if every other is a brief touch within it.
@@ -412,6 +434,26 @@ class GestureRecognizer:
             ):
                 return None
         return f
+
+    def _piece_of(self, f: _Finger, g: _Finger) -> bool:
+        """Whether track ``g``, within the moving finger ``f``'s touch, is a piece of its image.
+
+        A track of at most ``GHOST_S`` anywhere (the search split the image for a few frames),
+        or of at most ``TRAIL_S`` whose every point is ``TRAIL_BEHIND`` times nearer to where
+        ``f`` had been before ``g`` started than to where ``f`` went from then on (its landing
+        point's image lingering behind the moving finger). The other finger of a two-finger tap
+        that ``f`` drifted towards lies ahead of ``f``, not behind it; a finger beside the
+        swipe is about as near to both.
+        """
+        held = g.end_s - g.start_s
+        if held <= GHOST_S:
+            return True
+        if held > TRAIL_S or not 0 < g.main_n < len(f.path):
+            return False
+        trail = np.asarray(g.path)[:, None, :]
+        before = np.linalg.norm(trail - np.asarray(f.path[: g.main_n])[None], axis=2).min(axis=1)
+        after = np.linalg.norm(trail - np.asarray(f.path[g.main_n :])[None], axis=2).min(axis=1)
+        return bool(np.all(TRAIL_BEHIND * before <= after))
 
     def _two_in_time(self, ep: _Episode) -> bool:
         """Whether the episode's image changed as a second finger's landing or lifting does."""
@@ -539,10 +581,11 @@ class GestureRecognizer:
                 f.uncertain = self._count_uncertain(ep)
                 return out + self._one_tap(ep, f, ts)
             out += self._resolve_pending(ts)
-            if len(fs) > 1 and any(g.end_s - g.start_s > GHOST_S for g in fs[1:]):
+            if len(fs) > 1 and not all(self._piece_of(f, g) for g in fs[1:]):
                 # a swipe is one finger: a brief second touch within a moving one is as likely
                 # the other finger of a two-finger tap the first track drifted towards (but a
-                # track of a few frames is a piece of the moving finger's image split off)
+                # track of a few frames, or a brief trail where the finger has been, is a piece
+                # of the moving finger's image split off)
                 return out
             dist = math.dist(f.path[0], f.path[-1])
             dur = max(f.end_s - f.start_s, 1e-6)

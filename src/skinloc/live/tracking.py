@@ -20,7 +20,12 @@ surface, strongest first) and:
    settled track never follows a contact beyond the gate (a finger does not move 30 mm in one
    frame: that is a second finger arriving, the first one lifting beside it, or a slip of a
    weakening image): the track is held, and the contact is a candidate (step 3); if that
-   candidate becomes a track, the held one ends. When the track's recent answers jumped (two
+   candidate becomes a track, the held one ends, unless the touch never had a second track:
+   then no second finger was ever seen (a contact beside the track for fewer than
+   ``confirm_frames`` frames is a ghost), the contact is the same finger whose answer leapt (a
+   coarse map's answer stays near where a quick stroke landed, then jumps to where the finger
+   is), and the held track moves there (``leapt`` names it for the gesture recogniser). When
+   the track's recent answers jumped (two
    consecutive ones over half the gate apart), the gate holds from any of its last ``RECENT``
    answers, not only the last: one wrong answer within the gate (the localiser's contact
    slipping back 20-30 mm for a frame or two on a moving finger) moved the last one, and the
@@ -257,6 +262,12 @@ class Tracker:
         self.pair = pair
         self.next_id = 1
         self._tmp = np.zeros(3)
+        #: Whether the touch so far never showed a second finger: never two tracks at once, never
+        #: more than one contact in two frames running (one such frame is a ghost)
+        self.single = True
+        self._multi = False  # the last frame had more than one contact
+        #: Track ids the last ``update`` moved over a leap (no second finger in the touch)
+        self.leapt: list[int] = []
 
     @property
     def tracks(self) -> list[Track]:
@@ -301,6 +312,11 @@ class Tracker:
         """
         live = [t for t in self.slots if t is not None]
         k = len(positions)
+        if touch_start and not live:
+            self.single = True
+            self._multi = False
+        if self.leapt:
+            self.leapt = []
         pair_second = -1
         if self.pair is not None:
             if k == 1 and live and new_fingers:
@@ -315,6 +331,9 @@ class Tracker:
                 self.pair.saw(ts, live, positions)
             else:
                 self.pair.reset()
+        if k > 1 and self._multi:
+            self.single = False
+        self._multi = k > 1
         used = [False] * k
         events: list[tuple[Track, str]] = []
         matched: set[int] = set()
@@ -385,6 +404,13 @@ class Tracker:
         # debounced the touch); any other contact, like every later finger, must last.
         at_once = touch_start and not live
         for n, c in enumerate(keep):
+            if held is not None and self.single and c.seen >= self.confirm_frames:
+                # the touch never had a second track: no second finger was ever seen, the held
+                # finger's answer leapt and stayed there. The same track goes on
+                self._measure(held, ts, c.last_m, c.raw_m, c.strength, c.uncertainty_mm)
+                self.leapt.append(held.track_id)
+                held = None
+                continue
             if ((at_once and n == 0) or c.seen >= self.confirm_frames) and None in self.slots:
                 c.slot = self.slots.index(None)
                 c.track_id = self.next_id
@@ -398,6 +424,8 @@ class Tracker:
                     held = None
             else:
                 self.candidates.append(c)
+        if self.single and sum(t is not None for t in self.slots) > 1:
+            self.single = False
         events.sort(key=lambda e: e[0].slot)
         return events
 
@@ -408,4 +436,7 @@ class Tracker:
         out = [t for t in self.slots if t is not None]
         self.slots = [None] * self.max_contacts
         self.candidates = []
+        self.single = True
+        self._multi = False
+        self.leapt = []
         return out

@@ -24,7 +24,7 @@ pytest.importorskip("uvicorn")
 
 from skinloc.sources.base import SourceOptions  # noqa: E402
 from tests._helpers import scaled, wait_until  # noqa: E402
-from tests.app._app import open_browser, run_as_printed, watch  # noqa: E402
+from tests.app._app import ms, open_browser, run_as_printed, watch  # noqa: E402
 from tests.app._app import wait as _wait  # noqa: E402
 
 SEED = 0
@@ -95,7 +95,7 @@ def test_mispressed_and_short_touches_are_flagged_and_the_session_walks_to_expor
     chromium, server, tmp_path
 ):
     url, app = server
-    sync_api.expect.set_options(timeout=60_000)
+    sync_api.expect.set_options(timeout=ms(60_000))
     expect = sync_api.expect
     ws = app.state.workspace
     ws.connect(SourceOptions(source="sim", rate_hz=400.0, seed=SEED))

@@ -5,8 +5,9 @@ Sessions of 10, 20, 40 and 80 touches each get 1 to 3 bad touches, 40-100 mm off
 on them; the share of bad touches flagged ("caught") and of good touches flagged ("false") is
 counted.
 
-- Simulated skins (``--skin-seed0``, default 300: skins that set nothing; the thresholds were
-  chosen on skins 200-215): the bad touch's image is of a press 40-100 mm from its target.
+- Simulated skins (``--skin-seed0``, default 300: skins that set nothing; the method and its
+  thresholds were chosen on skins 200-239, and on sessions drawn with other seeds from three
+  of the six recordings): the bad touch's image is of a press 40-100 mm from its target.
 - The real recordings: sessions drawn from the six recordings' touches (a recording of at
   least the size, else the largest); the bad touch keeps its image and its target is moved
   40-100 mm along the surface (relabelled).

@@ -2,9 +2,10 @@
 
 One touch by itself is ``weak`` (its image is no touch, or far below the session's), ``short``
 (the finger lifted during the capture) or ``saturated`` (a sensor clipped); among the others
-it is ``off_target`` when the map of the other touches puts it far from its target and its
-image fits there much better than at the target (the finger pressed elsewhere). The app's gate
-(``skinloc app``), ``skinloc check`` and the benchmarks use these functions and nothing else.
+it is ``off_target`` when the map of the other touches puts it far from its target, its image
+fits there better than at the target and badly at the target (the finger pressed elsewhere).
+The app's gate (``skinloc app``), ``skinloc check`` and the benchmarks use these functions and
+nothing else.
 """
 
 from __future__ import annotations
@@ -75,21 +76,32 @@ class OffTarget:
         From each target to where the other touches' map puts the touch's image, mm.
     gain : (n,) float
         How much better the image fits there than at its target (nats per feature).
+    score : (n,) float
+        The evidence against the touch: ``gain`` plus the log of its standardised residual at
+        its target (``LeaveOneOutMap.residuals``); about 0 for a good touch.
     threshold : float
-        The gain above which a touch located more than ``floor_mm`` away is flagged.
+        The score above which a touch located more than ``floor_mm`` away is flagged.
     """
 
     flags: np.ndarray
     distance_mm: np.ndarray
     gain: np.ndarray
+    score: np.ndarray
     threshold: float
 
 
-def _gain_threshold(gain: np.ndarray, good: np.ndarray, floor: float, k: float) -> float:
-    """Median + ``k`` scaled MAD of the good touches' gains, at least ``floor``."""
-    med = float(np.median(gain[good]))
-    spread = max(1.4826 * float(np.median(np.abs(gain[good] - med))), 0.05)
+def _score_threshold(score: np.ndarray, core: np.ndarray, floor: float, k: float) -> float:
+    """Median + ``k`` scaled MAD of the core touches' scores, at least ``floor``."""
+    med = float(np.median(score[core]))
+    spread = max(1.4826 * float(np.median(np.abs(score[core] - med))), 0.05)
     return max(floor, med + k * spread)
+
+
+def _evidence(fitted, surface_points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(distance_mm, gain, score)`` of every touch against the map of the others."""
+    distance, gain = fitted.located(surface_points)
+    score = gain + np.log(np.maximum(fitted.residuals(), 1e-6))
+    return distance, gain, score
 
 
 def off_target(
@@ -98,19 +110,26 @@ def off_target(
     surface_points: np.ndarray,
     *,
     floor_mm: float = 20.0,
-    gain_floor: float = 0.8,
-    k: float = 3.0,
+    score_floor: float = 0.4,
+    k: float = 2.5,
+    trim_share: float = 0.2,
+    passes: int = 2,
     min_touches: int = 6,
 ) -> OffTarget:
     """Flag touches pressed far from their target, on evidence from the other touches.
 
-    For each touch, the response map of the *other* touches (``LeaveOneOutMap``) locates its
-    image on the skin; the touch is off-target when that place is more than ``floor_mm`` from
-    its target and the image fits there better than at the target by more than the session's
-    own spread allows (median + ``k`` scaled MAD of the unflagged touches' gains, at least
-    ``gain_floor``). The worst such touch is left out of the map before looking again, so
-    several bad touches do not hide each other, and a flagged touch that no longer stands out
-    once the others are left out is put back (it was a neighbour of a bad touch).
+    Each touch is scored against the response map of the *other* touches
+    (``LeaveOneOutMap``): how much better its image fits where that map locates it than at
+    its target (``gain``, nats per feature), plus the log of how badly the map predicts its
+    image at its target (standardised residual, about 1 for a good touch). Neither depends on
+    the touch itself. Suspects do not vouch for each other: the ``trim_share`` of the touches
+    with the highest scores is left out of the map and every touch scored again (the left-out
+    ones by the map of the rest), ``passes`` times, the flagged ones and the next highest
+    staying out. A touch is flagged when it is located more than ``floor_mm`` from its target
+    and its score exceeds the spread of the kept touches (median + ``k`` scaled MADs), at
+    least ``score_floor`` (raised as ``20 / n`` below 20 touches, where the map is loose and
+    the spread rests on a few touches). The map's hyperparameters are fitted once, on all
+    touches, with the package's map prior.
 
     Parameters
     ----------
@@ -133,31 +152,26 @@ def off_target(
     n = len(targets)
     if n < min_touches:
         nan = np.full(n, np.nan)
-        return OffTarget(np.zeros(n, dtype=bool), nan, nan.copy(), float("nan"))
-    flags = np.zeros(n, dtype=bool)
+        return OffTarget(np.zeros(n, dtype=bool), nan, nan.copy(), nan.copy(), float("nan"))
     fitted = LeaveOneOutMap.fit(targets, touch_means)
-    for _ in range(max(2, n // 2)):
-        distance, gain = fitted.with_excluded(flags).located(surface_points)
-        threshold = _gain_threshold(gain, ~flags, gain_floor, k)
-        put_back = None
-        for j in np.flatnonzero(flags):
-            trial = flags.copy()
-            trial[j] = False
-            d_j, g_j = fitted.with_excluded(trial).located(surface_points)
-            if not (d_j[j] > floor_mm and g_j[j] > _gain_threshold(g_j, ~trial, gain_floor, k)):
-                put_back = j
-                break
-        if put_back is not None:
-            flags[put_back] = False
-            continue
-        over = np.where(flags | (distance <= floor_mm), -np.inf, gain - threshold)
-        worst = int(np.argmax(over))
-        if over[worst] <= 0:
+    n_out = max(1, int(np.ceil(trim_share * n)))
+    floor = score_floor * max(1.0, 20.0 / n)
+    _, _, score = _evidence(fitted, surface_points)
+    out = np.zeros(n, dtype=bool)
+    out[np.argsort(-score)[:n_out]] = True
+    for _ in range(max(1, passes)):
+        distance, gain, score = _evidence(fitted.with_excluded(out), surface_points)
+        threshold = _score_threshold(score, ~out, floor, k)
+        flags = (score > threshold) & (distance > floor_mm)
+        # the flagged touches and the next highest stay out of the map
+        again = flags.copy()
+        again[np.argsort(-np.where(flags, -np.inf, score))[: max(0, n_out - int(flags.sum()))]] = (
+            True
+        )
+        if np.array_equal(again, out):
             break
-        flags[worst] = True
-        # the hyperparameters again without the touch just flagged: it bent them
-        fitted = LeaveOneOutMap.fit(targets, touch_means, flags)
-    return OffTarget(flags, distance, gain, threshold)
+        out = again
+    return OffTarget(flags, distance, gain, score, threshold)
 
 
 def baseline_drift_sigma(frames: np.ndarray, baseline: np.ndarray, noise: np.ndarray) -> float:

@@ -141,8 +141,9 @@ def register(app: typer.Typer) -> None:
         """Every touch's flags, as the app's gate gives them: off_target, weak, short, saturated.
 
         off_target: the map of the other touches puts the touch's image more than 20 mm from
-        its target and fits it there much better than at the target (docs/app.md, "Touch
-        quality"). Retake such a touch, or leave it out in the app (skinloc app).
+        its target, fits it there better than at the target and badly at the target, by more
+        than the session's own spread (docs/app.md, "Touch quality"). Retake such a touch, or
+        leave it out in the app (skinloc app).
 
         Example: skinloc check cal.h5 --json
         """
@@ -156,6 +157,7 @@ def register(app: typer.Typer) -> None:
                 "flags": f,
                 "located_mm": _finite_round(off.distance_mm[i]),
                 "gain": _finite_round(off.gain[i]),
+                "score": _finite_round(off.score[i]),
             }
             for i, f in enumerate(flags)
         ]
@@ -163,13 +165,15 @@ def register(app: typer.Typer) -> None:
             "file": str(data),
             "n_touches": len(touches),
             "n_flagged": sum(bool(t["flags"]) for t in touches),
-            "off_target_gain_threshold": _finite_round(off.threshold),
+            "off_target_score_threshold": _finite_round(off.threshold),
             "touches": touches,
         }
         if as_json:
             print_json(result)
             return
-        table = Table("touch", "flags", "located from target (mm)", "gain", title=str(data))
+        table = Table(
+            "touch", "flags", "located from target (mm)", "gain", "score", title=str(data)
+        )
         for t in touches:
             if t["flags"]:
                 table.add_row(
@@ -177,6 +181,7 @@ def register(app: typer.Typer) -> None:
                     ", ".join(t["flags"]),
                     "-" if t["located_mm"] is None else f"{t['located_mm']:.0f}",
                     "-" if t["gain"] is None else f"{t['gain']:.2f}",
+                    "-" if t["score"] is None else f"{t['score']:.2f}",
                 )
         if result["n_flagged"]:
             console.print(table)

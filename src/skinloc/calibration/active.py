@@ -147,8 +147,9 @@ def recalibration_targets(
 
     Parameters
     ----------
-    old_map : ResponseMap
-        The old session's map (``ContactLocalizer.map_``).
+    old_map : ResponseMap or None
+        The old session's map (``ContactLocalizer.map_``); ``None`` will do for ``random``
+        from a given ``pool``.
     k : int
         Targets wanted, ``0 <= k <=`` the pool's distinct targets.
     pool : (c, 3) float, optional
@@ -177,8 +178,12 @@ def recalibration_targets(
         raise ValueError(
             f"strategy must be one of {', '.join(TARGET_STRATEGIES)}; got {strategy!r}"
         )
-    cands = np.asarray(old_map.candidates, dtype=np.float64)
-    ev = cands[farthest_point_sampling(cands, min(n_eval, len(cands)))]
+    if old_map is None and (strategy == "active" or pool is None):
+        raise ValueError("old_map is needed for strategy 'active' or without a pool")
+    ev = None
+    if old_map is not None:
+        cands = np.asarray(old_map.candidates, dtype=np.float64)
+        ev = cands[farthest_point_sampling(cands, min(n_eval, len(cands)))]
     pool = ev if pool is None else np.asarray(pool, dtype=np.float64).reshape(-1, 3)
     first = np.sort(_unique_rows(pool)[0])
     if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 0 <= k <= len(first):

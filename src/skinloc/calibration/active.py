@@ -8,6 +8,9 @@ of touches already made are used.
 
 ``select_point_logs`` applies a strategy (``active``, ``random``, ``even``) to the point logs
 of existing recordings, to train on a subset and measure the gain on real data.
+
+``recalibration_targets`` chooses the touches a later session is asked for, to recalibrate an
+old map (``skinloc train NEW --init OLD --select k``), from the old map alone.
 """
 
 from __future__ import annotations

@@ -53,3 +53,14 @@ def test_bad_k_or_strategy_is_a_one_line_value_error(old_map, k):
     assert "\n" not in str(e.value)
     with pytest.raises(ValueError, match="strategy must be one of active, random"):
         recalibration_targets(old_map, 2, pool, strategy="even")
+
+
+def test_random_needs_no_map_active_does(old_map):
+    pool = old_map.candidates[:6]
+    idx = recalibration_targets(None, 3, pool, strategy="random", random_state=2)
+    assert (
+        idx.tolist()
+        == recalibration_targets(old_map, 3, pool, strategy="random", random_state=2).tolist()
+    )
+    with pytest.raises(ValueError, match="old_map is needed"):
+        recalibration_targets(None, 3, pool)

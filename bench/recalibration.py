@@ -17,6 +17,9 @@ how much of the old map to keep: ``skinloc.models.recalibration``).
   40PL_1, k drawn from the 70 of 20PL_1 + 50PL_1), through ``ContactLocalizer`` as the CLI
   does. Own-day error: 2023-12-10's three other recordings tested on 20PL_1; 40PL_1 tested on
   20PL_2.
+- ``--targets active``: the k touches are those ``recalibration_targets`` asks for from the
+  old map (``skinloc.calibration.active``; the draw seeds its first target) among the same
+  candidates, instead of random ones (``--targets random``, the default).
 
     python bench/recalibration.py --simulated --real --data ../shared/data/hiro-cone-skin \\
         --json bench/results/recalibration.json
@@ -31,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from skinloc.bench.paper import REAL_DEC, REAL_MAY
+from skinloc.calibration.active import TARGET_STRATEGIES, recalibration_targets
 from skinloc.data.recording import Recording, read_recording
 from skinloc.evaluation.scoring import evaluate, train_localizer, training_arrays
 from skinloc.geometry.mesh import cone_skin, sample_targets, surface_points
@@ -57,7 +61,14 @@ def touch_features(skin: SimulatedSkin, targets: np.ndarray, rng: np.random.Gene
     return shape_features(means)
 
 
-def simulated(n_skins: int, first_seed: int, draws: int, changes: tuple[str, ...]) -> dict:
+def simulated(
+    n_skins: int,
+    first_seed: int,
+    draws: int,
+    changes: tuple[str, ...],
+    targets: str = "random",
+    ks: tuple[int, ...] = KS,
+) -> dict:
     mesh = cone_skin()
     cands, prior = surface_points(mesh, 4000), load_prior()
     rows: dict = {}
@@ -72,9 +83,12 @@ def simulated(n_skins: int, first_seed: int, draws: int, changes: tuple[str, ...
             t2 = sample_targets(mesh, 60, "edge", rng)
             F2 = touch_features(later_session(skin, change, seed), t2, rng)
             ft, yt = F2[40:], t2[40:]
-            for k in KS:
+            for k in ks:
                 for d in range(draws if k else 1):
-                    idx = np.random.default_rng([seed, k, d]).permutation(40)[:k]
+                    if targets == "random":
+                        idx = np.random.default_rng([seed, k, d]).permutation(40)[:k]
+                    else:
+                        idx = recalibration_targets(old, k, t2[:40], random_state=d)
                     q, F = t2[idx], F2[idx]
 
                     def err(m: ResponseMap, ft: np.ndarray = ft, yt: np.ndarray = yt) -> float:
@@ -114,11 +128,11 @@ def summarise(rows: dict) -> dict:
     return out
 
 
-def split(recs: list[Recording], k: int, rng: np.random.Generator):
-    """k random touches of the pooled recordings, and the rest: two lists of recordings."""
+def split(recs: list[Recording], k: int, rng: np.random.Generator, idx: np.ndarray | None = None):
+    """k touches of the pooled recordings (random, or ``idx``), and the rest: two lists."""
     sizes = [r.n_point_logs for r in recs]
     pick = np.zeros(sum(sizes), dtype=bool)
-    pick[rng.permutation(sum(sizes))[:k]] = True
+    pick[rng.permutation(sum(sizes))[:k] if idx is None else idx] = True
     cal, test, start = [], [], 0
     for r, n in zip(recs, sizes, strict=True):
         mine = pick[start : start + n]
@@ -130,7 +144,7 @@ def split(recs: list[Recording], k: int, rng: np.random.Generator):
     return cal, test
 
 
-def real(data: Path, draws: int) -> dict:
+def real(data: Path, draws: int, targets: str = "random", ks: tuple[int, ...] = KS) -> dict:
     names = (*REAL_DEC, *REAL_MAY)
     missing = [n for n in names if not (data / n).is_file()]
     if missing:
@@ -146,9 +160,13 @@ def real(data: Path, draws: int) -> dict:
     for name, (before, after, own) in directions.items():
         base = train_localizer([recs[n] for n in before])
         pool = [recs[n] for n in after]
-        for k in KS:
+        where = np.concatenate([r.targets for r in pool])
+        for k in ks:
             for d in range(draws if k else 1):
-                cal, test = split(pool, k, np.random.default_rng([k, d]))
+                idx = None
+                if targets == "active":
+                    idx = recalibration_targets(base.map_, k, where, random_state=d)
+                cal, test = split(pool, k, np.random.default_rng([k, d]), idx)
                 row = {"own day": float(own), "old untouched": evaluate(base, test).stats.mean_mm}
                 if cal:
                     X, y, g = training_arrays(cal)
@@ -172,16 +190,23 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--first-seed", type=int, default=9000)
     ap.add_argument("--draws", type=int, default=3, help="random draws of the k touches")
     ap.add_argument("--changes", nargs="+", default=["real", "mild"])
+    ap.add_argument(
+        "--targets", choices=TARGET_STRATEGIES, default="random", help="how the k are chosen"
+    )
+    ap.add_argument("--ks", type=int, nargs="+", default=list(KS), help="numbers of new touches")
     ap.add_argument("--json", type=Path, help="write the figures as JSON")
     args = ap.parse_args(argv)
     if not (args.simulated or args.real):
         ap.error("give --simulated, --real or both")
-    out: dict = {"ks": list(KS), "draws": args.draws}
+    ks = tuple(args.ks)
+    out: dict = {"ks": list(ks), "draws": args.draws, "targets": args.targets}
     if args.simulated:
-        out["simulated"] = simulated(args.skins, args.first_seed, args.draws, tuple(args.changes))
+        out["simulated"] = simulated(
+            args.skins, args.first_seed, args.draws, tuple(args.changes), args.targets, ks
+        )
         out["simulated_skins"] = [args.first_seed, args.first_seed + args.skins - 1]
     if args.real:
-        out["real"] = real(args.data, args.draws)
+        out["real"] = real(args.data, args.draws, args.targets, ks)
     if args.json is not None:
         args.json.write_text(json.dumps(out, indent=1))
     return 0

@@ -7,6 +7,7 @@ from typer.testing import CliRunner
 from skinloc.cli.main import app
 from skinloc.data.recording import write_recording
 from skinloc.models.localizer import ContactLocalizer
+from tests._helpers import one_line_error
 from tests.conftest import make_recording
 
 runner = CliRunner()
@@ -107,6 +108,24 @@ def test_default_train_then_recalibrate(rec_path, tmp_path):
     res = run("train", small, "--init", model, "--out", tmp_path / "x.h5")
     assert res.exit_code == 1 and "16 sensors" in res.output
     assert not (tmp_path / "x.h5").exists()
+
+
+def test_recalibrate_on_the_touches_the_old_map_asks_for(rec_path, tmp_path):
+    model, new = tmp_path / "m.h5", tmp_path / "new.h5"
+    assert run("train", rec_path, "--out", model).exit_code == 0
+    later = tmp_path / "later.h5"
+    write_recording(make_recording(8, 4, random_state=7), later)
+    res = run("train", later, "--init", model, "--select", "4", "--out", new)
+    assert res.exit_code == 0, res.output
+    assert "Chose 4 point logs (active for recalibration, seed 0)" in res.output
+    assert "cross-validation over 4 new touches" in res.output
+    # a bad --select or a strategy recalibration does not have: one line, no output
+    bad = tmp_path / "bad.h5"
+    res = run("train", later, "--init", model, "--select", "9", "--out", bad)
+    one_line_error(res, "--select", "between 0 and 8")
+    res = run("train", later, "--init", model, "--select", "3", "--strategy", "even", "--out", bad)
+    one_line_error(res, "strategy must be one of active, random")
+    assert not bad.exists()
 
 
 def test_option_of_another_model_kind(rec_path, tmp_path):

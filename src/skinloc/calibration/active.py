@@ -8,6 +8,9 @@ of touches already made are used.
 
 ``select_point_logs`` applies a strategy (``active``, ``random``, ``even``) to the point logs
 of existing recordings, to train on a subset and measure the gain on real data.
+
+``recalibration_targets`` chooses the touches a later session is asked for, to recalibrate an
+old map (``skinloc train NEW --init OLD --select k``), from the old map alone.
 """
 
 from __future__ import annotations
@@ -18,11 +21,21 @@ from typing import Any
 import numpy as np
 
 from skinloc._typing import Points
-from skinloc.sensors.coverage import expected_error_mm, gp_state
+from skinloc.sensors.coverage import GPState, expected_error_mm, gp_state
 
-__all__ = ["STRATEGIES", "next_targets", "select_point_logs", "subset_recordings"]
+__all__ = [
+    "STRATEGIES",
+    "TARGET_STRATEGIES",
+    "next_targets",
+    "recalibration_targets",
+    "scores_after_touch",
+    "select_point_logs",
+    "subset_recordings",
+]
 
 STRATEGIES = ("active", "random", "even")
+#: How ``recalibration_targets`` chooses.
+TARGET_STRATEGIES = ("active", "random")
 #: Well-spread touches an active session starts from.
 N_START = 4
 
@@ -72,7 +85,16 @@ def active_scores(
         Mean expected error after each candidate touch, mm (lower is better).
     """
     rmap, F = _fit_map(targets, images, candidates, prior)
-    gp = gp_state(rmap, F)
+    return scores_after_touch(gp_state(rmap, F), rmap, pool, eval_points)
+
+
+def scores_after_touch(gp: GPState, rmap: Any, pool: Points, eval_points: Points) -> np.ndarray:
+    """Mean expected error over ``eval_points (E, 3)`` m after touching each of ``pool (c, 3)``.
+
+    ``gp`` holds the touches so far (its posterior variance needs no image); ``rmap`` (a
+    ``ResponseMap``) gives the features the competitors are told apart by. Returns ``(c,)``
+    mm, lower is better.
+    """
     E_mm, C_mm = 1e3 * np.asarray(eval_points), 1e3 * np.asarray(pool)
     mu = rmap.evaluate_mm(E_mm)
     var_e = gp.posterior_var(E_mm)
@@ -104,6 +126,83 @@ def next_targets(
 
     ev = candidates[farthest_point_sampling(candidates, min(n_eval, len(candidates)))]
     return int(np.argmin(active_scores(targets, images, pool, ev, candidates)))
+
+
+def recalibration_targets(
+    old_map: Any,
+    k: int,
+    pool: Points | None = None,
+    *,
+    strategy: str = "active",
+    random_state: int = 0,
+    n_eval: int = 200,
+) -> np.ndarray:
+    """Which ``k`` targets to ask a later session for, to recalibrate ``old_map`` on them.
+
+    Nothing of the new session is known before its touches, so the choice rests on the old map
+    alone. ``active``: the first target is drawn (seeded), then greedily the one after which a
+    map of the new touches (a Gaussian process with the old map's kernel: length scale,
+    amplitude, noise) has the lowest mean expected error over ``n_eval`` evenly spread surface
+    points, the competitors told apart by the old map's features (``scores_after_touch``, the
+    score of active calibration): the touches spread over the surface, denser where the old
+    map's responses are alike (where a changed response most likely moves the match).
+    ``random``: ``k`` distinct targets in a seeded random order.
+
+    Parameters
+    ----------
+    old_map : ResponseMap or None
+        The old session's map (``ContactLocalizer.map_``); ``None`` will do for ``random``
+        from a given ``pool``.
+    k : int
+        Targets wanted, ``0 <= k <=`` the pool's distinct targets.
+    pool : (c, 3) float, optional
+        Where touches may be asked, m (e.g. a recording's targets); default: ``n_eval`` evenly
+        spread points of the map's surface. A target listed twice is one candidate.
+    strategy : {"active", "random"}
+    random_state : int, default=0
+        Seed of the first (``active``) or every (``random``) target.
+    n_eval : int, default=200
+        Surface points the expected error is averaged over.
+
+    Returns
+    -------
+    (k,) int
+        Indices into ``pool`` (into the default pool: ``pool`` is then ``old_map.candidates``
+        spread as described), in the order chosen; distinct targets.
+
+    Raises
+    ------
+    ValueError
+        For an unknown strategy or ``k`` outside ``0..`` the distinct targets.
+    """
+    from skinloc.geometry.mesh import farthest_point_sampling
+
+    if strategy not in TARGET_STRATEGIES:
+        raise ValueError(
+            f"strategy must be one of {', '.join(TARGET_STRATEGIES)}; got {strategy!r}"
+        )
+    if old_map is None and (strategy == "active" or pool is None):
+        raise ValueError("old_map is needed for strategy 'active' or without a pool")
+    ev = None
+    if old_map is not None:
+        cands = np.asarray(old_map.candidates, dtype=np.float64)
+        ev = cands[farthest_point_sampling(cands, min(n_eval, len(cands)))]
+    pool = ev if pool is None else np.asarray(pool, dtype=np.float64).reshape(-1, 3)
+    first = np.sort(_unique_rows(pool)[0])
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 0 <= k <= len(first):
+        raise ValueError(
+            f"k must be an integer between 0 and {len(first)} (distinct targets), got {k!r}"
+        )
+    rng = np.random.default_rng(random_state)
+    if strategy == "random" or k == 0:
+        return rng.permutation(first)[:k]
+    old = gp_state(old_map)
+    chosen = [int(first[rng.integers(len(first))])]
+    while len(chosen) < k:
+        left = np.setdiff1d(first, chosen)
+        gp = GPState(1e3 * pool[chosen], old.length_scale_mm, old.amplitude, old.noise)
+        chosen.append(int(left[np.argmin(scores_after_touch(gp, old_map, pool[left], ev))]))
+    return np.asarray(chosen, dtype=np.int64)
 
 
 def _unique_rows(points: Points) -> tuple[np.ndarray, np.ndarray]:

@@ -283,7 +283,11 @@ def train(
         typer.Option(min=1, help="Train on only this many point logs, chosen by --strategy."),
     ] = None,
     strategy: Annotated[
-        str, typer.Option(help="How --select chooses: active, random or even (seeded by --seed).")
+        str,
+        typer.Option(
+            help="How --select chooses: active, random or even (seeded by --seed); with --init, "
+            "active asks where the old model's map needs new touches most, from it alone."
+        ),
     ] = "active",
     no_prior: Annotated[
         bool,
@@ -321,7 +325,9 @@ def train(
 
         load_prior(prior)  # a bad file fails here, in one line, before anything else
     recs = read_recordings(data, calibration=init is None)  # --init: a baseline capture will do
-    if select is not None:
+    if select is not None and init is not None:
+        recs = _select_recalibration(recs, select, strategy, seed, ContactLocalizer.load(init))
+    elif select is not None:
         choose_with = "none" if no_prior else ("package" if prior is None else str(prior))
         recs = _select_point_logs(recs, select, strategy, seed, choose_with)
     n_logs = sum(r.n_point_logs for r in recs)
@@ -407,6 +413,32 @@ def _select_point_logs(recs: list, n: int, strategy: str, seed: int, prior: str)
         )
     console.print(f"Chose {len(picks)} point logs ({strategy}, seed {seed})")
     return subset_recordings(recs, picks)
+
+
+def _select_recalibration(recs: list, n: int, strategy: str, seed: int, old) -> list:
+    """``train --select --init``: the point logs ``recalibration_targets`` asks for.
+
+    Chosen from the old model's map and the recordings' targets only (not their images), as a
+    later session would be asked for them.
+    """
+    import numpy as np
+
+    from skinloc.calibration.active import recalibration_targets, subset_recordings
+
+    rmap = getattr(old, "map_", None)
+    if strategy == "active" and rmap is None:
+        raise ValueError(
+            "--strategy active with --init chooses from the old model's response map; this "
+            "model has none: use --strategy random"
+        )
+    owners = [(r, i) for r, rec in enumerate(recs) for i in range(rec.n_point_logs)]
+    where = np.concatenate([rec.targets for rec in recs]) if owners else np.zeros((0, 3))
+    try:
+        idx = recalibration_targets(rmap, n, where, strategy=strategy, random_state=seed)
+    except ValueError as e:
+        raise ValueError(f"--select / --strategy: {e}") from None
+    console.print(f"Chose {len(idx)} point logs ({strategy} for recalibration, seed {seed})")
+    return subset_recordings(recs, [owners[i] for i in idx])
 
 
 # ------------------------------------------------------------------------------------ evaluate

@@ -1,17 +1,19 @@
 """Issue 33's "Done when", in Chromium: a 20-touch session with bad touches walked to export.
 
 Two touches pressed away from their targets (60 and 90 mm, straight-line distance to the
-nearest vertex that far) and one short touch (the finger lifted during its capture) are all
-flagged by the gate; the 60 mm one is retaken (the other touches keep their numbers), the
-90 mm and the short one are left out by hand, the Train page shows its interval; then
-validation, live, a recording, and every command the Export page prints, run as printed.
+nearest vertex that far) and one short touch (the finger lifted during its capture) are
+flagged by the gate (the 60 mm one not always: below); the 60 mm one is retaken (the other
+touches keep their numbers), the 90 mm and the short one are left out by hand, the Train
+page shows its interval; then validation, live, a recording, and every command the Export page
+prints, run as printed.
 
-The gate's off-target check is not certain at 20 touches (docs/app.md: 61 % of touches pressed
-40-100 mm off caught in simulated 20-touch sessions). On this simulated skin (``SEED``) it
-flags both; over skin seeds 0-19 (``rate_hz`` 400, 10 samples, the same two distances, no short
-touch) it flagged the 90 mm touch 20 times in 20 and the 60 mm one 17 times in 20 (seeds 3, 6
-and 7 missed it), and 3 of the 360 good touches: the seed is fixed so that the test asks what
-the gate does on one skin, not luck. A good touch flagged besides (it happens) is allowed.
+The gate's off-target check is not certain at 20 touches (docs/app.md). Over skin seeds 0-19
+(``rate_hz`` 400, 10 samples, the same two distances, no short touch; the app's gate at
+7c51c51) it flagged the 90 mm touch 20 times in 20, the 60 mm one 17 times in 20 (seeds 1, 6
+and 17 missed it) and 11 of the 360 good touches; and the same seed does not give the same
+frames twice (the scripted finger's timing). So the test requires the 90 mm and the short
+touch flagged, and the 60 mm one flagged or not, said on the gate as it is: either way it is
+retaken from the gate's list, which any touch can be. A good touch flagged besides is allowed.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ from tests.app._app import wait as _wait  # noqa: E402
 SEED = 0
 N = 20
 OFF = {5: 0.060, 12: 0.090}  # touch index -> how far from its target it is pressed, m
+FAR = 12  # the 90 mm one: always flagged
 SHORT = 16  # the touch whose finger lifts during its capture
 
 
@@ -103,8 +106,10 @@ def test_mispressed_and_short_touches_are_flagged_and_the_session_walks_to_expor
     _calibrate(ws)
     flags = ws.session_detail()["calibration"]["flags"]
     flagged = [i for i, f in enumerate(flags) if f]
-    # the three bad touches, and maybe a good one (the gate's false flags: docs/app.md)
-    assert all("off_target" in flags[i] for i in OFF) and "short" in flags[SHORT], flags
+    # the 90 mm and the short touch, the 60 mm one in 17 of 20 skins, and maybe a good one
+    # (the gate's false flags: docs/app.md)
+    caught = {i: "off_target" in flags[i] for i in OFF}
+    assert caught[FAR] and "short" in flags[SHORT], flags
     got = tmp_path / "downloads"
     got.mkdir()
     errors: list[str] = []
@@ -126,7 +131,8 @@ def test_mispressed_and_short_touches_are_flagged_and_the_session_walks_to_expor
         first = {rows.nth(k).get_attribute("data-index") for k in range(len(flagged))}
         assert first == {str(i) for i in flagged}, first  # the flagged, listed first
         for i in OFF:
-            expect(gate.locator(f"tr[data-index='{i}']")).to_contain_text("off target")
+            row = expect(gate.locator(f"tr[data-index='{i}']"))
+            (row.to_contain_text if caught[i] else row.not_to_contain_text)("off target")
         expect(gate.locator(f"tr[data-index='{SHORT}']")).to_contain_text("short")
 
         # #6 (60 mm off) retaken from the gate, this time on its target: it is #6 (2nd), and

@@ -33,6 +33,7 @@ def run(*args):
         ("foxglove://127.0.0.1:0?mcp=x.mcap", ("unknown option(s) mcp", "known: mcap, live")),
         ("ws://127.0.0.1:8767/path", ("unexpected path '/path'",)),  # any-port-ok: refused
         ("pigeon", ("unknown sink 'pigeon'", "udp://HOST:PORT")),
+        ("mcap:", ("'mcap:FILE' needs a file name",)),
     ],
 )
 def test_a_bad_sink_spec_is_one_line_of_error(spec, needles):

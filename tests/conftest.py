@@ -29,12 +29,14 @@ LOUD_SKIPS = ("tests/app/test_app_browser.py",)
 #: Folders whose tests share a session fixture too costly to build in every worker of
 #: ``pytest -n``: each runs in one worker (tests/firmware: the firmware and its emulator).
 ONE_WORKER_DIRS = ("tests/firmware/",)
-_SHARED_SCOPE = re.compile(r"""scope\s*=\s*["'](module|class|package)["']""")
+_SHARED_SCOPE = re.compile(r"""scope\s*=\s*["'](session|package|module|class)["']""")
 
 
 @functools.cache
 def _has_shared_fixture(module: Path) -> bool:
-    """``module`` defines a module-, class- or package-scoped fixture."""
+    """``module`` defines a session-, package-, module- or class-scoped fixture (one defined
+    in a test module serves that module alone: its tests in two workers would build it twice,
+    or one would wait idle on the other's lock)."""
     try:
         return bool(_SHARED_SCOPE.search(module.read_text(encoding="utf-8")))
     except OSError:
@@ -44,8 +46,9 @@ def _has_shared_fixture(module: Path) -> bool:
 def worker_scope(nodeid: str, root: Path) -> str:
     """What ``pytest -n`` (``make test``) sends to one worker with the test ``nodeid``.
 
-    Its folder when in ``ONE_WORKER_DIRS``; its module when the module defines a module-scoped
-    (or class-scoped) fixture, built once so; else the test alone, for whichever worker is free.
+    Its folder when in ``ONE_WORKER_DIRS``; its module when the module defines a shared fixture
+    of its own (session, package, module or class scope), built once so; else the test alone,
+    for whichever worker is free.
     Session fixtures are built once per worker (``tests/_live.py``'s files once per run).
     """
     path = nodeid.split("::", 1)[0].replace("\\", "/")

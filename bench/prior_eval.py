@@ -168,7 +168,7 @@ def remount(n_skins: int = 20, first_seed: int = 7000, jitter: float = 0.4) -> d
     from skinloc.geometry.mesh import cone_skin, sample_targets, surface_points
     from skinloc.models.map_prior import load_prior
     from skinloc.models.response_map import ResponseMap, fit_layer, shape_features
-    from skinloc.sim.prior_build import draw_params, errors_mm
+    from skinloc.sim.prior_build import draw_params, errors_mm, touch_means
     from skinloc.sim.skin import SimulatedSkin
 
     prior, mesh = load_prior(), cone_skin()
@@ -176,15 +176,8 @@ def remount(n_skins: int = 20, first_seed: int = 7000, jitter: float = 0.4) -> d
 
     def session(params, seed, rng, n):
         skin = SimulatedSkin(mesh, params=params, random_state=seed)
-        targets, means = sample_targets(mesh, n, "edge", rng), np.empty((n, 64))
-        with skin:
-            base = skin.read_many(50)[0].mean(axis=0)
-            for i, x in enumerate(targets):
-                skin.touch_near(x, rng)
-                means[i] = skin.read_many(50)[0].mean(axis=0) - base
-                skin.release()
-                skin.advance(2.0)
-        return targets, shape_features(means)
+        targets = sample_targets(mesh, n, "edge", rng)
+        return targets, shape_features(touch_means(skin, targets, rng))
 
     def jittered(p, rng):
         def j(v: float, rel: float) -> float:

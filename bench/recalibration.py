@@ -41,7 +41,7 @@ from skinloc.geometry.mesh import cone_skin, sample_targets, surface_points
 from skinloc.models.map_prior import load_prior
 from skinloc.models.recalibration import choose_recalibration
 from skinloc.models.response_map import ResponseMap, shape_features
-from skinloc.sim.prior_build import draw_params, errors_mm
+from skinloc.sim.prior_build import draw_params, errors_mm, touch_means
 from skinloc.sim.session_change import later_session
 from skinloc.sim.skin import SimulatedSkin
 
@@ -50,15 +50,7 @@ KS = (0, 5, 10, 20)
 
 def touch_features(skin: SimulatedSkin, targets: np.ndarray, rng: np.random.Generator):
     """Shape features ``(n, 64)`` of one touch (mean of 50 frames) near each target."""
-    means = np.empty((len(targets), skin.n_sensors))
-    with skin:
-        base = skin.read_many(50)[0].mean(axis=0)
-        for i, x in enumerate(targets):
-            skin.touch_near(x, rng)
-            means[i] = skin.read_many(50)[0].mean(axis=0) - base
-            skin.release()
-            skin.advance(2.0)
-    return shape_features(means)
+    return shape_features(touch_means(skin, targets, rng))
 
 
 def simulated(

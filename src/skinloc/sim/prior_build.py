@@ -89,7 +89,16 @@ def simulate_calibration(
         mesh, n_tx=n_tx, n_rx=n_rx, params=draw_params(rng, n_rx, n_tx), random_state=seed
     )
     targets = sample_targets(mesh, n_touches, "edge", rng)
-    means = np.empty((n_touches, n_tx * n_rx))
+    return targets, touch_means(skin, targets, rng)
+
+
+def touch_means(skin: Any, targets: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Mean images of simulated touches, baseline subtracted.
+
+    One touch (50 frames) near each of ``targets (n, 3)`` m on the simulated ``skin``, 2 s
+    apart; returns ``(n, n_sensors)`` counts.
+    """
+    means = np.empty((len(targets), skin.n_sensors))
     with skin:
         baseline = skin.read_many(50)[0].mean(axis=0)
         for i, target in enumerate(targets):
@@ -97,7 +106,7 @@ def simulate_calibration(
             means[i] = skin.read_many(50)[0].mean(axis=0) - baseline
             skin.release()
             skin.advance(2.0)
-    return targets, means
+    return means
 
 
 def skin_hyperparameters(seed: int, n_touches: int) -> tuple[np.ndarray, float]:

@@ -12,8 +12,8 @@ prange = numba.prange
 
 
 def jit(**kw: Any):
-    """``numba.njit(cache=True, fastmath=True, nogil=True, **kw)``."""
-    return numba.njit(cache=True, fastmath=True, nogil=True, **kw)
+    """``numba.njit(cache=True, fastmath=True, nogil=True, **kw)`` (``kw`` may override them)."""
+    return numba.njit(**{"cache": True, "fastmath": True, "nogil": True, **kw})
 
 
 @numba.njit(cache=True, nogil=True)  # not fastmath: it would assume NaN and inf away

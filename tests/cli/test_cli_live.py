@@ -153,7 +153,7 @@ def test_export_writes_both(tmp_path):
 def test_online_bench_functions_run_small():
     from skinloc.bench.online import many_skins, single_stream
 
-    r = single_stream(model_path("map"), n_frames=600)
+    r = single_stream(model_path("map"), n_frames=600, batch_rows=5000)
     assert r["frames"] == 500 and r["touched_frames"] > 0 and r["speedup_median"] > 0
     m = many_skins(model_path("map"), n_skins=3, rate_hz=50.0, duration_s=2.0)
     assert m["frames_sent"] == 300 and m["frames_dropped"] == 0

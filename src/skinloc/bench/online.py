@@ -133,8 +133,13 @@ def train_bench_models(folder: Path, archs: tuple[str, ...], step: Step = _noop)
     return paths
 
 
-def single_stream(model_path: Path, n_frames: int = 20000, random_state: int = 0) -> dict:
-    """Latency and throughput of one 64-sensor stream, bytes in to contact out."""
+def single_stream(
+    model_path: Path, n_frames: int = 20000, random_state: int = 0, batch_rows: int = 200_000
+) -> dict:
+    """Latency and throughput of one 64-sensor stream, bytes in to contact out.
+
+    ``batch_rows``: rows of the batched-prediction comparison (the touched frames repeated).
+    """
     from skinloc.hardware.protocol import encode_binary
     from skinloc.live.core import SkinCore
     from skinloc.models.engine import load_engine
@@ -180,7 +185,7 @@ def single_stream(model_path: Path, n_frames: int = 20000, random_state: int = 0
         n_out += len(core.feed(b))
     elapsed = pc() - t0
     # batched prediction of touched frames
-    reps = max(1, 200_000 // max(len(touched), 1))
+    reps = max(1, batch_rows // max(len(touched), 1))
     batch = np.tile(touched.astype(np.float32), (reps, 1))
     fast.predict_batch(batch[:1000])
     t0 = pc()

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from skinloc._jit import jit
 from skinloc._typing import Points
 from skinloc.sensors.wires import structured_crossings
 
@@ -98,16 +99,18 @@ def local_fit(
     P, y = targets_mm[near], r[near]
     d2 = ((cands_mm[cidx][:, None, :] - P[None]) ** 2).sum(-1)  # (C, m)
     K = 1.0 / (1.0 + d2[None] / widths[:, None, None] ** 2)  # (W, C, m)
+    # The weighted sums below are matrix-vector products over the touches: the same least
+    # squares as summing (a K + c - y)^2 h term by term, without (W, C, m) temporaries.
+    K2 = K * K
     h = np.ones_like(y)
     for _ in range(4):
         hs = h / h.sum()
-        Km = (K * hs).sum(-1, keepdims=True)
-        ym = float((y * hs).sum())
-        cov = ((K - Km) * (y - ym) * hs).sum(-1)
-        var = np.maximum(((K - Km) ** 2 * hs).sum(-1), 1e-12)
-        a = np.maximum(cov / var, 0.0)
-        c = ym - a * Km[..., 0]
-        sse = (((a[..., None] * K + c[..., None] - y) ** 2) * hs).sum(-1)
+        Km, K2m, Kym = K @ hs, K2 @ hs, K @ (y * hs)  # (W, C) each
+        ym, y2m = float(y @ hs), float((y * y) @ hs)
+        var = np.maximum(K2m - Km**2, 1e-12)
+        a = np.maximum((Kym - Km * ym) / var, 0.0)
+        c = ym - a * Km
+        sse = a**2 * K2m + 2.0 * a * c * Km - 2.0 * a * Kym + c**2 - 2.0 * c * ym + y2m
         wi, ci = np.unravel_index(np.argmin(sse), sse.shape)
         fit = a[wi, ci] * K[wi, ci] + c[wi, ci]
         res = fit - y
@@ -144,28 +147,60 @@ def loo_profile(
         cidx = np.array([tree.query(centre)[1]])
     d = np.linalg.norm(targets_mm - centre, axis=1)
     near = np.argsort(d)[: max(_MIN_NEAR, int((d < _NEAR_MM).sum()))]
-    P, y = targets_mm[near], r[near]
-    m = len(y)
+    P, y = targets_mm[near], np.asarray(r[near], dtype=np.float64)
     d2 = ((cands_mm[cidx][:, None, :] - P[None]) ** 2).sum(-1)  # (C, m)
     K = 1.0 / (1.0 + d2[None] / widths[:, None, None] ** 2)  # (W, C, m)
-    # Sums over all touches; each left-out fit subtracts its touch's term.
-    S1, SK2, SKy = K.sum(-1), (K**2).sum(-1), (K * y).sum(-1)
-    Sy, Sy2 = y.sum(), (y**2).sum()
     peak = max(float(y.max()), 1e-9)
-    rows = np.arange(len(widths))
-    err = np.zeros((len(widths), m))
+    return _loo_errors(
+        np.ascontiguousarray(K, dtype=np.float64), y, _REL_NOISE, (_ABS_NOISE * peak) ** 2
+    )
+
+
+@jit(fastmath=False)  # the comparisons of near-equal fits must not depend on reassociation
+def _loo_errors(
+    K: np.ndarray, y: np.ndarray, rel: float, abs_var: float
+) -> np.ndarray:  # pragma: no cover - compiled
+    """``loo_profile``'s mean scaled squared error at each width, ``(W,)``.
+
+    ``K (W, C, m)`` holds each width's and candidate's kernel at the ``m`` touches of
+    responses ``y (m,)``. Touch ``j`` is predicted by the fit to the other touches (its terms
+    taken out of the sums over all, so one pass per width) at the candidate that fits them
+    best; its squared error is divided by ``(rel * max(pred, y_j))^2 + abs_var``.
+    """
+    W, C, m = K.shape
+    n1 = m - 1
+    Sy, Sy2 = 0.0, 0.0
     for j in range(m):
-        kj, n1 = K[..., j], m - 1
-        km, ym = (S1 - kj) / n1, (Sy - y[j]) / n1
-        skk, sky = (SK2 - kj**2) / n1, (SKy - kj * y[j]) / n1
-        a = np.maximum((sky - km * ym) / np.maximum(skk - km**2, 1e-12), 0.0)
-        c = ym - a * km
-        sse = (Sy2 - y[j] ** 2) / n1 - 2 * a * sky - 2 * c * ym + a**2 * skk + 2 * a * c * km + c**2
-        ci = np.argmin(sse, axis=1)
-        pred = a[rows, ci] * kj[rows, ci] + c[rows, ci]
-        var = (_REL_NOISE * np.maximum(pred, y[j])) ** 2 + (_ABS_NOISE * peak) ** 2
-        err[:, j] = (pred - y[j]) ** 2 / var
-    return err.mean(axis=1)
+        Sy += y[j]
+        Sy2 += y[j] * y[j]
+    out = np.zeros(W)
+    S1, SK2, SKy = np.empty(C), np.empty(C), np.empty(C)
+    for w in range(W):
+        for c in range(C):
+            s1 = s2 = sy = 0.0
+            for j in range(m):
+                k = K[w, c, j]
+                s1 += k
+                s2 += k * k
+                sy += k * y[j]
+            S1[c], SK2[c], SKy[c] = s1, s2, sy
+        total = 0.0
+        for j in range(m):
+            yj = y[j]
+            ym, y2m = (Sy - yj) / n1, (Sy2 - yj * yj) / n1
+            best, pred = np.inf, 0.0
+            for c in range(C):
+                k = K[w, c, j]
+                km, skk, sky = (S1[c] - k) / n1, (SK2[c] - k * k) / n1, (SKy[c] - k * yj) / n1
+                a = max((sky - km * ym) / max(skk - km * km, 1e-12), 0.0)
+                b = ym - a * km
+                sse = y2m - 2 * a * sky - 2 * b * ym + a * a * skk + 2 * a * b * km + b * b
+                if sse < best:  # the first of equal minima, as argmin
+                    best, pred = sse, a * k + b
+            var = (rel * max(pred, yj)) ** 2 + abs_var
+            total += (pred - yj) ** 2 / var
+        out[w] = total / m
+    return out
 
 
 def shared_width(profiles: np.ndarray, widths: np.ndarray) -> float:

@@ -212,6 +212,7 @@ def collect_with_probe(
                 timeout_s=opts.timeout_s,
                 connect_timeout_s=opts.timeout_s,
                 max_depth_m=settings.max_depth_m,
+                max_force_n=settings.max_force_n,
             )
             stack.callback(probe.close)
         stack.enter_context(skin)

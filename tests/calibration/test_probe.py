@@ -107,6 +107,29 @@ def test_simulated_probe_presses_the_skin_where_it_was_sent(cone):
         SimulatedProbe(skin, position_error_m=-1.0)
 
 
+def test_a_deeper_press_is_stronger_and_wider(cone):
+    skin = SimulatedSkin(cone, random_state=0)
+    probe = SimulatedProbe(skin, position_error_m=0.0, random_state=1)
+    target, down = cone.vertices[40], -cone.vertex_normals[40]
+    pressed, press = {}, skin.press
+
+    def seen_press(point, *, pressure, finger_radius_m):  # what the probe asks of the skin
+        pressed[depth] = (pressure, finger_radius_m)
+        press(point, pressure=pressure, finger_radius_m=finger_radius_m)
+
+    skin.press = seen_press
+    for depth in (0.001, 0.002, 0.004):
+        probe.move_above(target - 0.01 * down, down)
+        probe.press(target, down, depth_m=depth)
+        probe.lift()
+    # pressure depth / 2 mm; the contact widens as the simulator's finger does (P ** 1/3)
+    assert [pressed[d][0] for d in (0.001, 0.002, 0.004)] == [0.5, 1.0, 2.0]
+    exponent = skin.params.radius_pressure_exponent
+    assert pressed[0.002][1] == pytest.approx(skin.params.finger_radius_m)
+    assert pressed[0.004][1] == pytest.approx(skin.params.finger_radius_m * 2.0**exponent)
+    assert pressed[0.001][1] < pressed[0.002][1] < pressed[0.004][1]
+
+
 def test_a_probe_session_stores_the_reported_tip(tmp_path, cone):
     skin = SimulatedSkin(cone, random_state=0)
     session, plan = _session(tmp_path, cone, skin)

@@ -9,10 +9,16 @@ from skinloc.calibration.probe_plan import (
     REASON_TILT,
     SkinPose,
     boundary_distance,
+    even_cover,
     plan_probing,
     short_path_order,
 )
-from skinloc.geometry.mesh import nearest_on_surface, sample_targets
+from skinloc.geometry.mesh import (
+    farthest_point_sampling,
+    nearest_on_surface,
+    sample_surface,
+    sample_targets,
+)
 from skinloc.geometry.skin_frame import quaternion_from_rpy
 
 
@@ -171,3 +177,30 @@ def test_a_filled_plan_has_the_targets_asked_for(cone, mode):
     # nothing reachable: no endless drawing
     none = plan_probing(cone, 10, mode, arm_direction=(0, 0, 1), fill=True)
     assert len(none) == 0 and none.n_drawn == 10
+
+
+def test_an_even_plan_covers_the_rim_band_from_inside(plate):
+    # the probe keeps 10 mm off the rim; the touches a map serves fall anywhere
+    plan = plan_probing(plate, 16, "even", rim_clearance_m=0.01, random_state=0, fill=True)
+    assert len(plan) == 16 and boundary_distance(plate, plan.targets_m).min() >= 0.01
+    assert len(np.unique(plan.targets_m, axis=0)) == 16
+    touches = sample_surface(plate, 4000, 1)[0]
+
+    def mean_gap(targets):  # mean distance from a touch to its nearest target, m
+        return np.linalg.norm(touches[:, None] - targets[None], axis=2).min(axis=1).mean()
+
+    # farthest-point sampling of the reachable part crowds its border; the cover does not,
+    # and covers the plate as well
+    reachable = touches[boundary_distance(plate, touches) >= 0.01]
+    fps = reachable[farthest_point_sampling(reachable, 16)]
+    assert mean_gap(plan.targets_m) < 1.05 * mean_gap(fps)
+    on_border = np.count_nonzero(boundary_distance(plate, plan.targets_m) < 0.012)
+    assert 2 * on_border <= np.count_nonzero(boundary_distance(plate, fps) < 0.012)
+
+
+def test_even_cover_needs_a_reachable_point():
+    pts = np.random.default_rng(0).random((50, 3))
+    with pytest.raises(ValueError, match="no surface point is reachable"):
+        even_cover(pts, np.zeros(50, dtype=bool), pts[:3])
+    got = even_cover(pts, np.ones(50, dtype=bool), pts[:3])
+    assert got.shape == (3, 3) and len(np.unique(got, axis=0)) == 3

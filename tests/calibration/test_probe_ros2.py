@@ -41,6 +41,7 @@ except ImportError as exc:  # the banner pytest shows for every skipped test
 
 ARM = Path(__file__).with_name("ros2_arm.py")
 TIP_OFFSET_M = np.array([0.0003, -0.0002, 0.0001])  # ros2_arm.py's
+FORCE_SHORT_M = 0.001  # ros2_arm.py's: a press to a force stops this short of the press pose
 POSE = SkinPose((0.4, -0.1, 0.2), quaternion_from_rpy(0.3, -0.2, 1.0), "base_link")
 SMALL = dict(samples_per_touch=5, n_baseline_frames=20, touch_timeout_s=5.0)
 needs_rclpy = pytest.mark.skipif(bool(_WHY), reason=_WHY)
@@ -254,19 +255,81 @@ def test_no_arm_is_a_one_line_link_error(ros_domain):
 
 
 @needs_rclpy
-def test_a_force_or_too_deep_press_is_refused_before_anything_moves(arm):
+def test_a_too_strong_or_too_deep_press_is_refused_before_anything_moves(arm):
     from skinloc.calibration.probe import ProbeSafetyError
 
-    ros = _probe(max_depth_m=0.003)
+    ros = _probe(max_depth_m=0.003, max_force_n=5.0)
+    target, down = np.array([0.4, 0.0, 0.29]), np.array([0.0, 0.0, -1.0])
     try:
-        ros.move_above(np.array([0.4, 0.0, 0.3]), np.array([0.0, 0.0, -1.0]))
-        with pytest.raises(ProbeError, match="depth, not a force"):
-            ros.press(np.array([0.4, 0.0, 0.29]), np.array([0.0, 0.0, -1.0]), force_n=2.0)
+        ros.move_above(np.array([0.4, 0.0, 0.3]), down)
+        with pytest.raises(ProbeSafetyError, match="press force 6 N is beyond the probe's limit"):
+            ros.press(target, down, force_n=6.0)
         with pytest.raises(ProbeSafetyError, match="beyond the probe's limit"):
-            ros.press(np.array([0.4, 0.0, 0.29]), np.array([0.0, 0.0, -1.0]), depth_m=0.004)
+            ros.press(target, down, depth_m=0.004)
+        with pytest.raises(ValueError, match="one of them"):
+            ros.press(target, down, depth_m=0.002, force_n=2.0)
     finally:
         ros.close()
     assert arm.kinds() == ["approach"]
+
+
+@needs_rclpy
+def test_a_press_to_a_force_through_a_stand_in_arm(tmp_path, cone, arm):
+    session, skin = _session(tmp_path, cone)
+    settings = ProbeSettings(depth_m=None, force_n=3.0, max_depth_m=0.004, max_force_n=5.0)
+    ros = _probe(timeout_s=scaled(30.0), max_depth_m=0.004, max_force_n=5.0)
+    probe = ArmOnSimSkin(ros, SimulatedProbe(skin, pose=POSE, position_error_m=0.0))
+    reports = []
+    try:
+        for i in range(len(session.targets)):
+            reports.append(record_probe_point(session, i, probe, settings, POSE))
+    finally:
+        probe.close()
+        session.close()
+        skin.disconnect()
+    heard = arm.heard()
+    assert [r["kind"] for r in heard] == ["approach", "press_force", "press", "lift"] * 2
+    approach, goal, press = heard[0], heard[1], heard[2]
+    # the goal: 3 N along the press direction, in the base frame
+    step = np.subtract(press["position"], approach["position"])
+    down = step / np.linalg.norm(step)
+    assert goal["frame"] == "base_link" and np.allclose(goal["force"], 3.0 * down, atol=1e-9)
+    # the press pose is the depth limit: the arm may stop short of it, never pass it
+    assert np.isclose(np.linalg.norm(step), settings.clearance_m + 0.004, atol=1e-9)
+    for i, report in enumerate(reports):  # the measured force; the measured tip's depth
+        step = np.subtract(heard[4 * i + 2]["position"], heard[4 * i]["position"])
+        down = step / np.linalg.norm(step)
+        assert report.force_n == pytest.approx(3.0)
+        assert report.depth_m == pytest.approx(0.004 - FORCE_SHORT_M + TIP_OFFSET_M @ down)
+    rec = read_recording(tmp_path / "p.h5")
+    assert rec.meta["probe_forces_n"] == pytest.approx([3.0, 3.0])
+    assert rec.meta["probe_depths_m"] == pytest.approx([r.depth_m for r in reports])
+
+
+@needs_rclpy
+@pytest.mark.parametrize(
+    ("arm", "needle"),
+    [
+        ("overforce", "measured 6 N on /skinloc/probe/force, over the limit of 5 N"),
+        ("noforce", "sent no force on /skinloc/probe/force"),
+    ],
+    indirect=["arm"],
+)
+def test_a_force_over_the_limit_or_unmeasured_stops_the_arm(tmp_path, cone, arm, needle):
+    session, skin = _session(tmp_path, cone, n=1)
+    ros = _probe(timeout_s=scaled(10.0), max_force_n=5.0)
+    settings = ProbeSettings(depth_m=None, force_n=3.0, max_force_n=5.0)
+    try:
+        with pytest.raises(ProbeError, match=needle) as info:
+            record_probe_point(session, 0, ros, settings, POSE)
+    finally:
+        ros.close()
+        session.close()
+        skin.disconnect()
+    assert str(info.value).count("\n") == 0
+    wait_until(lambda: "stop" in arm.kinds(), "the arm to hear the stop", 30.0)
+    assert arm.kinds()[:3] == ["approach", "press_force", "press"]
+    assert session.n_done == 0
 
 
 def test_without_rclpy_the_error_names_the_extra(monkeypatch):

@@ -80,6 +80,42 @@ def test_a_probed_session_end_to_end_then_info(tmp_path):
     assert "probe_tips_m" not in info["meta"] and info["meta"]["probe"]["kind"] == "sim"
 
 
+def test_each_target_pressed_at_several_depths_then_resumed(tmp_path):
+    out = tmp_path / "cal.h5"
+    args = _args(out, "--press-depth-mm", "1,2,3")
+    args[args.index("--points") + 1] = "3"
+    res = run(*args, "--max-touches", "4")
+    assert res.exit_code == 0, res.output
+    assert "each pressed at 3 levels (1, 2, 3 mm), 9 touches" in res.output
+    assert read_recording(out).n_point_logs == 4
+    res = run(*args)  # resumed with the file's levels
+    assert res.exit_code == 0 and "Resuming" in res.output, res.output
+    rec = read_recording(out)
+    assert rec.n_point_logs == 9
+    assert rec.meta["probe_depths_m"] == [0.001, 0.002, 0.003] * 3
+    assert [p["depth_m"] for p in rec.meta["probe"]["presses"]] == [0.001, 0.002, 0.003]
+    # each press is its own touch at the target, pressed once per depth, one after the other
+    np.testing.assert_array_equal(rec.planned_targets[0::3], rec.planned_targets[1::3])
+    np.testing.assert_array_equal(rec.planned_targets[0::3], rec.planned_targets[2::3])
+    assert len(np.unique(rec.planned_targets, axis=0)) == 3
+    # a deeper press gives a stronger touch at the same target
+    peaks = rec.deltas.mean(axis=1).max(axis=1).reshape(3, 3)
+    assert np.all(np.diff(peaks, axis=1) > 0)
+    res = run("info", out)
+    assert "9 with the probe's reported tip, depth 1-3 mm" in res.output
+    info = json.loads(run("info", out, "--json").output)
+    assert [t["depth_mm"] for t in info["probe_touches"][:3]] == [1.0, 2.0, 3.0]
+
+
+def test_several_forces_are_recorded(tmp_path):
+    out = tmp_path / "cal.h5"
+    res = run(*_args(out, "--press-force-n", "2,3", "--max-touches", "2"))
+    assert res.exit_code == 0, res.output
+    assert "each pressed at 2 levels (2, 3 N), 12 touches" in res.output
+    rec = read_recording(out)
+    assert rec.meta["probe_forces_n"] == [2.0, 3.0] and rec.meta["probe_depths_m"] == [None] * 2
+
+
 def test_a_probed_session_resumes(tmp_path):
     out = tmp_path / "cal.h5"
     res = run(*_args(out, "--max-touches", "2"))
@@ -124,6 +160,10 @@ def test_bad_probe_options_are_one_line(tmp_path):
     one_line_error(run(*_args(out, "--arm-direction", "0,0,1")), "no target is reachable")
     one_line_error(run(*_args(out, "--skin", "a")), "--skins FILE")
     one_line_error(run(*_args(out, "--skins", tmp_path / "none.toml")), "skins file not found")
+    for bad in ("", "1,,2", "a", "0", "-1", "nan", "1,1"):
+        one_line_error(run(*_args(out, "--press-depth-mm", bad)), "--press-depth-mm")
+    one_line_error(run(*_args(out, "--press-force-n", "2,x")), "--press-force-n")
+    one_line_error(run(*_args(out, "--press-depth-mm", "1,6")), "press depth 6 mm", "refused")
     assert not out.exists()
 
 

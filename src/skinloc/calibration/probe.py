@@ -195,7 +195,9 @@ class SimulatedProbe:
     sent, and lands on the surface nearest to that; the arm does not know its own error, so it
     reports the tip where it was sent (plus the press depth along the press direction). The
     press strength in the simulator is ``depth / nominal_depth_m`` or ``force /
-    nominal_force_n`` (1 is a typical touch), with the contact radius ``tip_radius_m``.
+    nominal_force_n`` (1 is a typical touch); its contact radius is ``tip_radius_m`` at
+    pressure 1 and grows with the pressure as the simulator's finger's does
+    (``pressure ** params.radius_pressure_exponent``, docs/simulator.md).
 
     Parameters
     ----------
@@ -214,7 +216,7 @@ class SimulatedProbe:
     nominal_depth_m, nominal_force_n : float
         The depth and force of a typical touch (pressure 1 in the simulator).
     tip_radius_m : float, optional
-        Contact radius of the tip, m; the simulator's finger radius by default.
+        Contact radius of the tip at pressure 1, m; the simulator's finger radius by default.
     random_state : int or None
         Seed of the position errors.
     """
@@ -316,7 +318,9 @@ class SimulatedProbe:
             assert force_n is not None
             pressure = force_n / self.nominal_force_n
             depth, force = math.nan, float(force_n)
-        self.skin.press(contact, pressure=pressure, finger_radius_m=self.tip_radius_m)
+        # A deeper press widens the contact as the simulator's finger does (a ~ P^exponent).
+        radius = self.tip_radius_m * pressure**self.skin.params.radius_pressure_exponent
+        self.skin.press(contact, pressure=pressure, finger_radius_m=radius)
         self.contacts.append(contact)
         self.pressing = True
         self.skin.advance(self.dwell_s)

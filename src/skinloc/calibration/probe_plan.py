@@ -27,6 +27,7 @@ from skinloc.geometry.mesh import (
     SamplingMode,
     farthest_point_sampling,
     nearest_on_surface,
+    sample_surface,
     sample_targets,
 )
 
@@ -38,6 +39,7 @@ __all__ = [
     "ProbePlan",
     "SkinPose",
     "boundary_distance",
+    "even_cover",
     "plan_probing",
     "short_path_order",
 ]
@@ -229,6 +231,61 @@ def short_path_order(points: Points, start: int = 0, max_passes: int = 50) -> np
     return path
 
 
+#: Surface points per target ``even_cover`` spreads the targets over, and its Lloyd steps.
+COVER_SAMPLES_PER_TARGET = 50
+COVER_STEPS = 30
+
+
+def even_cover(surface: Points, reachable: np.ndarray, start: Points) -> Points:
+    """Targets among the reachable surface points that cover the whole surface evenly.
+
+    Lloyd's iterations on a dense sample of the surface: each target takes the surface points
+    nearest to it (reachable or not), moves to their centroid, and is put on the reachable
+    point nearest that. A target then sits in the middle of the area it stands for, so a rim
+    band the probe cannot press is covered from just inside it, where farthest-point sampling
+    crowds the targets at the reachable region's border (the area-uniform touches a map is
+    used on fall mostly inside).
+
+    Parameters
+    ----------
+    surface : (m, 3) float
+        Area-uniform points of the whole surface, m.
+    reachable : (m,) bool
+        Which of them the probe can press.
+    start : (n, 3) float
+        Initial targets, reachable, m.
+
+    Returns
+    -------
+    (n, 3) float
+        The targets, each one of ``surface[reachable]``, m.
+    """
+    from scipy.spatial import cKDTree
+
+    surface = np.asarray(surface, dtype=np.float64)
+    ok = surface[np.asarray(reachable, dtype=bool)]
+    if not len(ok):
+        raise ValueError("no surface point is reachable")
+    on_ok = cKDTree(ok)
+    targets = ok[on_ok.query(np.asarray(start, dtype=np.float64))[1]]
+    for _ in range(COVER_STEPS):
+        cell = cKDTree(targets).query(surface)[1]
+        counts = np.bincount(cell, minlength=len(targets))
+        sums = np.zeros_like(targets)
+        np.add.at(sums, cell, surface)
+        centroids = np.where(counts[:, None] > 0, sums / np.maximum(counts, 1)[:, None], targets)
+        moved = ok[on_ok.query(centroids)[1]]
+        # two targets put on the same point: the later ones stay where they were
+        _, first = np.unique(moved, axis=0, return_index=True)
+        twin = np.ones(len(moved), dtype=bool)
+        twin[first] = False
+        moved[twin] = targets[twin]
+        if np.array_equal(moved, targets):
+            break
+        targets = moved
+    return targets
+
+
 def plan_probing(
     mesh: trimesh.Trimesh,
     n_points: int,
@@ -320,13 +377,17 @@ def plan_probing(
             )
     keep = reasons == ""
     pts, nrm = on_surface[keep], normals[keep]
-    if len(pts) > n_points and targets is not None and fill:
-        # More reachable than asked for: an even plan keeps an even spread of them.
+    if len(pts) >= n_points and targets is not None and fill:
+        # A filled even plan spreads its targets over the whole skin, the parts it cannot
+        # reach included (covered from their reachable side); a random one keeps the first.
         if mode == SamplingMode.EVEN.value:
             pick = np.sort(farthest_point_sampling(pts, n_points))
+            dense = sample_surface(mesh, COVER_SAMPLES_PER_TARGET * n_points, random_state)[0]
+            dense_on, _, dense_why = drawn(dense)
+            pts = even_cover(dense_on, dense_why == "", pts[pick])
+            nrm = drawn(pts)[1]
         else:
-            pick = np.arange(n_points)
-        pts, nrm = pts[pick], nrm[pick]
+            pts, nrm = pts[:n_points], nrm[:n_points]
     approach = pts + clearance_m * nrm
     order = short_path_order(approach) if len(pts) else np.zeros(0, dtype=int)
     return ProbePlan(

@@ -19,18 +19,30 @@ topic                       skinloc    the arm
                                        approach pose), then says ``lifted``
 ``stop``      std_msgs/Empty publishes halts now, backs off the skin, says ``stopped``;
                                        may come at any time, any number of times
+``press_force`` WrenchStamped publishes  before a press to a force: the goal (``force``:
+                                       the force the tip exerts on the skin, base frame,
+                                       N, along the press direction); the arm keeps it
+                                       for the next ``press`` only and says ``armed``
 ``tip``       PoseStamped   reads      where the tip really is at the bottom of the press
                                        (forward kinematics or tf of the tool frame)
-``state``     std_msgs/String reads    ``above``, ``pressed``, ``lifted``, ``stopped``, or
-                                       ``error: <why>`` (skinloc stops the session)
+``force``     WrenchStamped reads      after a press to a force: the force measured at
+                                       the bottom of the press (before ``pressed``)
+``state``     std_msgs/String reads    ``above``, ``armed``, ``pressed``, ``lifted``,
+                                       ``stopped``, or ``error: <why>`` (skinloc stops
+                                       the session)
 ==========================  =========  ==================================================
+
+A press to a force is ``press_force`` (answered ``armed``), then ``press`` with the pose
+``max_depth_m`` past the surface: the arm presses along its +z until the force reaches the
+goal and never past that pose, then sends ``tip``, ``force`` and ``pressed``. A goal over
+``max_force_n`` is refused before anything is published; a measured force over it stops the
+session (``ProbeSafetyError``).
 
 A MoveIt user wires ``approach`` to a planned move (``MoveGroupInterface.setPoseTarget``),
 ``press``/``lift`` to a Cartesian path (``computeCartesianPath``) and ``stop`` to the
 controller's stop; ``tip`` is the tool frame from tf. skinloc waits for each answer at most
 ``timeout_s``; no answer is a lost arm (``ProbeLinkError``), on which the session stops the
-probe (publishes ``stop``) and ends with a one-line error. The adapter presses to a depth; a
-press to a force is not in the contract (``ProbeError``).
+probe (publishes ``stop``) and ends with a one-line error.
 """
 
 from __future__ import annotations
@@ -42,14 +54,20 @@ from typing import Any
 
 import numpy as np
 
-from skinloc.calibration.probe import PressReport, ProbeError, ProbeLinkError, check_depth
+from skinloc.calibration.probe import (
+    PressReport,
+    ProbeError,
+    ProbeLinkError,
+    ProbeSafetyError,
+    check_depth,
+)
 
 __all__ = ["DEFAULT_PREFIX", "STATES", "Ros2Probe", "tool_orientation"]
 
 #: Topic prefix of the probe's contract.
 DEFAULT_PREFIX = "/skinloc/probe"
 #: The words the arm says on ``state`` (besides ``error: <why>``).
-STATES = ("above", "pressed", "lifted", "stopped")
+STATES = ("above", "armed", "pressed", "lifted", "stopped")
 #: How long ``stop`` waits for the arm's ``stopped``, s (it never raises).
 STOP_WAIT_S = 2.0
 
@@ -94,6 +112,10 @@ class Ros2Probe:
         Longest wait for the arm to appear (subscribed to ``approach``, publishing ``state``), s.
     max_depth_m : float
         Deepest press sent, m: a deeper one raises ``ProbeSafetyError`` before anything moves.
+        A press to a force goes no deeper either (its press pose is this depth).
+    max_force_n : float
+        Strongest press to a force sent, N (``ProbeSafetyError`` before anything moves); a
+        measured force over it raises ``ProbeSafetyError`` after the press.
 
     Raises
     ------
@@ -111,17 +133,19 @@ class Ros2Probe:
         timeout_s: float = 30.0,
         connect_timeout_s: float = 10.0,
         max_depth_m: float = 0.005,
+        max_force_n: float = 10.0,
     ) -> None:
         for name, v in (
             ("timeout_s", timeout_s),
             ("connect_timeout_s", connect_timeout_s),
             ("max_depth_m", max_depth_m),
+            ("max_force_n", max_force_n),
         ):
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be > 0, got {v!r}")
         try:
             import rclpy
-            from geometry_msgs.msg import PoseStamped
+            from geometry_msgs.msg import PoseStamped, WrenchStamped
             from rclpy.executors import SingleThreadedExecutor
             from rclpy.qos import QoSProfile, ReliabilityPolicy
             from std_msgs.msg import Empty, String
@@ -129,10 +153,12 @@ class Ros2Probe:
             raise ProbeError(f"--probe ros2 needs rclpy ({exc}): {_INSTALL}") from None
         self.frame_id, self.prefix = frame_id, prefix.rstrip("/")
         self.timeout_s, self.max_depth_m = float(timeout_s), float(max_depth_m)
-        self._PoseStamped, self._Empty = PoseStamped, Empty
+        self.max_force_n = float(max_force_n)
+        self._PoseStamped, self._Empty, self._WrenchStamped = PoseStamped, Empty, WrenchStamped
         self._cond = threading.Condition()
         self._states: list[str] = []  # every word heard since the last command
         self._tip: Any = None  # the last tip pose heard since the last press
+        self._force: Any = None  # the last measured force heard since the last press
         self._above: Any = None  # the last approach pose sent (the lift goes back there)
         self._closed = False
         self._context = rclpy.Context()
@@ -146,9 +172,11 @@ class Ros2Probe:
                 for name in ("approach", "press", "lift")
             }
             self._stop_pub = self.node.create_publisher(Empty, f"{p}/stop", qos)
+            self._force_pub = self.node.create_publisher(WrenchStamped, f"{p}/press_force", qos)
             self._subs = [
                 self.node.create_subscription(String, f"{p}/state", self._on_state, qos),
                 self.node.create_subscription(PoseStamped, f"{p}/tip", self._on_tip, qos),
+                self.node.create_subscription(WrenchStamped, f"{p}/force", self._on_force, qos),
             ]
             self._executor = SingleThreadedExecutor(context=self._context)
             self._executor.add_node(self.node)
@@ -176,6 +204,11 @@ class Ros2Probe:
     def _on_tip(self, msg: Any) -> None:
         with self._cond:
             self._tip = msg
+            self._cond.notify_all()
+
+    def _on_force(self, msg: Any) -> None:
+        with self._cond:
+            self._force = msg
             self._cond.notify_all()
 
     def _wait_for_arm(self, timeout_s: float) -> None:
@@ -213,8 +246,8 @@ class Ros2Probe:
         with self._cond:
             self._states.clear()
             if topic == "press":
-                self._tip = None
-        self._pub[topic].publish(msg)
+                self._tip = self._force = None
+        (self._force_pub if topic == "press_force" else self._pub[topic]).publish(msg)
         end = time.monotonic() + self.timeout_s
         with self._cond:
             while True:
@@ -246,31 +279,62 @@ class Ros2Probe:
         depth_m: float | None = None,
         force_n: float | None = None,
     ) -> PressReport:
-        """Publish the press pose, ``depth_m`` past ``target_m (3,)`` m along the direction.
+        """Press at ``target_m (3,)`` m along the direction, to ``depth_m`` or ``force_n``.
 
-        Waits for ``pressed``; the report's tip is the arm's ``tip`` pose (base frame, m).
+        To a depth: the press pose ``depth_m`` past the target. To a force: the goal on
+        ``press_force`` first (answered ``armed``), then the press pose ``max_depth_m`` past
+        the target, the deepest the arm may go. Waits for ``pressed``; the report's tip is the
+        arm's ``tip`` pose (base frame, m); to a force, its force is the arm's measured one and
+        its depth the measured tip's along the direction.
         """
-        if force_n is not None or depth_m is None:
-            raise ProbeError("the ROS 2 probe presses to a depth, not a force: give a depth")
-        check_depth(depth_m, self.max_depth_m)
+        if (depth_m is None) == (force_n is None):
+            raise ValueError("give the press as depth_m or force_n, one of them")
+        if depth_m is not None:
+            check_depth(depth_m, self.max_depth_m)
+        elif not (math.isfinite(force_n) and 0 < force_n <= self.max_force_n):
+            raise ProbeSafetyError(
+                f"press force {force_n:g} N is beyond the probe's limit of {self.max_force_n:g} N"
+            )
         if self._above is None:
             raise ProbeError("move above the target before pressing")
         d = np.asarray(press_direction, dtype=np.float64).reshape(3)
         d = d / np.linalg.norm(d)
-        goal = np.asarray(target_m, dtype=np.float64).reshape(3) + depth_m * d
-        self._send("press", self._pose(goal, d), "pressed")
-        with self._cond:  # the tip comes before 'pressed'; allow it a short lag on its topic
-            self._cond.wait_for(lambda: self._tip is not None, timeout=1.0)
-            tip = self._tip
-        if tip is None:
-            raise ProbeError(f"the arm said 'pressed' but sent no pose on {self.prefix}/tip")
-        if tip.header.frame_id and tip.header.frame_id != self.frame_id:
+        target = np.asarray(target_m, dtype=np.float64).reshape(3)
+        pose = self._pose(target + (self.max_depth_m if depth_m is None else depth_m) * d, d)
+        if force_n is not None:
+            goal = self._WrenchStamped()
+            goal.header = pose.header  # the same stamp: the goal of this press
+            f = goal.wrench.force
+            f.x, f.y, f.z = (float(v) for v in force_n * d)
+            self._send("press_force", goal, "armed")
+        self._send("press", pose, "pressed")
+        tip = self._answer("_tip", "pose", "tip")
+        p = tip.pose.position
+        tip_m = np.array([p.x, p.y, p.z], dtype=np.float64)
+        if depth_m is not None:
+            return PressReport(tip_m=tip_m, depth_m=depth_m)
+        measured = self._answer("_force", "force", "force").wrench.force
+        felt = float(np.linalg.norm([measured.x, measured.y, measured.z]))
+        if not (math.isfinite(felt) and felt <= self.max_force_n):
+            raise ProbeSafetyError(
+                f"the arm measured {felt:.3g} N on {self.prefix}/force, over the limit of "
+                f"{self.max_force_n:g} N"
+            )
+        return PressReport(tip_m=tip_m, depth_m=float((tip_m - target) @ d), force_n=felt)
+
+    def _answer(self, attr: str, what: str, topic: str) -> Any:
+        """The arm's message on ``topic`` for this press (it may lag 'pressed' a little)."""
+        with self._cond:
+            self._cond.wait_for(lambda: getattr(self, attr) is not None, timeout=1.0)
+            msg = getattr(self, attr)
+        if msg is None:
+            raise ProbeError(f"the arm said 'pressed' but sent no {what} on {self.prefix}/{topic}")
+        if msg.header.frame_id and msg.header.frame_id != self.frame_id:
             raise ProbeError(
-                f"the arm's tip pose is in frame {tip.header.frame_id!r}, not the base frame "
+                f"the arm's {topic} is in frame {msg.header.frame_id!r}, not the base frame "
                 f"{self.frame_id!r}"
             )
-        p = tip.pose.position
-        return PressReport(tip_m=np.array([p.x, p.y, p.z], dtype=np.float64), depth_m=depth_m)
+        return msg
 
     def lift(self) -> None:
         """Publish the lift pose (the approach pose again) and wait for ``lifted``."""

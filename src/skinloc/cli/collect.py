@@ -157,11 +157,18 @@ def register(app: typer.Typer) -> None:
             float, typer.Option(min=0, help="--probe sim: the tip's position error per axis, mm.")
         ] = 0.5,
         press_depth_mm: Annotated[
-            float, typer.Option(min=0.01, help="--probe: press depth past the surface, mm.")
-        ] = 2.0,
+            str,
+            typer.Option(
+                help="--probe: press depth past the surface, mm; several (0.5,1,2): each "
+                "target pressed at each, every press its own touch."
+            ),
+        ] = "2",
         press_force_n: Annotated[
-            float | None,
-            typer.Option(min=0.01, help="--probe: press to this force, N, instead of a depth."),
+            str | None,
+            typer.Option(
+                help="--probe: press to this force, N, instead of a depth; several (1,2,4) "
+                "as for --press-depth-mm."
+            ),
         ] = None,
         max_depth_mm: Annotated[
             float, typer.Option(min=0.01, help="--probe: deepest press allowed, mm.")

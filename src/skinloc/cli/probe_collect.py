@@ -24,7 +24,7 @@ import numpy as np
 
 from skinloc.cli.common import console, progress_steps
 
-__all__ = ["ProbeChoice", "ProbeOptions", "collect_with_probe"]
+__all__ = ["ProbeChoice", "ProbeOptions", "collect_with_probe", "press_levels"]
 
 
 class ProbeChoice(StrEnum):
@@ -40,8 +40,8 @@ class ProbeOptions:
 
     probe: ProbeChoice
     error_mm: float = 0.5
-    depth_mm: float | None = 2.0
-    force_n: float | None = None
+    depth_mm: str | float | None = "2"
+    force_n: str | float | None = None
     max_depth_mm: float = 5.0
     max_force_n: float = 10.0
     clearance_mm: float = 10.0
@@ -79,19 +79,52 @@ def _pose(opts: ProbeOptions):
     return SkinPose(translation, rotation, frame)
 
 
-def _settings(opts: ProbeOptions):
+def press_levels(text: str | float, option: str) -> tuple[float, ...]:
+    """The press levels of ``option``: one number or several separated by commas, each > 0.
+
+    Raises a one-line ``ValueError`` naming ``option`` otherwise (a repeated level too).
+    """
+    try:
+        levels = tuple(float(x) for x in str(text).split(","))
+    except ValueError:
+        levels = ()
+    if not levels or not all(math.isfinite(v) and v > 0 for v in levels):
+        raise ValueError(
+            f"{option} must be one number > 0 or several separated by commas (0.5,1,2), "
+            f"got {text!r}"
+        )
+    if len(set(levels)) != len(levels):
+        raise ValueError(f"{option} names a level twice: {text!r}")
+    return levels
+
+
+def _presses(opts: ProbeOptions) -> list:
+    """One ``ProbeSettings`` per press level of a target, each checked against the limits."""
     from skinloc.calibration.probe import ProbeSettings, check_press
 
-    depth = None if opts.force_n is not None else opts.depth_mm
-    settings = ProbeSettings(
-        depth_m=None if depth is None else depth * 1e-3,
-        force_n=opts.force_n,
-        max_depth_m=opts.max_depth_mm * 1e-3,
-        max_force_n=opts.max_force_n,
-        clearance_m=opts.clearance_mm * 1e-3,
-    )
-    check_press(settings)  # a press beyond the limits is refused before anything moves
-    return settings
+    if opts.force_n is not None:
+        levels = [{"force_n": f} for f in press_levels(opts.force_n, "--press-force-n")]
+    else:
+        depths = press_levels(2.0 if opts.depth_mm is None else opts.depth_mm, "--press-depth-mm")
+        levels = [{"depth_m": d * 1e-3, "force_n": None} for d in depths]
+    presses = []
+    for level in levels:
+        settings = ProbeSettings(
+            **{"depth_m": None, **level},
+            max_depth_m=opts.max_depth_mm * 1e-3,
+            max_force_n=opts.max_force_n,
+            clearance_m=opts.clearance_mm * 1e-3,
+        )
+        check_press(settings)  # a press beyond the limits is refused before anything moves
+        presses.append(settings)
+    return presses
+
+
+def _levels_text(presses: list) -> str:
+    """``0.5, 1, 2 mm`` or ``1, 2 N``: a target's press levels, for the plan's line."""
+    if presses[0].force_n is not None:
+        return ", ".join(f"{p.force_n:g}" for p in presses) + " N"
+    return ", ".join(f"{1e3 * p.depth_m:g}" for p in presses) + " mm"
 
 
 def collect_with_probe(
@@ -147,18 +180,21 @@ def collect_with_probe(
             tuple(saved["pose"]["rotation_xyzw"]),
             saved["pose"]["parent_frame"],
         )
-        settings = ProbeSettings(**saved["settings"])
-        check_press(settings)
+        presses = [ProbeSettings(**p) for p in saved.get("presses", [saved["settings"]])]
+        for settings in presses:
+            check_press(settings)
         error_m, dwell_s, skin_seed = saved["error_m"], saved["dwell_s"], saved["skin_seed"]
         seed = int(rec.meta.get("session", {}).get("random_state", seed))
         tx, rx = rec.n_tx, rec.n_rx
     else:
         if mode not in PLAN_MODES:
             raise ValueError("--probe plans its targets up front: --mode must be even or random")
-        pose, settings = _pose(opts), _settings(opts)
+        pose, presses = _pose(opts), _presses(opts)
         error_m, dwell_s, skin_seed = opts.error_mm * 1e-3, opts.dwell_s, opts.skin_seed
         if not (math.isfinite(error_m) and error_m >= 0):
             raise ValueError(f"--probe-error-mm must be >= 0, got {opts.error_mm!r}")
+    settings = presses[0]  # the first press level: its limits and clearance are every level's
+    n_levels = len(presses)
     ros2 = opts.probe is ProbeChoice.ros2
     if ros2:
         if open_source is None:
@@ -176,6 +212,7 @@ def collect_with_probe(
                 timeout_s=opts.timeout_s,
                 connect_timeout_s=opts.timeout_s,
                 max_depth_m=settings.max_depth_m,
+                max_force_n=settings.max_force_n,
             )
             stack.callback(probe.close)
         stack.enter_context(skin)
@@ -216,9 +253,15 @@ def collect_with_probe(
                 f"Plan: {len(plan)} of {n_points} targets, drawn from {plan.n_drawn}"
                 + (f" (left out as unreachable: {left})" if left else "")
                 + f"; path {plan.path_length_m:.2f} m above the skin"
+                + (
+                    f"; each pressed at {n_levels} levels ({_levels_text(presses)}), "
+                    f"{n_levels * len(plan)} touches"
+                    if n_levels > 1
+                    else ""
+                )
             )
             cfg = SessionConfig(
-                n_points=len(plan),
+                n_points=n_levels * len(plan),
                 mode=mode,
                 random_state=seed,
                 description=(
@@ -233,7 +276,8 @@ def collect_with_probe(
                 surface,
                 out,
                 cfg,
-                targets=plan.targets_m,
+                # each target once per press level, one after the other (no travel between)
+                targets=np.repeat(plan.targets_m, n_levels, axis=0),
                 source_name=skin.name if ros2 else "sim",
             )
         n_targets = len(session.targets)
@@ -255,7 +299,7 @@ def collect_with_probe(
                 session.detector = TouchDetector(
                     frames.mean(axis=0), frames.std(axis=0), session.config.threshold_sigma
                 )
-                n = probe_dry_run(session, probe, settings, pose)
+                n = probe_dry_run(session, probe, settings, pose) // n_levels
                 console.print(f"Dry run: moved above {n} targets, pressed none; nothing written")
                 return
             if session.recording is None:
@@ -272,6 +316,8 @@ def collect_with_probe(
                         "dwell_s": None if ros2 else dwell_s,
                         "skin_seed": None if ros2 else skin_seed,
                         "settings": settings.as_meta(),
+                        # the press levels of each target, in order (touch i: i % len)
+                        "presses": [p.as_meta() for p in presses],
                         "pose": {
                             "translation_m": list(pose.translation_m),
                             "rotation_xyzw": list(pose.rotation_xyzw),
@@ -289,7 +335,8 @@ def collect_with_probe(
             )
             with progress_steps() as step:
                 while session.n_done < stop_at:
-                    record_probe_point(session, session.n_done, probe, settings, pose)
+                    i = session.n_done
+                    record_probe_point(session, i, probe, presses[i % n_levels], pose)
                     step("probed touches", session.n_done, n_targets)
         except KeyboardInterrupt:
             raise Interrupted(

@@ -14,7 +14,7 @@ pytest.importorskip("uvicorn")
 
 from skinloc.evaluation.scoring import train_localizer  # noqa: E402
 from skinloc.sources.base import SourceOptions  # noqa: E402
-from tests.app._app import ms, open_browser, watch  # noqa: E402
+from tests.app._app import ARTIFACTS, ms, open_browser, settle, watch  # noqa: E402
 from tests.conftest import make_recording  # noqa: E402
 
 
@@ -46,4 +46,7 @@ def test_recalibrate_tab_picks_a_model_and_shows_before_and_after(chromium, serv
         name = page.inner_text(".recal-file")
         assert name.startswith("model-recalibrated-") and (old.parent / name).is_file()
         assert chart.locator("circle").count() == 3  # each new touch's error before
+        ARTIFACTS.mkdir(parents=True, exist_ok=True)
+        settle(page)
+        page.screenshot(path=str(ARTIFACTS / "recalibrate.png"), full_page=True)
     assert not errors, errors

@@ -44,7 +44,7 @@ SECTION = """
     <button class="recal-skip">Skip</button>
     <button class="recal-stop">Stop</button>
   </div>
-  <div class="recal-guide big-state"></div>
+  <div class="recal-guide hint"></div>
   <div class="recal-result"></div>
 </div>
 <div class="viewer-slot" data-for="recalibrate"></div>

@@ -18,7 +18,7 @@ async function post(path, body) {
     const d = data?.detail;
     const text = typeof d === "string" ? d : `HTTP ${r.status}`;
     $(".recal-guide").textContent = text;
-    $(".recal-guide").className = "recal-guide big-state error";
+    $(".recal-guide").className = "recal-guide error";
     throw new Error(text);
   }
   return data;
@@ -48,7 +48,8 @@ function chart(r) {
     ? `<text x="${x0 + 40 + i * 140}" y="${base - 4}" class="hint">n/a</text><text x="${x0 + 40 + i * 140}" y="${H - 6}">${label}</text>`
     : `<rect class="${cls}" x="${x0 + 20 + i * 140}" y="${y(v)}" width="80" height="${base - y(v)}"></rect>`
       + `<text x="${x0 + 30 + i * 140}" y="${y(v) - 4}">${v.toFixed(1)} mm</text><text x="${x0 + 20 + i * 140}" y="${H - 6}">${label}</text>`;
-  const pts = dots.map((v, i) => `<circle cx="${x0 + 30 + (60 * (i + 0.5)) / dots.length}" cy="${y(v)}" r="2.5" class="touch-dot"></circle>`).join("");
+  // each touch a dot in a strip right of the "before" bar (off its label)
+  const pts = dots.map((v, i) => `<circle cx="${x0 + 106 + (24 * (i + 0.5)) / dots.length}" cy="${y(v)}" r="2.5" class="touch-dot"></circle>`).join("");
   const ticks = [0, top / 2, top].map((v) => `<text x="4" y="${y(v) + 4}">${v.toFixed(0)}</text>`).join("");
   return `<svg class="recal-chart" viewBox="0 0 ${W} ${H}" width="${W}" height="${H}" role="img" aria-label="error before and after, mm">
     <line x1="${x0}" y1="${base}" x2="${W}" y2="${base}" stroke="currentColor"></line>${ticks}
@@ -84,7 +85,8 @@ function renderGuide(st) {
   } else {
     g.textContent = st.message || "";
   }
-  g.className = "recal-guide big-state";
+  // the prompt big while a capture runs; the app's message line, as a hint, otherwise
+  g.className = ["recalibrate", "baseline"].includes(st.mode) ? "recal-guide big-state" : "recal-guide hint";
   const busy = ["recalibrate", "baseline"].includes(st.mode) || st.job?.running;
   $(".recal-start").disabled = !!busy;
   for (const b of [".recal-now", ".recal-undo", ".recal-skip", ".recal-stop"]) $(b).disabled = st.mode !== "recalibrate";

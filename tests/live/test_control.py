@@ -205,3 +205,26 @@ def test_a_ros2_node_name_follows_ros_naming_rules(name):
     with pytest.raises(ValueError, match="node name"):
         Ros2Sink(name)
     assert Ros2Sink("skinloc_2").node_name == "skinloc_2"
+
+
+def test_a_tare_is_the_baseline_only_recalibration():
+    """k = 0: the recalibration keeps the model; the tare's baseline is the capture's mean."""
+    from skinloc.evaluation.recalibration import recalibrate
+    from skinloc.models.localizer import ContactLocalizer
+    from tests.conftest import make_recording
+
+    rng = np.random.default_rng(1)
+    old = ContactLocalizer.load(model_path("map"))
+    capture = make_recording(2, 4, random_state=3).subset(np.array([], dtype=int))
+    capture.baseline_frames = _frames(20, rng, level=8030.0).astype(np.float32)
+    done = recalibrate(old, [capture])
+    assert done.report.n_touches == 0 and done.report.method == "old map"
+    X = _frames(5, rng, touch=400.0) - 8000.0
+    np.testing.assert_allclose(done.model.predict(X), old.predict(X))
+    # the same frames as a tare on the node: the same fresh baseline as the recording's
+    core = _core(baseline_frames=20, max_contacts=1)
+    _feed(core, _frames(20, rng))
+    core.tare()
+    _feed(core, capture.baseline_frames, 20)
+    assert core.calibrated and not core.taring
+    np.testing.assert_allclose(core.baseline, capture.baseline, rtol=1e-9)

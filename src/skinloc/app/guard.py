@@ -20,7 +20,7 @@ TOKEN_HEADER = "X-Skinloc-Token"
 #: Requests that change nothing; every other method needs the token.
 SAFE_METHODS = frozenset({"GET", "HEAD"})
 #: Endpoints whose body is a file, not JSON.
-RAW_BODY_PATHS = frozenset({"/api/meshes"})
+RAW_BODY_PATHS = frozenset({"/api/meshes", "/api/recalibrate/models"})
 
 
 class RequestGuard:

@@ -35,6 +35,7 @@ from skinloc.app.routes import (
     export,
     meshes,
     pages,
+    recalibrate,
     record,
     sessions,
     settings,
@@ -127,6 +128,15 @@ def builtin_pages() -> tuple[AppPage, ...]:
         AppPage("traces", traces.add_routes),
         AppPage("settings", settings.add_routes),
         AppPage("stream", stream.add_routes),  # `/ws`
+        # a tab of its own, not in index.html: its section and script are its own
+        AppPage(
+            "recalibrate",
+            recalibrate.add_routes,
+            title="Recalibrate",
+            section=recalibrate.SECTION,
+            static=recalibrate.STATIC,
+            scripts=("recalibrate.js",),
+        ),
     )
 
 

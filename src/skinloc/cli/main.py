@@ -308,7 +308,8 @@ def train(
     skinloc train today.h5 --init model.h5 --out model-today.h5;
     skinloc train a.h5 b.h5 --select 20 --strategy active --out model-20.h5
     """
-    from skinloc.evaluation.scoring import recalibrate_localizer, train_localizer
+    from skinloc.evaluation.recalibration import recalibrate
+    from skinloc.evaluation.scoring import train_localizer
     from skinloc.geometry.mesh import load_mesh
     from skinloc.models.localizer import ContactLocalizer
 
@@ -343,15 +344,15 @@ def train(
     if init is not None:
         old = ContactLocalizer.load(init)
         with progress_steps() as step:
-            model = recalibrate_localizer(
-                old, recs, progress=lambda d, t: step("recalibrating", d, t)
-            )
+            done = recalibrate(old, recs, progress=lambda d, t: step("recalibrating", d, t))
+        model = done.model
         model.save(out)
         console.print(
             f"Recalibrated {init} with {n_logs} point logs in {model.fit_time_s_:.1f} s; "
             f"wrote {out}"
         )
-        console.print(f"Recalibration: {model.recalibration_['summary']}", highlight=False)
+        for line in done.report.lines():
+            console.print(line, highlight=False)
         return
     surface = load_mesh(mesh, units.value) if mesh is not None else None
     overrides: dict = {"epochs": epochs} if epochs is not None else {}

@@ -16,7 +16,6 @@ __all__ = [
     "check_compatible",
     "evaluate",
     "prior_curve",
-    "recalibrate_localizer",
     "train_localizer",
     "training_arrays",
 ]
@@ -179,32 +178,6 @@ def train_localizer(
         "n_rx": first.n_rx,
     }
     return model
-
-
-def recalibrate_localizer(model, recordings: Sequence[Recording], *, progress=None):
-    """Adapt a trained model to new recordings of the same skin (``ContactLocalizer.recalibrate``).
-
-    Each recording's frames are taken against its own (fresh) baseline, so a moved baseline
-    is absorbed here; the model then keeps, corrects or replaces its response as the new
-    touches show (``ContactLocalizer.recalibrate``). Recordings without point logs (a baseline
-    capture) give the model unchanged. The decision is in ``training_meta_["recalibration"]``.
-    """
-    n = check_compatible(recordings, getattr(model, "n_features_in_", None), touches=False)
-    check_same_skin(model, recordings)
-    touched = [r for r in recordings if r.n_point_logs]
-    if touched:
-        X, y, groups = training_arrays(touched)
-    else:  # a baseline capture only
-        X, y, groups = np.zeros((0, n)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
-    new = model.recalibrate(X, y, groups=groups, progress=progress)
-    previous = getattr(model, "meta_", {}).get("training") or getattr(model, "training_meta_", {})
-    new.training_meta_ = {
-        "recalibrated_from": previous,
-        "n_recordings": len(recordings),
-        "n_point_logs": int(sum(r.n_point_logs for r in recordings)),
-        "recalibration": new.recalibration_,
-    }
-    return new
 
 
 def prior_curve(

@@ -94,3 +94,12 @@ class SettingsBody(BaseModel):
     """``POST /api/live/settings``: the live pipeline's settings to change, by name."""
 
     values: dict[str, bool | int | float | str] = Field(max_length=50)
+
+
+class RecalibrateBody(BaseModel):
+    """``POST /api/recalibrate/start``: the model (a session's or an uploaded file's), k."""
+
+    session: str | None = Field(None, max_length=200)
+    file: str | None = Field(None, max_length=200)
+    k: int = Field(10, ge=0, le=50)
+    strategy: Literal["active", "random"] = "active"

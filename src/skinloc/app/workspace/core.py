@@ -23,10 +23,11 @@ from skinloc.app.workspace.finger import FingerActions
 from skinloc.app.workspace.guided import GuidedCapture
 from skinloc.app.workspace.link import LinkActions
 from skinloc.app.workspace.live import LiveView
+from skinloc.app.workspace.recalibration import RecalibrationFlow
 from skinloc.app.workspace.record import LiveRecording
 from skinloc.app.workspace.sessions import SessionActions
 from skinloc.app.workspace.settings import LiveSettings
-from skinloc.app.workspace.state import AppConfig, BusyError, Mode
+from skinloc.app.workspace.state import GUIDED_MODES, AppConfig, BusyError
 from skinloc.app.workspace.traces import TraceViews
 from skinloc.app.workspace.training import TrainingJobs
 from skinloc.app.workspace.validation import ValidationActions
@@ -40,6 +41,7 @@ class Workspace(
     GuidedCapture,
     FingerActions,
     ValidationActions,
+    RecalibrationFlow,
     TrainingJobs,
     LiveView,
     ExportFiles,
@@ -131,7 +133,7 @@ class Workspace(
         with self._lock:
             a = self.active
             guided = None
-            if self.mode in (Mode.CALIBRATE, Mode.VALIDATE) and a is not None:
+            if self.mode in GUIDED_MODES and a is not None:
                 sess = self._session_of(self.mode)
                 number, attempt = self.prompt_number(sess)
                 guided = {

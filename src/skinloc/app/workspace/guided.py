@@ -16,6 +16,8 @@ from skinloc.app.capture import (
 from skinloc.app.device import DeviceLink
 from skinloc.app.hub import Hub
 from skinloc.app.workspace.state import (
+    CAPTURED,
+    GUIDED_MODES,
     ActiveSession,
     AppConfig,
     Mode,
@@ -148,23 +150,26 @@ class GuidedCapture(WorkspaceState):
 
     def _session_of(self, mode: Mode) -> CalibrationSession:
         a = self._need_session()
-        sess = a.cal if mode is Mode.CALIBRATE else a.val
+        sess = {Mode.CALIBRATE: a.cal, Mode.VALIDATE: a.val, Mode.RECALIBRATE: a.recal}.get(mode)
         if sess is None or sess.recording is None:
-            raise ValueError("nothing to capture: start calibrating or validating first")
+            raise ValueError(
+                "nothing to capture: start calibrating, validating or recalibrating first"
+            )
         return sess
 
     def _guided(self) -> CalibrationSession:
-        if self.mode not in (Mode.CALIBRATE, Mode.VALIDATE):
-            raise ValueError("not calibrating or validating now")
+        if self.mode not in GUIDED_MODES:
+            raise ValueError("not calibrating, validating or recalibrating now")
         return self._session_of(self.mode)
 
     def _finish(self, mode: Mode) -> None:
         self.mode = Mode.IDLE
         self._stop_using_frames()
-        what = "calibration" if mode is Mode.CALIBRATE else "validation"
-        self.message = f"{what} complete"
+        self.message = f"{CAPTURED[mode]} complete"
         if mode is Mode.VALIDATE:
             self._summarise_validation()
+        if mode is Mode.RECALIBRATE:
+            self._recalibration_done()
 
     def stop(self) -> None:
         """Pause guided capture or live view (everything recorded is saved)."""
@@ -185,7 +190,7 @@ class GuidedCapture(WorkspaceState):
     def undo(self) -> None:
         """Take back the last touch (kept in history.h5) and prompt its target again."""
         with self._lock:
-            sess = self._guided() if self.mode in (Mode.CALIBRATE, Mode.VALIDATE) else None
+            sess = self._guided() if self.mode in GUIDED_MODES else None
             if sess is None:
                 sess = self._session_of(Mode.CALIBRATE)
             rec = sess.recording
@@ -248,7 +253,13 @@ class GuidedCapture(WorkspaceState):
         arrays = {"target": rec.targets[index], "frames": rec.frames[index]}
         if rec.frame_times is not None:
             arrays["frame_times"] = rec.frame_times[index]
-        which = "validation" if sess is a.val else "calibration"
+        which = (
+            "validation"
+            if sess is a.val
+            else CAPTURED[Mode.RECALIBRATE]
+            if sess is a.recal
+            else ("calibration")
+        )
         fill_per_touch(rec)
         number, attempt = touch_numbers(rec)[index]
         # The history first: the touch must exist somewhere at every instant.
@@ -373,7 +384,7 @@ class GuidedCapture(WorkspaceState):
         if self._finger is not None and self._finger_down:
             self._finger.captured(index)
             self._finger_down = False
-        what = "validation" if self.mode is Mode.VALIDATE else "calibration"
+        what = CAPTURED[self.mode]
         self.hub.publish({"type": "touch", "recording": what, "index": index, "flags": flags})
         if self.mode is Mode.CALIBRATE:
             self._update_session_snr()

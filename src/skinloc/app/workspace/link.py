@@ -15,7 +15,7 @@ import numpy as np
 from skinloc.app.capture import CapturePhase
 from skinloc.app.device import DeviceLink, SensorMonitor
 from skinloc.app.hub import Hub
-from skinloc.app.workspace.state import AppConfig, Mode, WorkspaceState
+from skinloc.app.workspace.state import CAPTURED, GUIDED_MODES, AppConfig, Mode, WorkspaceState
 from skinloc.data.recording import read_recording
 from skinloc.errors import RecordingError
 from skinloc.geometry.mesh import nearest_on_surface
@@ -108,8 +108,8 @@ class LinkActions(WorkspaceState):
     def _what_stops(self) -> str:
         """What closing the skin now stops, and what of it is kept (for the message)."""
         parts = []
-        if self.mode in (Mode.CALIBRATE, Mode.VALIDATE) and self.active is not None:
-            what = "calibration" if self.mode is Mode.CALIBRATE else "validation"
+        if self.mode in GUIDED_MODES and self.active is not None:
+            what = CAPTURED[self.mode]
             sess = self._session_of(self.mode)
             n = sess.n_done
             parts.append(
@@ -225,7 +225,7 @@ class LinkActions(WorkspaceState):
             now = time.monotonic()
             mode = self.mode
             event = None
-            if mode in (Mode.CALIBRATE, Mode.VALIDATE) and self.capture is not None:
+            if mode in GUIDED_MODES and self.capture is not None:
                 event = self._guided_frame(frame, now)
             elif mode is Mode.LIVE:
                 self._live_frame(frame)
@@ -280,7 +280,7 @@ class LinkActions(WorkspaceState):
         """
         if self.mode is Mode.LIVE and self._live_base is not None:
             return self._live_base
-        if self.detector is not None and self.mode in (Mode.CALIBRATE, Mode.VALIDATE):
+        if self.detector is not None and self.mode in GUIDED_MODES:
             return self.detector.baseline
         return None if self.device is None else self.device.monitor.zero
 

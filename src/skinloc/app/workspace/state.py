@@ -29,6 +29,8 @@ from skinloc.geometry.mesh import cone_skin
 __all__ = [
     "ActiveSession",
     "AppConfig",
+    "CAPTURED",
+    "GUIDED_MODES",
     "BusyError",
     "Mode",
     "WorkspaceState",
@@ -50,7 +52,18 @@ class Mode(StrEnum):
     BASELINE = "baseline"  # a baseline capture is running
     CALIBRATE = "calibrate"
     VALIDATE = "validate"
+    RECALIBRATE = "recalibrate"
     LIVE = "live"
+
+
+#: The modes of guided capture (a touch at each planned target, ``workspace.guided``).
+GUIDED_MODES = (Mode.CALIBRATE, Mode.VALIDATE, Mode.RECALIBRATE)
+#: What each mode of guided capture records.
+CAPTURED = {
+    Mode.CALIBRATE: "calibration",
+    Mode.VALIDATE: "validation",
+    Mode.RECALIBRATE: "recalibration",
+}
 
 
 @dataclass
@@ -101,6 +114,10 @@ class ActiveSession:
     cal: CalibrationSession | None = None
     val: CalibrationSession | None = None
     model: Any = None
+    #: the Recalibrate page's touches, and the model they recalibrate (``model``, ``path``,
+    #: ``name``, ``strategy``)
+    recal: CalibrationSession | None = None
+    recal_from: dict[str, Any] | None = None
 
 
 class WorkspaceState:

@@ -62,18 +62,23 @@ def _stop_on_signals(runner: Any) -> dict[int, Any]:
 
 
 def _check_sources(skin_cfgs: list[Any], allow_url: bool, wait: bool) -> None:
-    """Refuse a port that is a pyserial URL (without ``--allow-url``) or not a serial device.
+    """Refuse, before the models load, a source whose extra is missing or a bad serial port.
+
+    A serial port is refused when it is a pyserial URL (without ``--allow-url``) or not a
+    serial device.
 
     A port that does not exist yet is let through to the runner, which waits for it, unless
     ``--no-wait`` (``wait`` False) or the skin's own ``wait = false`` says to fail at once;
     every skin leaves with ``wait`` set.
     """
     from skinloc.hardware.ports import PortMissingError, check_source
-    from skinloc.sources.base import SourceKind, source_kind
+    from skinloc.sources.base import SourceKind, check_source_extras, source_kind
 
     for skin_cfg in skin_cfgs:
         skin_cfg.wait = wait and skin_cfg.wait is not False
         src = skin_cfg.source
+        if isinstance(src, str):
+            check_source_extras(src)
         if isinstance(src, str) and source_kind(src) is SourceKind.SERIAL:
             try:
                 check_source(src, allow_urls=allow_url, allow_sim=False, opt_in="pass --allow-url")

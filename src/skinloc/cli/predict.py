@@ -122,8 +122,8 @@ def register(app: typer.Typer) -> None:
         if out is not None:
             check_output(out, option="--out", inputs=[model, data], force=force)
         loc = ContactLocalizer.load(model)
+        X = read_input(data, loc.n_features_in_)  # before the kernels compile: bad input at once
         engine = loc.engine().warm_up()
-        X = read_input(data, engine.n_features)
         if out is None:
             write_contacts(engine, X, max_contacts, sys.stdout)
             return

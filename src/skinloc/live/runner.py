@@ -112,6 +112,10 @@ class Runner:
         self.skins = list(skins)
         self.callback = callback
         self.gesture_callback = gesture_callback
+        # The sinks first: a spec they refuse (a bad port, a host that does not resolve) fails
+        # before the models load (a fresh install compiles the engines' kernels there, ~25 s).
+        self.global_sinks = [make_sink(s) for s in sinks]
+        self.skin_sinks = [[make_sink(s) for s in skin.sinks] for skin in self.skins]
         models: dict[str, Any] = {}
         self.cores: list[SkinCore] = []
         for skin in self.skins:
@@ -136,8 +140,6 @@ class Runner:
 
                 core.set_baseline(read_recording(skin.baseline).baseline_frames)
             self.cores.append(core)
-        self.global_sinks = [make_sink(s) for s in sinks]
-        self.skin_sinks = [[make_sink(s) for s in skin.sinks] for skin in self.skins]
         # what keeps the loop going (skinloc.live.guard): per skin, its frames' errors; per
         # skin and sink, the route's failures and back-off (a sink's log is shared by its skins)
         self.frame_errors = [

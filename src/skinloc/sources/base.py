@@ -16,12 +16,20 @@ from typing import Any
 
 import numpy as np
 
-from skinloc._lazy import resolve
+from skinloc._lazy import require_extra, resolve
 from skinloc.errors import SkinlocError, SourceAlreadyConnectedError, SourceNotConnectedError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Frame", "FrameSource", "SourceKind", "SourceOptions", "make_source", "source_kind"]
+__all__ = [
+    "Frame",
+    "FrameSource",
+    "SourceKind",
+    "SourceOptions",
+    "check_source_extras",
+    "make_source",
+    "source_kind",
+]
 
 
 @dataclass(frozen=True)
@@ -218,6 +226,22 @@ _BACKENDS: dict[SourceKind, str] = {
     SourceKind.REPLAY: "skinloc.sources.replay:ReplaySource.from_options",
     SourceKind.BAG: "skinloc.sources.mcap_ros2:McapReplaySource.from_options",
 }
+
+#: The optional modules each kind's backend imports (the bag: its reader and the CDR types).
+_REQUIRES: dict[SourceKind, tuple[str, ...]] = {
+    SourceKind.BAG: ("mcap.reader", "cyclonedds.idl"),
+}
+
+
+def check_source_extras(source: str) -> None:
+    """A one-line ``MissingExtraError`` when ``source``'s backend needs a missing extra.
+
+    Commands call it before they load a model (a fresh install compiles the engine's kernels
+    there), so that a source that cannot be read is refused at once.
+    """
+    kind = source_kind(source)
+    for module in _REQUIRES.get(kind, ()):
+        require_extra(module, f"the {kind.value} source")
 
 
 def make_source(options: SourceOptions, *, mesh: Any = None) -> FrameSource:

@@ -30,8 +30,14 @@ class UdpSink(Sink):
 
     @classmethod
     def from_spec(cls, spec: SinkSpec) -> UdpSink:
-        """``udp[://HOST][:PORT]``: datagrams to HOST (127.0.0.1) and PORT (9870)."""
-        return cls(*spec.address(DEFAULT_PORT))
+        """``udp[://HOST][:PORT]``: datagrams to HOST (127.0.0.1) and PORT (9870).
+
+        The host is resolved here, so that a name that does not resolve is refused before a
+        command loads its model.
+        """
+        sink = cls(*spec.address(DEFAULT_PORT))
+        sink.resolve()
+        return sink
 
     def __init__(self, host: str = "127.0.0.1", port: int = 9870) -> None:
         if not 0 < int(port) < 65536:
@@ -39,26 +45,32 @@ class UdpSink(Sink):
         self.address = (host, int(port))
         self._sock: socket.socket | None = None
         self._target: Any = None  # the resolved address
+        self._family = socket.AF_INET
         self.n_sent = 0
         self.n_errors = 0
 
-    def open(self, skins: list) -> None:
-        """Resolve the host once (a name that does not resolve is refused) and create the socket.
+    def resolve(self) -> None:
+        """Resolve the host once (kept for every datagram).
 
         Raises
         ------
         OSError
             Naming the host, when it does not resolve.
         """
-        if self._sock is None:
+        if self._target is None:
             host, port = self.address
             try:
                 family, _, _, _, target = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)[0]
             except socket.gaierror as exc:
                 why = f"cannot resolve {host} ({exc.strerror})"
                 raise OSError(f"UDP sink {host}:{port}: {why}") from None
-            self._target = target
-            self._sock = socket.socket(family, socket.SOCK_DGRAM)
+            self._family, self._target = family, target
+
+    def open(self, skins: list) -> None:
+        """Resolve the host (``resolve``) and create the socket."""
+        if self._sock is None:
+            self.resolve()
+            self._sock = socket.socket(self._family, socket.SOCK_DGRAM)
             self._sock.setblocking(False)
 
     def emit(self, contact: Contact) -> None:

@@ -431,7 +431,8 @@ def test_every_tab_is_told_when_the_link_drops_and_comes_back(tmp_path):
                     )
                     assert "link back" in back["message"]
                 state = client.get("/api/state").json()["device"]
-                assert state["link_losses"] == 1 and state["reconnects"] >= 1
+                # >= 1: on a loaded machine the reopened link may also stall past the limit
+                assert state["link_losses"] >= 1 and state["reconnects"] >= 1
     finally:
         dev.stop()
 

@@ -92,7 +92,8 @@ def test_runner_on_a_virtual_skin_port_reconnects():
 
     faults = FaultConfig(0, 0, 0, 0, disconnect_every_s=0.8, downtime_s=0.2)
     with VirtualSkin(fmt="binary", rate_hz=200, faults=faults) as dev:
-        spec = SkinConfig(model=model_path("map"), source=dev.path, wire_format="binary")
+        # wait: the port is down a fifth of the time, and a loaded machine may open it then
+        spec = SkinConfig(model=model_path("map"), source=dev.path, wire_format="binary", wait=True)
         sink = ListSink()
         runner = Runner([spec], sinks=[sink])
         runner.start()

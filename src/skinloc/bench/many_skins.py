@@ -61,7 +61,14 @@ def _feeder(conn: Any, n_skins: int, rate_hz: float, duration_s: float, frames: 
         except OSError:
             failed += 1
     time.sleep(0.5)
-    conn.send({"written": written.tolist(), "late_over_2ms": late, "write_errors": failed})
+    conn.send(
+        {
+            "written": written.tolist(),
+            "late_over_2ms": late,
+            "write_errors": failed,
+            "cpu_s": time.process_time(),  # the feeder's share of the cores
+        }
+    )
     conn.recv()
     for m in masters:
         os.close(m)
@@ -81,12 +88,14 @@ def _shard(
     start: Callable[[], float],
     worker: int = 0,
     backend: str = "dds",
+    profile_path: str | None = None,
 ) -> dict:
     """One ``Runner`` over the skins ``first .. first + len(names) - 1`` (their ptys ``names``).
 
     ``start()`` is called once every port is open and returns the feeder's start time
     (``time.monotonic`` s; the clock is the machine's, shared by processes). Returns the
     contacts' latencies (s), the runner's and the sinks' statistics and the loop's CPU.
+    ``profile_path``: cProfile the loop (in thread CPU time) and write its stats there.
     """
     from skinloc.live.core import PipelineConfig
     from skinloc.live.runner import Runner, SkinConfig
@@ -133,11 +142,22 @@ def _shard(
     end = t0 + duration_s + 1.0
     # CPU of the loop thread and of the whole process (Cyclone's own threads included):
     # what the sinks cost, less sensitive than latency to other processes on the machine
+    prof = None
+    if profile_path is not None:
+        import cProfile
+
+        prof = cProfile.Profile(time.thread_time)  # CPU time: robust to the machine's load
     cpu_thread0, cpu_proc0 = time.thread_time(), time.process_time()
+    if prof is not None:
+        prof.enable()
     while time.monotonic() < end:
         runner._step(0.05)
+    if prof is not None:
+        prof.disable()
     cpu_thread = time.thread_time() - cpu_thread0
     cpu_proc = time.process_time() - cpu_proc0
+    if prof is not None:
+        prof.dump_stats(profile_path)
     for _ in range(20):
         runner._step(0.01)
     stats = runner.stats()
@@ -229,6 +249,7 @@ def many_skins(
     workers: int = 1,
     hogs: int = 0,
     backend: str = "dds",
+    profile_dir: Path | None = None,
 ) -> dict:
     """``n_skins`` pipelines at ``rate_hz`` each, fed through ptys.
 
@@ -242,6 +263,14 @@ def many_skins(
     --workers``; loop CPU then summed over the workers). ``hogs``: CPU-heavy processes (busy
     loops) running beside, for the figure on a loaded machine. ``backend``: the ROS 2 sink's
     (``rclpy``: through a real node, one per worker, ``skinloc_<w>``; ``dds``: plain DDS).
+    ``profile_dir``: cProfile each loop (thread CPU time) into ``loop-<w>.prof`` there (the
+    profiler slows the loop: its run's latencies are not the loop's own).
+
+    The end-to-end time of a contact splits into its *queueing* (``end_to_end - latency``: the
+    feeder's lateness, the pty, the wake-up and the wait while the loop was busy with earlier
+    frames) and its *latency* (bytes read to contact, ``Contact.latency_us``: the frames read
+    before it in the same turn, then its own compute); the ROS 2 publisher's delay from the
+    sink's ``emit`` to the write is ``sink_stats``' ``publish_delay_*_us``.
 
     Every run reports the load average before and after, and the loop's CPU per frame beside
     the single-contact NumPy baseline's, both measured in the loops' processes
@@ -283,6 +312,13 @@ def many_skins(
             "dds_config": dds,
             "backend": backend,
         }
+        if profile_dir is not None:
+            Path(profile_dir).mkdir(parents=True, exist_ok=True)
+
+        def prof_path(w: int) -> str | None:
+            return (
+                None if profile_dir is None else str(Path(profile_dir) / f"loop-{max(w, 0)}.prof")
+            )
 
         def go() -> float:
             t0 = time.monotonic() + 0.5
@@ -290,13 +326,21 @@ def many_skins(
             return t0
 
         if workers == 1:
-            parts = [_shard(names=names, first=0, start=go, worker=-1, **common)]
+            parts = [
+                _shard(
+                    names=names, first=0, start=go, worker=-1, profile_path=prof_path(0), **common
+                )
+            ]
         else:
             pipes = []
             for w, share in enumerate(partition(n_skins, workers)):
                 a, b = ctx.Pipe()
                 kw = dict(
-                    common, names=names[share.start : share.stop], first=share.start, worker=w
+                    common,
+                    names=names[share.start : share.stop],
+                    first=share.start,
+                    worker=w,
+                    profile_path=prof_path(w),
                 )
                 p = ctx.Process(target=_worker, args=(b, kw), daemon=True)
                 p.start()
@@ -330,6 +374,10 @@ def many_skins(
     wire = [s.get("wire", {}) for s in stats]
     sent = report["written"]
     has = len(lat) > 0
+    queue_us = (
+        e2e * 1e6 - lat
+    )  # the contact's end to end less its latency: before its bytes were read
+    frames_total = max(sum(frames_in), 1)
     loop_us = cpu_thread / max(sum(frames_in), 1) * 1e6
     base_us = float(np.mean([p["baseline_cpu_us_per_frame"] for p in parts]))
     return {
@@ -368,4 +416,16 @@ def many_skins(
         "baseline_cpu_us_per_frame": base_us,
         "loop_cpu_over_baseline": loop_us / base_us if base_us > 0 else None,
         "end_to_end_max_us": float(np.max(e2e)) * 1e6 if has else None,
+        # the end to end split: before the bytes were read / read to contact
+        "queueing_median_us": float(np.median(queue_us)) if has else None,
+        "queueing_p99_us": float(np.percentile(queue_us, 99)) if has else None,
+        # CPU per frame (us) of each process kind: where the cores go
+        "loop_cpu_us_per_frame_each": [
+            p["cpu_thread"] / max(sum(s["frames"] for s in p["stats"]), 1) * 1e6 for p in parts
+        ],
+        "loop_process_cpu_us_per_frame": cpu_proc / frames_total * 1e6,
+        "publisher_cpu_us_per_frame": sum(float(v.get("cpu_s", 0.0)) for v in sink_stats.values())
+        / frames_total
+        * 1e6,
+        "feeder_cpu_us_per_frame": float(report.get("cpu_s", 0.0)) / frames_total * 1e6,
     }

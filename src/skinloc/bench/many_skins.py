@@ -148,10 +148,13 @@ def _shard(
 
         prof = cProfile.Profile(time.thread_time)  # CPU time: robust to the machine's load
     cpu_thread0, cpu_proc0 = time.thread_time(), time.process_time()
+    turns: list[float] = []  # each busy turn's CPU, s: a turn's CPU delays the frames behind it
     if prof is not None:
         prof.enable()
     while time.monotonic() < end:
+        c0 = time.thread_time()
         runner._step(0.05)
+        turns.append(time.thread_time() - c0)
     if prof is not None:
         prof.disable()
     cpu_thread = time.thread_time() - cpu_thread0
@@ -172,6 +175,7 @@ def _shard(
         "sink_stats": sink_stats,
         "cpu_thread": cpu_thread,
         "cpu_proc": cpu_proc,
+        "turn_cpu_s": np.asarray(turns, dtype=np.float64),
         "max_contacts": config.max_contacts,
     }
 
@@ -374,9 +378,9 @@ def many_skins(
     wire = [s.get("wire", {}) for s in stats]
     sent = report["written"]
     has = len(lat) > 0
-    queue_us = (
-        e2e * 1e6 - lat
-    )  # the contact's end to end less its latency: before its bytes were read
+    turn_us = np.concatenate([p["turn_cpu_s"] for p in parts]) * 1e6
+    # a contact's end to end less its latency: the time before its bytes were read
+    queue_us = e2e * 1e6 - lat
     frames_total = max(sum(frames_in), 1)
     loop_us = cpu_thread / max(sum(frames_in), 1) * 1e6
     base_us = float(np.mean([p["baseline_cpu_us_per_frame"] for p in parts]))
@@ -427,5 +431,11 @@ def many_skins(
         "publisher_cpu_us_per_frame": sum(float(v.get("cpu_s", 0.0)) for v in sink_stats.values())
         / frames_total
         * 1e6,
+        # the loop's turns' CPU (us; load-robust): a long turn holds every frame behind it
+        "turn_cpu_p99_us": float(np.percentile(turn_us, 99)) if len(turn_us) else None,
+        "turn_cpu_p999_us": float(np.percentile(turn_us, 99.9)) if len(turn_us) else None,
+        "turn_cpu_max_us": float(np.max(turn_us)) if len(turn_us) else None,
+        "turns_over_1ms_cpu": int(np.sum(turn_us > 1000.0)),
+        "turns": len(turn_us),
         "feeder_cpu_us_per_frame": float(report.get("cpu_s", 0.0)) / frames_total * 1e6,
     }

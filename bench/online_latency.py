@@ -70,6 +70,7 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=15.0, help="s")
     ap.add_argument("--max-contacts", type=int, default=3, choices=(1, 2, 3))
     ap.add_argument("--profile", action="store_true")
+    ap.add_argument("--nice", type=int, default=0, help="added to the loops' niceness (-10)")
     ap.add_argument("--models", type=Path, default=None, help="the bench models' folder")
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()
@@ -87,6 +88,7 @@ def main() -> None:
         hogs=args.hogs,
         backend=args.backend,
         profile_dir=prof_dir,
+        nice=args.nice,
     )
     r.pop("model", None)
     out = {"args": {k: str(v) for k, v in vars(args).items()}, "run": r}
@@ -110,6 +112,10 @@ def main() -> None:
         "baseline_cpu_us_per_frame",
         "loop_cpu_over_baseline",
         "loop_process_cpu_us_per_frame",
+        "turn_cpu_p99_us",
+        "turn_cpu_max_us",
+        "turns_over_1ms_cpu",
+        "feeder_writes_late_over_2ms",
         "publisher_cpu_us_per_frame",
         "feeder_cpu_us_per_frame",
         "load_average_after",

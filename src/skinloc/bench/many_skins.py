@@ -23,8 +23,16 @@ from skinloc.bench.stream import touch_stream
 __all__ = ["many_skins"]
 
 
-def _feeder(conn: Any, n_skins: int, rate_hz: float, duration_s: float, frames: np.ndarray) -> None:
-    """Child process: one pty per skin, frames written on schedule (staggered phases)."""
+def _feeder(
+    conn: Any, n_skins: int, rate_hz: float, duration_s: float, frames: np.ndarray, nice: int = 0
+) -> None:
+    """Child process: one pty per skin, frames written on schedule (staggered phases).
+
+    ``nice``: added to its niceness; it stands for the boards, which other processes' load
+    does not slow, so it gets the loops' priority (else the loops wait on it, not on their work).
+    """
+    if nice:
+        os.nice(nice)
     import pty
     import tty
 
@@ -281,10 +289,11 @@ def many_skins(
     loops) running beside, for the figure on a loaded machine. ``backend``: the ROS 2 sink's
     (``rclpy``: through a real node, one per worker, ``skinloc_<w>``; ``dds``: plain DDS).
     ``profile_dir``: cProfile each loop (thread CPU time) into ``loop-<w>.prof`` there (the
-    profiler slows the loop: its run's latencies are not the loop's own). ``nice``: the loops'
-    (and their ROS 2 publishers') niceness relative to the feeder and the CPU-heavy processes
-    (``-10``: what a robot gives its touch loop with ``nice -n -10``; negative values need
-    root or CAP_SYS_NICE).
+    profiler slows the loop: its run's latencies are not the loop's own). ``nice``: added to
+    the niceness of the loops (and their ROS 2 publishers) and of the feeder, which stands for
+    the boards, relative to the CPU-heavy processes and the rest of the machine (``-10``: what a
+    robot gives its touch loop with ``nice -n -10``; negative values need root or
+    CAP_SYS_NICE).
 
     The end-to-end time of a contact splits into its *queueing* (``end_to_end - latency``: the
     feeder's lateness, the pty, the wake-up and the wait while the loop was busy with earlier
@@ -311,7 +320,7 @@ def many_skins(
     ctx = mp.get_context("spawn")
     parent, child = ctx.Pipe()
     proc = ctx.Process(
-        target=_feeder, args=(child, n_skins, rate_hz, duration_s, frames), daemon=True
+        target=_feeder, args=(child, n_skins, rate_hz, duration_s, frames, nice), daemon=True
     )
     proc.start()
     procs: list[Any] = []

@@ -9,6 +9,7 @@ from the frame's scheduled write time.
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing as mp
 import os
 import time
@@ -154,7 +155,8 @@ def _shard(
         runner.open()
     except BaseException:
         if nice:
-            os.nice(-nice)
+            with contextlib.suppress(OSError):
+                os.nice(-nice)
         raise
     t0 = holder["t0"] = start()
     end = t0 + duration_s + 1.0
@@ -184,7 +186,9 @@ def _shard(
     stats = runner.stats()
     runner.close()  # the ROS 2 sink publishes what is queued and joins its thread
     if nice:
-        os.nice(-nice)
+        # back (in this process, with workers=1), where the process may lower its niceness
+        with contextlib.suppress(OSError):
+            os.nice(-nice)
     sink_stats = {getattr(s, "name", str(s)): s.stats() for s in sink_objs if hasattr(s, "stats")}
     base_us = _baseline_cpu_us(model_path)
     return {

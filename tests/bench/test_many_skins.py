@@ -89,3 +89,21 @@ def test_many_skins_through_rclpy_nodes_beside_busy_processes(monkeypatch):
         many_skins(model_path("map"), n_skins=2, duration_s=1.0, backend="fastdds")
     with pytest.raises(ValueError, match="hogs must be 0 or more"):
         many_skins(model_path("map"), n_skins=2, duration_s=1.0, hogs=-1)
+
+
+@pytest.mark.slow  # a multi-process benchmark
+def test_many_skins_profiles_each_loop_and_splits_the_time(tmp_path):
+    import pstats
+
+    m = many_skins(
+        model_path("map"), n_skins=2, rate_hz=50.0, duration_s=1.5, workers=2, nice=3,
+        profile_dir=tmp_path,
+    )  # fmt: skip
+    assert m["loop_nice"] == 3 and m["frames_processed"] > 0 and m["contacts"] > 0
+    for w in (0, 1):  # one profile per worker's loop, with the loop's turns in it
+        stats = pstats.Stats(str(tmp_path / f"loop-{w}.prof")).stats  # type: ignore[attr-defined]
+        assert any(func == "_step" for _file, _line, func in stats)
+    assert m["queueing_median_us"] is not None and m["queueing_p99_us"] >= m["queueing_median_us"]
+    assert m["turns"] > 0 and m["turn_cpu_max_us"] >= m["turn_cpu_p99_us"] >= 0
+    assert len(m["loop_cpu_us_per_frame_each"]) == 2
+    assert m["feeder_cpu_us_per_frame"] > 0 and m["loop_process_cpu_us_per_frame"] > 0

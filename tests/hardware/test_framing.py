@@ -412,3 +412,18 @@ def test_c_encoder_rejects_bad_grids(c_encoder):
         check=True,
     )
     assert res.stdout.split("\n")[:2] == ["", ""]
+
+
+def test_a_frame_from_counts_converted_once_is_the_same_frame():
+    from skinloc.hardware.protocol import binary_counts, encode_binary, encode_binary_counts
+
+    rng = np.random.default_rng(0)
+    for n_tx, n_rx in ((8, 8), (1, 2), (21, 12)):
+        values = rng.integers(0, 65536, n_tx * n_rx)
+        counts = binary_counts(values, n_tx, n_rx)
+        for counter in (0, 3, 65535, 70000):
+            assert encode_binary_counts(counts, n_tx, n_rx, counter) == encode_binary(
+                values, n_tx, n_rx, counter
+            )
+    with pytest.raises(ValueError, match="counts must be 128 bytes"):
+        encode_binary_counts(b"\0" * 126, 8, 8, 1)

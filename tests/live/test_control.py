@@ -228,3 +228,60 @@ def test_a_tare_is_the_baseline_only_recalibration():
     _feed(core, capture.baseline_frames, 20)
     assert core.calibrated and not core.taring
     np.testing.assert_allclose(core.baseline, capture.baseline, rtol=1e-9)
+
+
+def test_the_ros2_sinks_diagnostics_are_built_a_skin_a_sweep_and_published_whole(monkeypatch):
+    """Thirty skins' statuses: one skin a sweep (a zero budget), one message with all of them."""
+    import os
+
+    from skinloc.live.sinks.ros2 import sink as sink_module
+    from skinloc.live.sinks.ros2.sink import Ros2Sink
+
+    names = [f"s{i}" for i in range(30)]
+
+    class Control:
+        skin_names = names
+
+        def __init__(self) -> None:
+            self.asked: list[list[int]] = []
+
+        def settings(self, name: str) -> dict:
+            return {}
+
+        def handle(self, request: dict) -> None:
+            return None
+
+        def finished(self) -> list:
+            return []
+
+        def diagnostics(self, now, extra=None, slots=None):
+            self.asked.append(list(slots))
+            return [{"name": f"skinloc: {names[s]}", "p99": extra[names[s]]} for s in slots]
+
+    monkeypatch.setattr(sink_module, "_DIAG_BUDGET_S", 0.0)
+    sink = Ros2Sink("skinloc")
+    sent: list[dict] = []
+    monkeypatch.setattr(sink, "_control", lambda message, wait_s=0.1: sent.append(message))
+    r, w = os.pipe()
+    os.set_blocking(r, False)
+    sink._proc, sink._r, sink._w, sink.backend_used = object(), r, w, "rclpy"  # as if started
+    sink._index = {n: i for i, n in enumerate(names)}
+    control = Control()
+    try:
+        for k in range(29):
+            sink.serve(control, now=0.01 * k)
+        assert not [m for m in sent if "diagnostics" in m]  # not before every skin is in
+        sink.serve(control, now=0.29)
+        diags = [m["diagnostics"] for m in sent if "diagnostics" in m]
+        assert len(diags) == 1
+        assert [d["name"] for d in diags[0]] == [f"skinloc: {n}" for n in names]
+        assert control.asked == [[i] for i in range(30)]  # never all skins in one sweep
+        for k in range(30, 99):  # the next round waits for its second
+            sink.serve(control, now=0.01 * k)
+        assert len([m for m in sent if "diagnostics" in m]) == 1
+        sink.serve(control, now=1.0)
+        assert control.asked[-1] == [0]  # a new round, from the first skin
+    finally:
+        sink._proc, sink._r, sink._w = None, -1, -1
+        os.close(r)
+        os.close(w)

@@ -26,8 +26,10 @@ __all__ = [
     "WIRE_VERSION",
     "RawFrame",
     "WireFormat",
+    "binary_counts",
     "binary_frame_size",
     "encode_binary",
+    "encode_binary_counts",
     "encode_text",
 ]
 
@@ -137,9 +139,31 @@ def encode_binary(values: np.ndarray | list[int], n_tx: int, n_rx: int, counter:
     >>> encode_binary([1, 2], 1, 2, counter=3).hex(" ")
     'a5 5a 01 01 02 03 00 01 00 02 00 13 66 59 a6'
     """
+    return encode_binary_counts(binary_counts(values, n_tx, n_rx), n_tx, n_rx, counter)
+
+
+def binary_counts(values: np.ndarray | list[int], n_tx: int, n_rx: int) -> bytes:
+    """The counts of a binary frame as sent (``u16`` little-endian), for ``encode_binary_counts``.
+
+    A stream that sends the same images again (a benchmark's feeder) converts them once.
+    """
     check_grid(n_tx, n_rx)
-    body = HEADER.pack(SYNC, WIRE_VERSION, n_tx, n_rx, counter & 0xFFFF)[2:]
-    body += _as_counts(values, n_tx * n_rx).astype("<u2").tobytes()
+    return _as_counts(values, n_tx * n_rx).astype("<u2").tobytes()
+
+
+def encode_binary_counts(counts: bytes, n_tx: int, n_rx: int, counter: int) -> bytes:
+    """One binary frame from counts already converted by ``binary_counts`` (``encode_binary``).
+
+    Raises
+    ------
+    ValueError
+        When ``counts`` is not ``2 * n_tx * n_rx`` bytes.
+    """
+    if len(counts) != 2 * n_tx * n_rx:
+        raise ValueError(
+            f"counts must be {2 * n_tx * n_rx} bytes for a {n_tx} x {n_rx} grid, got {len(counts)}"
+        )
+    body = HEADER.pack(SYNC, WIRE_VERSION, n_tx, n_rx, counter & 0xFFFF)[2:] + counts
     return SYNC + body + struct.pack("<I", zlib.crc32(body))
 
 

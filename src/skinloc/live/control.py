@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from typing import Any
 
 import numpy as np
@@ -134,8 +134,16 @@ class SkinControl:
         self._pending = still
 
     # ------------------------------------------------------------------ diagnostics
+    @property
+    def skin_names(self) -> list[str]:
+        """The runner's skins' names, in slot order (what ``diagnostics``' ``slots`` index)."""
+        return [s.name for s in self.runner.skins]
+
     def diagnostics(
-        self, now: float, extra: dict[str, dict[str, float]] | None = None
+        self,
+        now: float,
+        extra: dict[str, dict[str, float]] | None = None,
+        slots: Sequence[int] | None = None,
     ) -> list[dict[str, Any]]:
         """One status per skin, as ``diagnostic_msgs/DiagnosticStatus`` fields.
 
@@ -145,6 +153,9 @@ class SkinControl:
             ``time.monotonic()``, s.
         extra : dict, optional
             Per skin name, further values (the sink's latency p99 and publisher queue).
+        slots : sequence of int, optional
+            Only these skins (slot indices, ``skin_names``' order); default every skin. A sink
+            asks for a few per sweep so that the loop never stops for all of them at once.
 
         Returns
         -------
@@ -153,7 +164,8 @@ class SkinControl:
             {key: text}}``, in the skins' order.
         """
         out = []
-        for slot, d in enumerate(self.runner.stats()):
+        chosen = range(len(self.runner.skins)) if slots is None else slots
+        for slot, d in zip(chosen, self.runner.stats(chosen), strict=True):
             skin, core = self.runner.skins[slot], self.runner.cores[slot]
             out.append(self._status(slot, skin, core, d, now, (extra or {}).get(skin.name, {})))
         return out

@@ -24,7 +24,7 @@ import os
 import selectors
 import threading
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -529,19 +529,21 @@ class Runner:
         return True
 
     # ------------------------------------------------------------------ state
-    def stats(self) -> list[dict[str, Any]]:
+    def stats(self, slots: Iterable[int] | None = None) -> list[dict[str, Any]]:
         """Per skin: frames, contacts, touches, errors, sinks' health, link and wire counters.
 
         ``errors``: frames dropped because their processing raised (``last_error`` the last
         one); ``sink_errors``: deliveries of this skin that a sink (or callback) refused;
         ``sinks``: per sink of this skin, ``errors``, ``skipped`` (deliveries not tried while it
-        backed off), ``failing``, ``retry_in_s`` and ``last_error``.
+        backed off), ``failing``, ``retry_in_s`` and ``last_error``. ``slots``: only these
+        skins (slot indices), in that order; default all.
         """
         out = []
         ports = {f.slot: f for f in self._ports}
         threads = {f.slot: f for f in self._threads}
         now = time.monotonic()
-        for slot, (skin, core) in enumerate(zip(self.skins, self.cores, strict=True)):
+        for slot in range(len(self.skins)) if slots is None else slots:
+            skin, core = self.skins[slot], self.cores[slot]
             routes = [*(r for _, r in self.routes[slot]), *self.frame_routes[slot]]
             if self.callback is not None or self.gesture_callback is not None:
                 routes.append(self.callback_routes[slot])

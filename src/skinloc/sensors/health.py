@@ -117,15 +117,18 @@ def classify_sensors(
     for kind, axis in (("tx", 1), ("rx", 0)):
         n_lines = n_tx if kind == "tx" else n_rx
         ref = float(np.nanmedian(line_gain[kind])) if line_gain is not None else np.nan
+        # each line's share of dead and of noisy sensors, all lines at once (the live
+        # diagnostics classify every skin every second, on the loop's thread)
+        dead_share, noisy_share = D.mean(axis=axis).tolist(), N.mean(axis=axis).tolist()
         states = []
         for i in range(n_lines):
             sl = (i, slice(None)) if axis == 1 else (slice(None), i)
             g = line_gain[kind][i] if line_gain is not None else np.nan
-            if g < DEAD_FRACTION * ref or D[sl].mean() > 0.5:
+            if g < DEAD_FRACTION * ref or dead_share[i] > 0.5:
                 s = "dead"
             elif g < WEAK_FRACTION * ref:
                 s = "weak"
-            elif N[sl].mean() > 0.5:
+            elif noisy_share[i] > 0.5:
                 s = "noisy"
             else:
                 s = "ok"

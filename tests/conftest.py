@@ -12,9 +12,21 @@ from pathlib import Path
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, settings
+from threadpoolctl import threadpool_limits
 
 from skinloc.data.recording import Recording
 from skinloc.geometry.mesh import cone_skin, sample_targets
+
+# One BLAS thread per test process, and in the commands a test starts (they inherit the
+# variables). `pytest -n 2` runs one worker per core already, and OpenBLAS's extra threads
+# busy-wait for a core they do not get: on a loaded machine that took tests/models/test_model.py
+# from 37 to 60 CPU-s for no gain in wall time. A value set by the caller is kept.
+_BLAS_THREADS = int(os.environ.setdefault("OPENBLAS_NUM_THREADS", "1"))
+threadpool_limits(_BLAS_THREADS, user_api="blas")  # numpy's BLAS is loaded by now
+# The OpenMP threads (numba's parallel batches, torch) still run two per process, so the tests
+# still exercise the parallel paths; they sleep when idle instead of spinning (the same results,
+# read by libgomp when numba or torch first loads it; test_model.py under load: 18 -> 8 CPU-s).
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 # A busy machine may stall any example for seconds: no per-example deadline, and slow data
 # generation is no failure. Tests' own @settings override only what they name.

@@ -42,10 +42,31 @@ def sim_path(tmp_path_factory):
     return path
 
 
+@pytest.fixture(scope="module")
+def sim_model(sim_path, tmp_path_factory):
+    """``skinloc train`` on ``sim_path`` (the default model), trained once: read only."""
+    model = tmp_path_factory.mktemp("model") / "m.h5"
+    res = run("train", sim_path, "--out", model)
+    assert res.exit_code == 0, res.output
+    return model
+
+
+@pytest.fixture(scope="module")
+def joint_map(sim_path):
+    """The sensor map of ``sim_path`` (whole-image model, no bootstrap), made once: read only."""
+    return S.sensor_map_from_recordings([read_recording(sim_path)], n_boot=0)
+
+
+@pytest.fixture(scope="module")
+def crossing_map(sim_path):
+    """The per-crossing sensor map of ``sim_path`` (no bootstrap), made once: read only."""
+    return S.sensor_map_from_recordings([read_recording(sim_path)], n_boot=0, joint=False)
+
+
 @pytest.mark.slow  # sensor maps fitted on simulated sessions
-def test_sensor_map_finds_the_simulated_crossings_and_faults(sim_path):
+def test_sensor_map_finds_the_simulated_crossings_and_faults(sim_path, joint_map):
     rec = read_recording(sim_path)
-    smap = S.sensor_map_from_recordings([rec], n_boot=0)
+    smap = joint_map
     truth = S.truth_sensor_positions(rec.meta)
     assert truth.shape == (64, 3)
     err = S.position_errors_mm(smap.positions_m, truth)
@@ -137,9 +158,8 @@ def test_sensors_bad_input_is_one_line(tmp_path, sim_path):
 
 
 @pytest.mark.slow  # sensor maps fitted on simulated sessions
-def test_sensors_and_coverage_from_a_model(sim_path, tmp_path):
-    model = tmp_path / "m.h5"
-    assert run("train", sim_path, "--out", model).exit_code == 0
+def test_sensors_and_coverage_from_a_model(sim_path, sim_model, tmp_path):
+    model = sim_model
     res = run("sensors", model, "--json")
     assert res.exit_code == 0, res.output
     out = json.loads(res.output)
@@ -241,12 +261,11 @@ def test_repeated_targets_measure_the_probing_floor(tmp_path):
         SessionConfig(n_points=5, n_repeats=6)
 
 
-def test_whole_image_model_beats_the_per_crossing_fit(sim_path):
+def test_whole_image_model_beats_the_per_crossing_fit(sim_path, crossing_map, joint_map):
     """All touches' images explain every crossing at once (sensors.joint_fit)."""
     rec = read_recording(sim_path)
     truth = S.truth_sensor_positions(rec.meta)
-    old = S.sensor_map_from_recordings([rec], n_boot=0, joint=False)
-    new = S.sensor_map_from_recordings([rec], n_boot=0)
+    old, new = crossing_map, joint_map
     e_old = S.position_errors_mm(old.positions_m, truth)
     e_new = S.position_errors_mm(new.positions_m, truth)
     assert old.method == "per-crossing" and new.method == "joint"
@@ -256,9 +275,9 @@ def test_whole_image_model_beats_the_per_crossing_fit(sim_path):
 
 
 @pytest.mark.slow  # sensor maps fitted on simulated sessions
-def test_whole_image_model_falls_back_when_it_does_not_fit(sim_path, monkeypatch):
+def test_whole_image_model_falls_back_when_it_does_not_fit(sim_path, crossing_map, monkeypatch):
     rec = read_recording(sim_path)
-    old = S.sensor_map_from_recordings([rec], n_boot=0, joint=False)
+    old = crossing_map
     monkeypatch.setattr(J, "plausible", lambda *a, **k: False)
     smap = S.sensor_map_from_recordings([rec], n_boot=2)
     assert smap.method == "per-crossing"
@@ -341,7 +360,7 @@ def test_weak_line_is_judged_without_the_skin_wide_response_trend(tmp_path):
 
 
 @pytest.mark.slow  # sensor maps fitted on simulated sessions
-def test_sensors_fields_flag_reaches_the_sensor_map(sim_path, tmp_path, monkeypatch):
+def test_sensors_fields_flag_reaches_the_sensor_map(sim_path, sim_model, tmp_path, monkeypatch):
     # The fields are tried only where the whole-image model is not kept (as on the real cone):
     # refuse it here so the flag can show.
     monkeypatch.setattr(J, "plausible", lambda *a, **k: False)
@@ -366,9 +385,7 @@ def test_sensors_fields_flag_reaches_the_sensor_map(sim_path, tmp_path, monkeypa
     if h["fields_better"]:
         assert with_fields["sensors"] != plain["sensors"]
     # A model keeps no touches: the flag is refused in one line.
-    model = tmp_path / "m.h5"
-    assert run("train", sim_path, "--out", model).exit_code == 0
-    res = run("sensors", model, "--fields")
+    res = run("sensors", sim_model, "--fields")
     assert res.exit_code == 1 and "--fields" in res.output and "Traceback" not in res.output
 
 

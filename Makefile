@@ -36,7 +36,7 @@ demo: $(VENV)/.demo-installed
 
 # The whole suite (slow tests included) over three pytest-xdist workers on the 2-core machine it
 # is measured on: much of a run waits (on a page, a paced live run, a process), and a third
-# worker fills those waits (quiet: 380 s against 521 s with two; docs/benchmarks.md "The test
+# worker fills those waits (quiet fresh clones: 428 s against 521 s with two; docs/benchmarks.md "The test
 # suite"). tests/conftest.py's worker_scope says which tests share a worker, and the units
 # holding a `slow` test start first. `make test PYTEST_WORKERS=0` runs it in one process;
 # `pytest -m "not slow"` is the quick subset (docs/architecture.md, "Tests").

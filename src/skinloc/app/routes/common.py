@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import contextlib
+import os
+import tempfile
+from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
-from fastapi import APIRouter, Depends, FastAPI, Header, Request
+from fastapi import APIRouter, Depends, FastAPI, Header, HTTPException, Request
 from fastapi.responses import Response
 from starlette.datastructures import Headers
 from starlette.types import Scope
@@ -14,7 +18,15 @@ from starlette.types import Scope
 from skinloc.app.hub import Hub, to_json
 from skinloc.app.workspace import Workspace
 
-__all__ = ["OK", "ClientHeader", "PageContext", "actions_router", "json_response", "take_control"]
+__all__ = [
+    "OK",
+    "ClientHeader",
+    "PageContext",
+    "actions_router",
+    "json_response",
+    "received_upload",
+    "take_control",
+]
 
 #: The tab an action comes from (its control of the skin is checked).
 ClientHeader = Header(default=None, alias="X-Skinloc-Client")
@@ -74,3 +86,28 @@ class PageContext:
     origins: Callable[[Headers, Scope], frozenset[str]]
     state: Any = None
     pages: tuple[Any, ...] = ()
+
+
+@contextlib.asynccontextmanager
+async def received_upload(
+    request: Request, folder: Path, suffix: str, max_bytes: int, what: str
+) -> AsyncIterator[tuple[Path, int]]:
+    """The request's body streamed into a hidden file in ``folder``: ``(path, bytes)``.
+
+    Counted as it comes: past ``max_bytes`` it stops with a 413 naming ``what`` ("mesh file"),
+    so a stored file of the same name is replaced only by what the caller installs from the
+    hidden one; the hidden file is removed on leaving.
+    """
+    folder.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=".upload-", suffix=suffix, dir=folder)
+    try:
+        size = 0
+        with os.fdopen(fd, "wb") as fh:
+            async for chunk in request.stream():
+                size += len(chunk)
+                if size > max_bytes:
+                    raise HTTPException(413, f"{what} too large (more than {max_bytes >> 20} MB)")
+                fh.write(chunk)
+        yield Path(tmp), size
+    finally:
+        Path(tmp).unlink(missing_ok=True)

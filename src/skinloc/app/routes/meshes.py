@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import asyncio
 import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
 from fastapi import HTTPException, Query, Request
 
-from skinloc.app.routes.common import PageContext, actions_router
+from skinloc.app.routes.common import PageContext, actions_router, received_upload
 from skinloc.errors import SkinlocError
 
 MAX_UPLOAD_BYTES = 64 * 1024 * 1024
@@ -36,23 +35,16 @@ def add_routes(ctx: PageContext) -> None:
         if declared.isdigit() and int(declared) > MAX_UPLOAD_BYTES:
             raise HTTPException(413, f"mesh file too large ({int(declared)} bytes; at most 64 MB)")
         folder = workspace.mesh_dir
-        folder.mkdir(parents=True, exist_ok=True)
-        # Into a hidden file beside the meshes, counted as it comes: a file over the limit
-        # stops there, and a stored mesh of that name is replaced only by one that loads.
-        fd, tmp = tempfile.mkstemp(prefix=".upload-", suffix=Path(name).suffix, dir=folder)
-        try:
-            size = 0
-            with os.fdopen(fd, "wb") as fh:
-                async for chunk in request.stream():
-                    size += len(chunk)
-                    if size > MAX_UPLOAD_BYTES:
-                        raise HTTPException(413, "mesh file too large (more than 64 MB)")
-                    fh.write(chunk)
+        # Into a hidden file beside the meshes: a stored mesh of that name is replaced only by
+        # one that loads.
+        suffix = Path(name).suffix
+        async with received_upload(request, folder, suffix, MAX_UPLOAD_BYTES, "mesh file") as (
+            tmp,
+            size,
+        ):
             if size == 0:
                 raise ValueError(f"{name} is empty: upload an OBJ, STL or PLY mesh")
-            return await asyncio.to_thread(_install_mesh, Path(tmp), folder / name)
-        finally:
-            Path(tmp).unlink(missing_ok=True)
+            return await asyncio.to_thread(_install_mesh, tmp, folder / name)
 
     app.include_router(router)
 

@@ -11,16 +11,21 @@ from __future__ import annotations
 
 import asyncio
 import os
-import tempfile
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from fastapi import HTTPException, Query, Request
+from fastapi import Query, Request
 from fastapi.responses import Response
 
 from skinloc.app.routes.bodies import RecalibrateBody
-from skinloc.app.routes.common import OK, PageContext, actions_router, json_response
+from skinloc.app.routes.common import (
+    OK,
+    PageContext,
+    actions_router,
+    json_response,
+    received_upload,
+)
 from skinloc.errors import SkinlocError
 
 #: The page's own files (its script), served at ``/pages/recalibrate/``.
@@ -78,19 +83,11 @@ def add_routes(ctx: PageContext) -> None:
         if not MODEL_NAME.match(name):
             raise ValueError(f"upload a skinloc model file (.h5), not {name[:80]!r}")
         folder = workspace.model_dir
-        folder.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=".upload-", suffix=".h5", dir=folder)
-        try:
-            size = 0
-            with os.fdopen(fd, "wb") as fh:
-                async for chunk in request.stream():
-                    size += len(chunk)
-                    if size > MAX_MODEL_BYTES:
-                        raise HTTPException(413, "model file too large (more than 256 MB)")
-                    fh.write(chunk)
-            return await asyncio.to_thread(_install_model, Path(tmp), folder / name)
-        finally:
-            Path(tmp).unlink(missing_ok=True)
+        async with received_upload(request, folder, ".h5", MAX_MODEL_BYTES, "model file") as (
+            tmp,
+            _,
+        ):
+            return await asyncio.to_thread(_install_model, tmp, folder / name)
 
     app.include_router(router)
 

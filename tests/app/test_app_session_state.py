@@ -84,7 +84,8 @@ def test_training_leaves_out_touches_and_names_the_one_that_hurts(tmp_path):
         client.app.state.workspace.config.influence_suspects = 2
         new_session(client, n_points=20)
         calibrate(client, until=6)
-        # Touch 7 made at the far side of the skin, the finger's other touches where asked.
+        # The next touch (7th, or 8th when the finger pressed once more before it stopped on a
+        # busy machine) made at the far side of the skin, the finger's other touches where asked.
         client.post("/api/finger", json={"on": False}, headers=A)
         client.post("/api/calibrate/start", headers=A)
         state = wait_for(
@@ -92,15 +93,17 @@ def test_training_leaves_out_touches_and_names_the_one_that_hurts(tmp_path):
             lambda s: s["mode"] == "calibrate" and s["guided"]["phase"] == "wait_touch",
             "the prompt of touch 7",
         )
+        k = state["guided"]["index"]
+        assert k in (6, 7), state["guided"]
         target = np.asarray(state["guided"]["target"])
         skin = cone_skin().vertices  # its point farthest from the target: no other touch's image
         far = skin[np.argmax(np.linalg.norm(skin - target, axis=1))]
         client.post("/api/sim/touch", json={"point": far.tolist()}, headers=A)
-        wait_for(client, lambda s: s["guided"]["index"] >= 7, "the touch elsewhere")
+        wait_for(client, lambda s: s["guided"]["index"] >= k + 1, "the touch elsewhere")
         client.post("/api/sim/touch", json={"point": None}, headers=A)
         calibrate(client)
         flags = client.get("/api/session").json()["calibration"]["flags"]
-        assert "off_target" in flags[6], flags
+        assert "off_target" in flags[k], flags
         # The gate is skinloc check: the same words for every touch of the session's file.
         sid = client.get("/api/state").json()["session"]["id"]
         assert check_recording(read_recording(tmp_path / sid / "calibration.h5"))[0] == flags
@@ -108,20 +111,20 @@ def test_training_leaves_out_touches_and_names_the_one_that_hurts(tmp_path):
         assert client.post("/api/train", headers=A).status_code == 200
         result = wait_for(client, trained, "training")["training"]["result"]
         assert result["n_recorded"] == 20 and result["left_out"] == []
-        seventh = {"index": 6, "number": 7, "attempt": 1, "flags": flags[6]}
+        seventh = {"index": k, "number": k + 1, "attempt": 1, "flags": flags[k]}
         assert seventh in result["flagged_kept"] and seventh in result["went_in"]
         influence = result["influence"]
         assert len(influence["cv_errors_mm"]) == 20
         worst = influence["suspects"][0]
-        assert worst["index"] == 6 and worst["gain_mm"] > 0
+        assert worst["index"] == k and worst["gain_mm"] > 0
         assert worst["others_without_mm"] < worst["others_with_mm"]
 
-        r = client.post("/api/train", json={"exclude": [6]}, headers=A)
+        r = client.post("/api/train", json={"exclude": [k]}, headers=A)
         assert r.status_code == 200, r.text
         wait_for(client, lambda s: trained(s) and s["training"]["result"]["left_out"], "again")
         result = client.get("/api/state").json()["session"]["holdout"]
         assert result["left_out"] == [{**seventh, "why": "left out by hand"}]
-        assert result["n_point_logs"] == 19 and 6 not in result["kept"]
+        assert result["n_point_logs"] == 19 and k not in result["kept"]
 
         r = client.post("/api/train", json={"exclude": [40]}, headers=A)
         assert r.status_code == 400 and "no touch 41" in r.json()["detail"]

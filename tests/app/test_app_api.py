@@ -437,6 +437,33 @@ def test_every_tab_is_told_when_the_link_drops_and_comes_back(tmp_path):
         dev.stop()
 
 
+@pytest.mark.skipif(not hasattr(__import__("os"), "openpty"), reason="needs a POSIX pty")
+def test_a_baseline_cut_by_a_lost_link_is_captured_when_it_comes_back(tmp_path):
+    """Calibration started while the skin is silent: the baseline waits, never gives up."""
+    from skinloc.sim.skin import SimulatedSkin
+    from skinloc.sim.virtual_device import VirtualSkin
+
+    dev = VirtualSkin(SimulatedSkin(random_state=0), rate_hz=200, link_dir=tmp_path / "port")
+    dev.start()
+    try:
+        config = AppConfig(data_dir=tmp_path / "data", finger_delay_s=0.05)
+        with page_client(create_app(config, SourceOptions(source=dev.path))) as client:
+            sid = new_session(client, n_points=3)
+            dev.stop()
+            wait_for(client, lambda s: not s["device"]["link_up"], "the link to drop")
+            assert client.post("/api/calibrate/start", headers=A).status_code == 200
+            state = wait_for(
+                client, lambda s: "captured again" in s["message"], "the baseline to wait"
+            )
+            assert state["mode"] == "baseline"
+            dev.start()  # the same port path: the serial source reopens it
+            calibrate(client)
+            rec = read_recording(tmp_path / "data" / sid / "calibration.h5")
+            assert rec.n_point_logs == 3 and np.isfinite(rec.baseline).all()
+    finally:
+        dev.stop()
+
+
 def test_active_sampling_then_the_coverage_map_of_the_trained_model(tmp_path):
     """The 'active' mode: a few planned (even) targets, then each chosen from the touches;
     after training, the coverage map of the model."""

@@ -312,14 +312,19 @@ class DeviceLink:
                 fn, fut = self._jobs.popleft()
                 if fut.set_running_or_notify_cancel():
                     self._in_job = True
+                    alive = True
                     try:
                         fut.set_result(fn(self.source))
+                    except (FrameTimeoutError, SourceNotConnectedError) as exc:
+                        alive = False  # it waited for frames that did not come
+                        fut.set_exception(exc)
                     except BaseException as exc:  # handed to whoever waits on the future
                         fut.set_exception(exc)
                     finally:
                         # The job read the stream: its frames count as signs of life.
                         self._in_job = False
-                        self.last_frame_s = time.monotonic()
+                        if alive:
+                            self.last_frame_s = time.monotonic()
             try:
                 # A short wait, so a stalled link is noticed well within a second.
                 frame = self.source.read(timeout_s=0.2)

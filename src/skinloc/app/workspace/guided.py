@@ -30,7 +30,7 @@ from skinloc.app.workspace.state import (
 )
 from skinloc.calibration.session import CalibrationSession, SessionConfig
 from skinloc.calibration.touch_check import check_recording
-from skinloc.errors import RecordingError
+from skinloc.errors import FrameTimeoutError, RecordingError, SourceNotConnectedError
 from skinloc.sources.base import Frame
 
 
@@ -42,13 +42,17 @@ class GuidedCapture(WorkspaceState):
     _quiet : list of numpy.ndarray
         The last untouched frames (at most 100), ``(n_sensors,)`` counts each: the baseline's
         drift is judged from them when a touch is stored.
+    _baseline_again : callable or None
+        Set while a baseline capture waits for frames after its link stalled: starts it again.
     """
 
     _quiet: list[np.ndarray]
+    _baseline_again: Callable[[], None] | None
 
     def __init__(self, config: AppConfig, hub: Hub) -> None:
         super().__init__(config, hub)
         self._quiet = []
+        self._baseline_again = None
 
     def start_calibration(self) -> None:
         """Resume the session's calibration, or capture its baseline and start it."""
@@ -114,18 +118,37 @@ class GuidedCapture(WorkspaceState):
                 clear()
             return read(source)
 
+        def submit() -> None:
+            self._baseline_again = None
+            device.run_exclusive(job).add_done_callback(done)
+
         def done(f) -> None:
             with self._locked_for(device) as ok:
                 if not ok or self.mode is not Mode.BASELINE:
                     return
-                if f.cancelled() or f.exception() is not None:
+                exc = None if f.cancelled() else f.exception()
+                if isinstance(exc, FrameTimeoutError | SourceNotConnectedError):
+                    # A stalled or lost link is no reason to give up: the baseline is
+                    # captured again from the next frame that comes (``_baseline_frame``).
+                    self._baseline_again = submit
+                    self.message = (
+                        f"no frames from {device.name} for the baseline: it is captured again "
+                        "when they come back (keep the skin untouched)"
+                    )
+                elif f.cancelled() or exc is not None:
                     self.mode = Mode.IDLE
-                    self.message = f"baseline capture failed: {f.exception() or 'cancelled'}"
+                    self.message = f"baseline capture failed: {exc or 'cancelled'}"
                 else:
                     then(f.result())
                 self._publish_state()
 
-        device.run_exclusive(job).add_done_callback(done)
+        submit()
+
+    def _baseline_frame(self) -> None:
+        """A frame came while the baseline waited for the link: capture it now (reader thread)."""
+        again, self._baseline_again = self._baseline_again, None
+        if again is not None:
+            again()
 
     def _begin(self, mode: Mode, sess: CalibrationSession) -> None:
         rec = sess.recording

@@ -229,6 +229,8 @@ class LinkActions(WorkspaceState):
                 event = self._guided_frame(frame, now)
             elif mode is Mode.LIVE:
                 self._live_frame(frame)
+            elif mode is Mode.BASELINE:
+                self._baseline_frame()
             self.record_frame(frame)
             self.keep_recent(frame)
             if now - self._last_push >= 1.0 / self.config.frame_push_hz or event:

@@ -45,6 +45,16 @@ def truth(path: Path):
     )
 
 
+def fresh_touches(folder: Path, skin_seed: int, n: int) -> Path:
+    """``n`` random human-like touches of simulated skin ``skin_seed``, the test set (a file)."""
+    fresh = folder / f"fresh{skin_seed}.h5"
+    skinloc(
+        "simulate", "--skin-seed", skin_seed, "--seed", FRESH_SEED, "--mode", "random",
+        "--points", n, "--out", fresh,
+    )  # fmt: skip
+    return fresh
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--skins", type=int, nargs="+", default=[11, 12])
@@ -59,11 +69,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(tmp)
         for s in args.skins:
-            fresh = d / f"fresh{s}.h5"
-            skinloc(
-                "simulate", "--skin-seed", s, "--seed", FRESH_SEED, "--mode", "random",
-                "--points", args.fresh, "--out", fresh,
-            )  # fmt: skip
+            fresh = fresh_touches(d, s, args.fresh)
             test = [truth(fresh)]
             for n in args.points:
                 human, probe = d / f"human{s}_{n}.h5", d / f"probe{s}_{n}.h5"

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 from _day import DAY
-from probe_accuracy import FRESH_SEED, skinloc, truth
+from probe_accuracy import fresh_touches, skinloc, truth
 
 from skinloc.data.recording import read_recording
 from skinloc.evaluation.scoring import evaluate, train_localizer
@@ -169,11 +169,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(tmp)
         for s in args.skins:
-            fresh = d / f"fresh{s}.h5"
-            skinloc(
-                "simulate", "--skin-seed", s, "--seed", FRESH_SEED, "--mode", "random",
-                "--points", args.fresh, "--out", fresh,
-            )  # fmt: skip
+            fresh = fresh_touches(d, s, args.fresh)
             result.setdefault("within_touch_sim", {})[s] = within_touch(read_recording(fresh))
             print("within_touch_sim", s, json.dumps(result["within_touch_sim"][s]), flush=True)
             test = [truth(fresh)]

@@ -186,7 +186,7 @@ def test_scripted_gestures_through_a_faulty_virtual_skin_are_delivered_once(tmp_
     assert tracks["bad_tracks"] == 0, tracks["examples"]
     # a finger's track never restarts while it is down, across an unplug either, and no track
     # appears where no finger is (how many fingers the search finds is not this test's)
-    assert tracks["restarted"] == tracks["ghost_tracks"] == 0, tracks["examples"]
+    assert tracks["restarted"] == tracks["ghost_tracks"] == 0, (tracks["examples"], dev.counts)
     assert tracks["held_across_unplug"] == tracks["held_across_unplug_one_track"]
     assert gest["duplicates"] == 0 and gest["unknown_track_ids"] == 0
     assert gest["recognised_equals_written"], (gest["recognised"], gest["events"])

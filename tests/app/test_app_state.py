@@ -85,3 +85,16 @@ def test_a_new_workspace_holds_only_declared_state(tmp_path):
     # each part set up its own state
     assert ws.live_sink is not None and ws.record_tee is not None and ws._quiet == []
     assert ws.mode.value == "idle" and ws.lease is None and ws.page_states == {}
+
+
+def test_taking_a_touch_back_takes_its_probe_and_truth_entries_too(recording_factory):
+    from skinloc.app.workspace.state import pop_point_log
+
+    rec = recording_factory(3, 2)
+    rec.meta["probe_tips_m"] = [[0.0, 0.0, float(i)] for i in range(3)]
+    rec.meta["true_contacts"] = [[float(i), 0.0, 0.0] for i in range(3)]
+    removed = pop_point_log(rec, 1)
+    assert rec.n_point_logs == 2
+    assert [t[2] for t in rec.meta["probe_tips_m"]] == [0.0, 2.0]
+    assert [c[0] for c in rec.meta["true_contacts"]] == [0.0, 2.0]
+    assert removed["meta"]["probe_tips_m"] == [0.0, 0.0, 1.0]

@@ -93,6 +93,18 @@ def test_subset_and_append(recording_factory):
         sub.append(rec.targets[0], rec.frames[0][:2])
 
 
+def test_a_subset_keeps_the_per_touch_meta_of_its_touches(recording_factory):
+    rec = recording_factory(5, 3)
+    rec.meta["true_contacts"] = [[float(i), 0.0, 0.0] for i in range(5)]
+    rec.meta["probe_depths_m"] = [0.001, 0.002, 0.003]  # touches 4 and 5 pressed by hand
+    rec.meta["description"] = "kept whole"
+    sub = rec.subset([4, 1, 3])
+    assert [c[0] for c in sub.meta["true_contacts"]] == [4.0, 1.0, 3.0]
+    assert sub.meta["probe_depths_m"] == [None, 0.002]  # aligned; no entry for touch 4
+    assert sub.meta["description"] == "kept whole"
+    assert len(rec.meta["true_contacts"]) == 5  # the original untouched
+
+
 @pytest.mark.parametrize(
     "content,match",
     [

@@ -18,8 +18,6 @@ from skinloc.cli.common import (
 
 #: Meta keys ``info`` shows in their own fields, not under ``meta``.
 _TRUTH_KEYS = ("true_contacts", "truth_sensor_positions_m")
-#: Per-touch meta of a session pressed by a robot's probe (``skinloc collect --probe``).
-_PROBE_KEYS = ("probe_tips_m", "probe_depths_m", "probe_forces_n")
 
 
 def _probe_touches(meta: dict[str, Any]) -> dict[str, Any]:
@@ -251,6 +249,7 @@ def register(app: typer.Typer) -> None:
         """
         import numpy as np
 
+        from skinloc.data.recording import PER_TOUCH_META
         from skinloc.evaluation.metrics import mean_snr_db
         from skinloc.sim.gesture_stream import read_gesture_truth
         from skinloc.sources.replay import stream_summary
@@ -292,7 +291,7 @@ def register(app: typer.Typer) -> None:
             "mesh_vertices": len(rec.vertices),
             "mesh_faces": len(rec.faces),
             **(stream_summary(data) or {}),  # a `skinloc record` file: its raw stream too
-            "meta": {k: v for k, v in rec.meta.items() if k not in _TRUTH_KEYS + _PROBE_KEYS},
+            "meta": {k: v for k, v in rec.meta.items() if k not in (*_TRUTH_KEYS, *PER_TOUCH_META)},
             **_probe_touches(rec.meta),
             **_truth_layout(rec),
             **(read_gesture_truth(data) or {}),  # a `skinloc simulate --gestures` stream

@@ -25,6 +25,7 @@ log = logging.getLogger(__name__)
 
 __all__ = [
     "FORMAT_VERSION",
+    "PER_TOUCH_META",
     "file_meta",
     "read_recording",
     "Recording",
@@ -37,6 +38,9 @@ __all__ = [
 
 #: Version of the HDF5 layout written by ``write_recording``.
 FORMAT_VERSION = 1
+#: Meta keys holding one entry per point log, in its order: where the finger really landed (a
+#: simulated skin), and a robot probe's reported tip, depth and force (``collect --probe``).
+PER_TOUCH_META = ("true_contacts", "probe_tips_m", "probe_depths_m", "probe_forces_n")
 _HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
 _MAT_MAGIC = b"MATLAB 5.0 MAT-file"
 MAX_TX, MAX_RX = 21, 12
@@ -191,8 +195,24 @@ class Recording:
             surface_points=self.surface_points,
             planned_targets=None,
             frame_times=None if self.frame_times is None else self.frame_times[idx],
-            meta=dict(self.meta),
+            meta=self._meta_of(idx),
         )
+
+    def _meta_of(self, idx: np.ndarray) -> dict[str, Any]:
+        """The meta of the point logs ``idx``: per-touch lists (``PER_TOUCH_META``) cut to them.
+
+        A list shorter than the point logs (touches added later by hand) has None for the
+        point logs it has no entry for, and no trailing Nones.
+        """
+        meta = dict(self.meta)
+        for key in PER_TOUCH_META:
+            values = meta.get(key)
+            if isinstance(values, list):
+                cut = [values[i] if i < len(values) else None for i in idx]
+                while cut and cut[-1] is None:
+                    cut.pop()
+                meta[key] = cut
+        return meta
 
     def append(self, target: Points, frames: np.ndarray, times: np.ndarray | None = None) -> None:
         """Add one point log: ``target (3,)`` m and ``frames (s, n_sensors)`` raw counts."""

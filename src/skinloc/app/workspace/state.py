@@ -22,7 +22,7 @@ from skinloc.app.device import DeviceLink
 from skinloc.app.hub import Hub
 from skinloc.app.store import SessionFolder, SessionStore
 from skinloc.calibration.session import CalibrationSession, TouchDetector
-from skinloc.data.recording import Recording
+from skinloc.data.recording import PER_TOUCH_META, Recording
 from skinloc.errors import SkinlocError
 from skinloc.geometry.mesh import cone_skin
 
@@ -280,6 +280,10 @@ def pop_point_log(rec: Recording, i: int) -> dict[str, Any]:
     for key in PER_POINT:
         if key in meta and len(meta[key]) > i:
             removed["meta"][key] = meta[key].pop(i)
+    for key in PER_TOUCH_META:  # a probed session's tips, a simulated one's true contacts
+        values = rec.meta.get(key)
+        if isinstance(values, list) and len(values) > i:
+            removed["meta"][key] = values.pop(i)
     return removed
 
 

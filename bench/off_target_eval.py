@@ -7,7 +7,8 @@ counted.
 
 - Simulated skins (``--skin-seed0``, default 300: skins that set nothing; the method and its
   thresholds were chosen on skins 200-239, and on sessions drawn with other seeds from three
-  of the six recordings): the bad touch's image is of a press 40-100 mm from its target.
+  of the six recordings, ``bench/off_target_tune.py``): the bad touch's image is of a press
+  40-100 mm from its target.
 - The real recordings: sessions drawn from the six recordings' touches (a recording of at
   least the size, else the largest); the bad touch keeps its image and its target is moved
   40-100 mm along the surface (relabelled).

@@ -2,8 +2,9 @@
 
 One touch by itself is ``weak`` (its image is no touch, or far below the session's), ``short``
 (the finger lifted during the capture) or ``saturated`` (a sensor clipped); among the others
-it is ``off_target`` when the map of the other touches puts it far from its target, its image
-fits there better than at the target and badly at the target (the finger pressed elsewhere).
+it is ``off_target`` when the map of the other touches (of the images' square roots) puts it
+far from its target, its image fits there better than at the target and badly at the target
+(the finger pressed elsewhere).
 The app's gate (``skinloc app``), ``skinloc check`` and the benchmarks use these functions and
 nothing else.
 """
@@ -109,12 +110,13 @@ def off_target(
     touch_means: np.ndarray,
     surface_points: np.ndarray,
     *,
-    floor_mm: float = 20.0,
+    floor_mm: float = 30.0,
     score_floor: float = 0.4,
-    k: float = 2.5,
+    k: float = 2.0,
     trim_share: float = 0.2,
     passes: int = 2,
     min_touches: int = 6,
+    power: float = 0.5,
 ) -> OffTarget:
     """Flag touches pressed far from their target, on evidence from the other touches.
 
@@ -129,7 +131,11 @@ def off_target(
     and its score exceeds the spread of the kept touches (median + ``k`` scaled MADs), at
     least ``score_floor`` (raised as ``20 / n`` below 20 touches, where the map is loose and
     the spread rests on a few touches). The map's hyperparameters are fitted once, on all
-    touches, with the package's map prior.
+    touches, with the package's map prior. The map is of the images' square roots
+    (``power``): a raw image's shape is mostly its peak sensor, which changes between touches
+    a few mm apart on the real skin; the root lets the weaker sensors around it count, so
+    the map is smoother between touches and a touch in a gap between them is judged on more
+    than its peak (chosen on the tuning sessions of ``bench/off_target_eval.py``'s docstring).
 
     Parameters
     ----------
@@ -139,6 +145,17 @@ def off_target(
         Baseline-subtracted mean image of each touch, counts.
     surface_points : (P, 3) float
         Candidate places on the skin, m (``geometry.mesh.surface_points(mesh, 2000)``).
+    floor_mm : float
+        A touch located closer than this to its target is never flagged, mm.
+    score_floor, k : float
+        The score threshold: at least ``score_floor`` (x ``20 / n`` below 20 touches), and
+        median + ``k`` scaled MADs of the touches kept in the map.
+    trim_share, passes : float, int
+        The share of highest-scored touches kept out of the map, and how often re-scored.
+    min_touches : int
+        Below this many touches nothing is flagged (all figures NaN).
+    power : float
+        Each image's positive counts are raised to it before the map is fitted, in (0, 1].
 
     Returns
     -------
@@ -153,7 +170,7 @@ def off_target(
     if n < min_touches:
         nan = np.full(n, np.nan)
         return OffTarget(np.zeros(n, dtype=bool), nan, nan.copy(), nan.copy(), float("nan"))
-    fitted = LeaveOneOutMap.fit(targets, touch_means)
+    fitted = LeaveOneOutMap.fit(targets, touch_means, power=power)
     n_out = max(1, int(np.ceil(trim_share * n)))
     floor = score_floor * max(1.0, 20.0 / n)
     _, _, score = _evidence(fitted, surface_points)

@@ -138,10 +138,10 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Every touch's flags, as the app's gate gives them: off_target, weak, short, saturated.
 
-        off_target: the map of the other touches puts the touch's image more than 20 mm from
-        its target, fits it there better than at the target and badly at the target, by more
-        than the session's own spread (docs/app.md, "Touch quality"). Retake such a touch, or
-        leave it out in the app (skinloc app).
+        off_target: the map of the other touches (of the images' square roots) puts the
+        touch's image more than 30 mm from its target, fits it there better than at the target
+        and badly at the target, by more than the session's own spread (docs/app.md, "Touch
+        quality"). Retake such a touch, or leave it out in the app (skinloc app).
 
         Example: skinloc check cal.h5 --json
         """

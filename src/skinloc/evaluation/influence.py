@@ -194,12 +194,27 @@ class LeaveOneOutMap:
     exclude: np.ndarray
 
     @classmethod
-    def fit(cls, positions: np.ndarray, touch_means: np.ndarray, exclude=None) -> LeaveOneOutMap:
-        """Fit the map's hyperparameters on the touches not in ``exclude``."""
+    def fit(
+        cls,
+        positions: np.ndarray,
+        touch_means: np.ndarray,
+        exclude=None,
+        *,
+        power: float = 1.0,
+    ) -> LeaveOneOutMap:
+        """Fit the map's hyperparameters on the touches not in ``exclude``.
+
+        ``power`` compresses each image before its shape is taken (``shape_features`` of the
+        positive counts to that power): below 1 the weaker sensors around the peak count
+        more, so the map follows the image's whole footprint rather than its peak sensor.
+        """
         from skinloc.models.map_prior import load_prior
 
+        if not 0.0 < power <= 1.0:
+            raise ValueError(f"power must be in (0, 1], got {power!r}")
         q = 1e3 * np.asarray(positions, dtype=np.float64).reshape(-1, 3)
-        F = shape_features(touch_means)
+        X = np.asarray(touch_means, dtype=np.float64)
+        F = shape_features(X if power == 1.0 else np.maximum(X, 0.0) ** power)
         skip = np.zeros(len(q), bool) if exclude is None else np.asarray(exclude, dtype=bool)
         use = ~skip
         # The prior at every size (the default model drops it past a few touches): its pull

@@ -352,8 +352,8 @@ class LinkActions(WorkspaceState):
         from skinloc.evaluation.metrics import snr_db
 
         monitor.session_snr = snr_db(rec.touch_means, rec.baseline_frames)
-        if self.mode is not Mode.CALIBRATE and path.is_file():
-            session_sensor_map(path, rec, monitor)  # judged as `skinloc sensors` judges it
+        if path.is_file():  # judged as `skinloc sensors` judges it; no fit while capturing
+            session_sensor_map(path, rec, monitor, fit=self.mode is not Mode.CALIBRATE)
 
 
 #: Sensor maps of finished calibrations, by (file, modification time): a map takes seconds.
@@ -361,22 +361,37 @@ _SENSOR_MAPS: dict[tuple[str, int], Any] = {}
 _SENSOR_MAPS_LOCK = threading.Lock()
 
 
-def session_sensor_map(path: Path, rec: Any, monitor: SensorMonitor, wait: bool = False) -> None:
-    """Give ``monitor`` the sensor map of a finished calibration, computed on a thread.
+def session_sensor_map(
+    path: Path, rec: Any, monitor: SensorMonitor, wait: bool = False, fit: bool = True
+) -> None:
+    """Give ``monitor`` the sensor map of the calibration ``rec`` (the file ``path``).
 
     The Connect page then flags sensors and lines as ``skinloc sensors`` flags that recording
-    (``skinloc.sensors.health``); until the map is ready it flags from the live stream alone.
-    ``wait``: compute it on this thread.
+    (``skinloc.sensors.health``). A map fitted before for the file as it is now is given at
+    once; otherwise it is fitted on a thread (seconds), the monitor keeping the map it has
+    meanwhile (with none, it flags from the live stream alone). ``wait``: fit it on this
+    thread. ``fit=False`` (touches being captured): fit nothing, give the last map fitted for
+    ``path`` if the monitor has none of it.
     """
     key = (str(path), path.stat().st_mtime_ns if path.is_file() else 0)
     if monitor.session_map_key == key and monitor.session_gain is not None:
         return  # it has this very map
-    monitor.session_map_key = key  # a map of an older session arriving late is ignored
-    with _SENSOR_MAPS_LOCK:
-        known = _SENSOR_MAPS.get(key)
+    # A snapshot, without the lock a fit holds for seconds (the caller may hold the
+    # workspace's lock, which the frames wait for).
+    fitted = dict(_SENSOR_MAPS)
+    known = fitted.get(key)
+    if known is None and not fit and not monitor.has_map_of(path):
+        older = [k for k in fitted if k[0] == str(path)]
+        if older:
+            key = max(older, key=lambda k: k[1])
+            known = fitted[key]
     if known is not None:  # fitted before (another monitor, a session opened again): at once
+        monitor.session_map_key = key
         monitor.set_session_map(known)
         return
+    if not fit:
+        return
+    monitor.session_map_key = key  # a map of an older session arriving late is ignored
 
     def compute() -> None:
         with _SENSOR_MAPS_LOCK:

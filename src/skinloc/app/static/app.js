@@ -178,7 +178,6 @@ function linkLost() {
 }
 
 function checkLink() {
-  const now = performance.now();
   if (ws !== link.ws) {
     // A new connection: it has said nothing yet, and that is not silence.
     link.ws = ws;

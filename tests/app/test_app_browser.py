@@ -484,6 +484,9 @@ def link_lost(browser, page, url, wait_state, shot, tmp_path, errors) -> None:
         other = browser.new_page(viewport={"width": 1440, "height": 900})
         watch(other, errors)
         other.goto(url)
+        # Its first state shows the page of the validation under way: click only after it,
+        # or the Connect page asked for is replaced (the Connect page then was not in view).
+        other.wait_for_function("() => window.skinloc.state !== null")
         other.click("#nav button[data-page=connect]")
         wait_state("s.device && s.device.link_up", on=other)
         other.wait_for_function(

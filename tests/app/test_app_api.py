@@ -390,6 +390,33 @@ def test_heartbeat_when_nothing_else_is_sent(tmp_path):
             assert beat["device"] is False and beat["link_up"] is False
 
 
+def test_the_link_is_up_until_the_reader_counts_it_lost(tmp_path):
+    """Issue 33: the heartbeat said the link was down when the reader was merely late with its
+    frames (a busy machine), while the server counted no loss. Every message now carries the
+    reader's verdict, the one that counts ``link_losses``."""
+    app = create_app(AppConfig(data_dir=tmp_path / "data"), SourceOptions(source="sim"))
+    ws = app.state.workspace
+    device = ws.device
+    read, go_on = device.source.read, threading.Event()
+
+    def late_read(timeout_s=None):
+        go_on.wait(30)  # the reader thread held up (not the skin: its frames are waiting)
+        return read(timeout_s)
+
+    try:
+        wait_until(lambda: device.monitor.n_frames > 5, "frames")
+        device.source.read = late_read
+        wait_until(lambda: not device.link_now(), "a frame older than the link's limit", 30)
+        assert ws.link_status()["link_up"] is True and device.stats()["link_up"] is True
+        go_on.set()
+        n = device.monitor.n_frames
+        wait_until(lambda: device.monitor.n_frames > n + 5, "frames again")
+        assert device.link_losses == 0 and ws.link_status()["link_up"] is True
+    finally:
+        go_on.set()
+        ws.disconnect()
+
+
 @pytest.mark.skipif(not hasattr(__import__("os"), "openpty"), reason="needs a POSIX pty")
 def test_every_tab_is_told_when_the_link_drops_and_comes_back(tmp_path):
     """The virtual skin stops: both tabs get a link-lost state; it starts again: link back."""

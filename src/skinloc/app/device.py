@@ -21,7 +21,7 @@ import numpy as np
 
 from skinloc.calibration.session import TouchDetector
 from skinloc.errors import FrameTimeoutError, SourceNotConnectedError
-from skinloc.sensors.health import classify_sensors
+from skinloc.sensors.health import STEADY_CONFIRM, SteadyHealth, classify_sensors
 from skinloc.sources.base import Frame, FrameSource, SourceKind, SourceOptions, make_source
 
 log = logging.getLogger(__name__)
@@ -41,9 +41,22 @@ class SensorMonitor:
     its sensors look noisy. The zero level is the median of the first frames after
     ``rezero``; SNR is the largest rise above it relative to the noise (the paper's Eq. 1 with
     the running peak), unless a session supplies per-sensor SNR from its point logs.
+
+    The flags are ``skinloc.sensors.health``'s, shown steady (``SteadyHealth``): once the
+    window holds ``min_frames`` untouched frames, a sensor's or line's flag shows, changes or
+    clears only after ``steady`` reports in a row (one a second) say so, so a touch the
+    detector misses, swaying one window, does not make a line's flag come and go.
     """
 
-    def __init__(self, n_tx: int, n_rx: int, window: int = 100, settle: int = 10) -> None:
+    def __init__(
+        self,
+        n_tx: int,
+        n_rx: int,
+        window: int = 100,
+        settle: int = 10,
+        steady: int = STEADY_CONFIRM,
+        min_frames: int = 20,
+    ) -> None:
         self.n_tx, self.n_rx = n_tx, n_rx
         self.window = window
         self.settle = settle
@@ -61,6 +74,8 @@ class SensorMonitor:
         self.session_gain: np.ndarray | None = None
         self.session_noise: np.ndarray | None = None
         self.session_map_key: Any = None
+        self.min_frames = min_frames
+        self._steady = SteadyHealth(steady)
 
     def quiet_frames(self) -> np.ndarray:
         """The last untouched frames ``(m, n_tx * n_rx)`` raw counts (m: up to ``window``)."""
@@ -73,6 +88,7 @@ class SensorMonitor:
         self.zero, self._zero_frames = None, []
         self._detector = None
         self.peak = np.zeros(self.n_tx * self.n_rx)
+        self._steady.reset()
 
     def restart_rate(self) -> None:
         """Measure the frame rate afresh (after a gap in the stream)."""
@@ -112,6 +128,11 @@ class SensorMonitor:
             return 0.0
         return (len(t) - 1) / (t[-1] - t[0])
 
+    def has_map_of(self, path: Any) -> bool:
+        """Whether the sensor map it judges on is of the calibration file ``path``."""
+        key = self.session_map_key
+        return self.session_gain is not None and key is not None and key[0] == str(path)
+
     def set_session_map(self, smap: Any) -> None:
         """Judge the sensors on a ``SensorMap``'s gains and noise from now on (None: stop)."""
         ok = smap is not None and len(smap.gain) == self.n_tx * self.n_rx
@@ -148,7 +169,11 @@ class SensorMonitor:
         gain, judged = self.session_gain, noise
         if gain is not None and self.session_noise is not None:
             judged = self.session_noise
-        health = classify_sensors(self.n_tx, self.n_rx, gain=gain, noise=judged, stuck=stuck)
+        health = classify_sensors(
+            self.n_tx, self.n_rx, gain=gain, noise=judged, stuck=stuck, shown=self._steady.lines
+        )
+        if len(self._frames) >= self.min_frames:  # enough evidence to hold the flags to
+            health = self._steady.update(health)
         return {
             "noise": noise,
             "snr_db": snr,
@@ -288,7 +313,9 @@ class DeviceLink:
                 lost=s["n_lost"],
                 overflow=s["n_overflow"],
                 reconnects=s["n_reconnects"],
-                link_up=s["link_up"] and self.link_up,
+                # The reader's verdict alone (it also follows the port: ``link_now``), so
+                # every message the tabs get says what the counted losses say.
+                link_up=self.link_up,
                 format=s["format"],
             )
         else:

@@ -16,6 +16,12 @@ connector), and one crossing's gain is estimated from a handful of nearby touche
 
 Without gains (a live stream and no calibration yet) only the noise and stuck rules apply.
 Precedence per sensor: dead, then its line's state, then noisy.
+
+A live stream is judged again every second on a window of its latest frames, which a touch
+the touch detector does not see (a light one, at the skin's edge) sways for a moment.
+``SteadyHealth`` keeps what is shown steady: a sensor's or line's state changes, flagged or
+cleared, only once ``classify_sensors`` has said the new state ``STEADY_CONFIRM`` times in a
+row.
 """
 
 from __future__ import annotations
@@ -27,11 +33,14 @@ import numpy as np
 __all__ = [
     "DEAD_FRACTION",
     "DEAD_LEVEL",
+    "STEADY_CONFIRM",
+    "WEAK_CLEAR_FRACTION",
     "NOISY_FACTOR",
     "NOISY_MARGIN_COUNTS",
     "WEAK_FRACTION",
     "LineHealth",
     "SensorHealth",
+    "SteadyHealth",
     "classify_sensors",
     "line_health",
 ]
@@ -40,6 +49,9 @@ __all__ = [
 WEAK_FRACTION = 0.55
 #: ... and below this fraction, dead (a crossing too, against the median crossing).
 DEAD_FRACTION = 0.12
+#: A line already shown weak or dead clears only above this fraction of the median line (a
+#: band against a line's gain, estimated from a few touches, wavering around ``WEAK_FRACTION``).
+WEAK_CLEAR_FRACTION = 0.65
 #: A sensor whose no-touch noise exceeds this multiple of the median is noisy ...
 NOISY_FACTOR = 3.0
 #: ... if it is also this far above the median, counts.
@@ -77,6 +89,7 @@ def classify_sensors(
     gain: np.ndarray | None = None,
     noise: np.ndarray | None = None,
     stuck: np.ndarray | None = None,
+    shown: dict[str, list[str]] | None = None,
 ) -> SensorHealth:
     """Classify every sensor and line (the rule of the module docstring).
 
@@ -90,6 +103,10 @@ def classify_sensors(
         Each sensor's no-touch noise, counts (NaN where unknown).
     stuck : (n_tx * n_rx,) bool, optional
         Sensors that did not change, or sit at the ADC's rails.
+    shown : dict, optional
+        ``{"tx": [...], "rx": [...]}``: the lines' states shown so far (``SteadyHealth``). A
+        line shown weak or dead stays at least weak while its gain is under
+        ``WEAK_CLEAR_FRACTION`` of the median line.
 
     Returns
     -------
@@ -124,9 +141,11 @@ def classify_sensors(
         for i in range(n_lines):
             sl = (i, slice(None)) if axis == 1 else (slice(None), i)
             g = line_gain[kind][i] if line_gain is not None else np.nan
+            was = shown[kind][i] if shown is not None and i < len(shown[kind]) else "ok"
+            weak_below = WEAK_CLEAR_FRACTION if was in ("weak", "dead") else WEAK_FRACTION
             if g < DEAD_FRACTION * ref or dead_share[i] > 0.5:
                 s = "dead"
-            elif g < WEAK_FRACTION * ref:
+            elif g < weak_below * ref:
                 s = "weak"
             elif noisy_share[i] > 0.5:
                 s = "noisy"
@@ -141,6 +160,91 @@ def classify_sensors(
     flat[(flat == "ok") & noisy] = "noisy"
     gains = None if line_gain is None else {k: [float(v) for v in g] for k, g in line_gain.items()}
     return SensorHealth(flat.astype(str), lines, gains)
+
+
+#: Classifications in a row that must give a sensor or line its new state before it shows.
+STEADY_CONFIRM = 3
+
+
+class SteadyHealth:
+    """What a live view shows of successive classifications: each state changes with evidence.
+
+    The first classification is shown as it is. From then on a sensor's or a line's shown state
+    changes (to a flag, another flag, or ``ok``) only once ``n_confirm`` classifications in a
+    row gave it that same new state; one that disagrees starts the count again. A flag that a
+    moment's frames raise (a touch counted as noise) therefore never shows, and one that shows
+    does not clear on one good window. Every state comes from ``classify_sensors``; this only
+    decides when it is shown.
+
+    Parameters
+    ----------
+    n_confirm : int, default=STEADY_CONFIRM
+        Classifications in a row a new state needs, >= 1 (1: every classification as is).
+    """
+
+    def __init__(self, n_confirm: int = STEADY_CONFIRM) -> None:
+        if int(n_confirm) != n_confirm or n_confirm < 1:
+            raise ValueError(f"n_confirm must be an integer >= 1, got {n_confirm!r}")
+        self.n_confirm = int(n_confirm)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget everything: the next classification is shown as it is."""
+        self._shown: dict[str, np.ndarray] | None = None
+        self._next: dict[str, np.ndarray] = {}
+        self._count: dict[str, np.ndarray] = {}
+
+    @staticmethod
+    def _parts(health: SensorHealth) -> dict[str, np.ndarray]:
+        return {
+            "status": np.asarray(health.status, dtype=object).copy(),
+            "tx": np.asarray(health.lines["tx"], dtype=object),
+            "rx": np.asarray(health.lines["rx"], dtype=object),
+        }
+
+    @property
+    def lines(self) -> dict[str, list[str]] | None:
+        """The lines' states shown now (None before the first classification)."""
+        if self._shown is None:
+            return None
+        return {k: [str(v) for v in self._shown[k]] for k in ("tx", "rx")}
+
+    def update(self, health: SensorHealth) -> SensorHealth:
+        """Take the latest classification; returns the states to show now.
+
+        Parameters
+        ----------
+        health : SensorHealth
+            ``classify_sensors``'s verdict on the latest window. Another grid than before
+            starts afresh.
+
+        Returns
+        -------
+        SensorHealth
+            The shown states, with ``health``'s line gains.
+        """
+        raw = self._parts(health)
+        shown = self._shown
+        if shown is None or any(shown[k].shape != raw[k].shape for k in raw):
+            self._shown = raw
+            self._next = {k: v.copy() for k, v in raw.items()}
+            self._count = {k: np.zeros(v.shape, dtype=np.int64) for k, v in raw.items()}
+            return self._as_health(health)
+        for k, now in raw.items():
+            nxt, count = self._next[k], self._count[k]
+            same = now == nxt
+            count[:] = np.where(now == shown[k], 0, np.where(same, count + 1, 1))
+            nxt[:] = now
+            done = count >= self.n_confirm
+            shown[k][done] = now[done]
+            count[done] = 0
+        return self._as_health(health)
+
+    def _as_health(self, health: SensorHealth) -> SensorHealth:
+        shown = self._shown
+        assert shown is not None
+        lines = {"tx": [str(v) for v in shown["tx"]], "rx": [str(v) for v in shown["rx"]]}
+        return SensorHealth(shown["status"].astype(str), lines, health.line_gain)
 
 
 #: A line whose sensors read less than this fraction of the median baseline is dead (a broken

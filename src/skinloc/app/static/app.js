@@ -117,20 +117,20 @@ const handlers = {
     app.state = msg;
     // A page opened (or reloaded) while a capture or the live view runs shows it.
     if (!prev && ["calibrate", "validate", "live"].includes(msg.mode) && app.page !== msg.mode) showPage(msg.mode);
-    if (msg.device?.link_up) link.aliveAt = performance.now();
     if (msg.session?.id) localStorage.setItem("skinloc-last-session", msg.session.id);
     renderState(prev);
     checkLink();
   },
   heartbeat(msg) {
     // Sent by the server when nothing else is: the app lives; the skin's link is as it says.
-    if (msg.link_up) link.aliveAt = performance.now();
-    if (app.state?.device) app.state.device.frame_age_s = msg.frame_age_s;
+    if (app.state?.device && msg.device) {
+      app.state.device.link_up = msg.link_up;
+      app.state.device.frame_age_s = msg.frame_age_s;
+    }
     checkLink();
     if (link.lost) renderLink(); // the time since the last frame grows
   },
   frame(msg) {
-    link.aliveAt = performance.now();
     app.frame = msg;
     if (app.state?.device && msg.stats) Object.assign(app.state.device, msg.stats);
     later("frame", () => renderFrame(app.frame));
@@ -149,50 +149,66 @@ const handlers = {
   gesture(msg) { app.live.gesture(msg); },
 };
 
-// Every message shows that the app is there; frames (and heartbeats saying so) that the skin is.
+// Every message shows that the app is there.
 for (const [k, f] of Object.entries(handlers)) {
-  handlers[k] = (msg) => { link.msgAt = performance.now(); f(msg); };
+  handlers[k] = (msg) => { link.quietMs = 0; f(msg); };
 }
 
 // ------------------------------------------------------------------ the skin's link
-// The server pushes a state when the link drops or comes back; this watchdog does not wait for
-// it: a tab that has heard no frame (or heartbeat saying the link is up) for a second, or
-// nothing at all from the app, shows the link as lost by itself.
-const LINK_LOST_MS = 1000;
-const APP_SILENT_MS = 2500;
-const link = { aliveAt: performance.now(), msgAt: performance.now(), lost: false, offline: false };
+// The skin's link is what the server says it is: its reader counts a loss when no frame came
+// for 0.8 s (or the port closed) and pushes the state at once; every frame carries the link's
+// state, and when nothing else goes to the tab a heartbeat (4 a second) says it. The tab never
+// calls the link lost by itself: frames that reach it late (a busy server, a busy tab) are not
+// a lost link. The app's own silence is another matter, said in other words: no message at all
+// for APP_SILENT_MS closes the connection and reconnects ("not answering"). That time is
+// counted on the tab's ticks, each at most two ticks long, so a tab that was itself stalled
+// (a loaded machine rendering in software) does not take the messages it could not read yet
+// for the app's silence; the limit leaves a busy server (20 heartbeats) time to answer.
+const APP_SILENT_MS = 6000;
+const TICK_MS = 200;
+const link = { quietMs: 0, tickAt: performance.now(), lost: false, offline: false };
+
+/** The server said that the skin's link is lost. */
+const skinLinkLost = () => app.state?.device?.link_up === false;
 
 function linkLost() {
-  const d = app.state?.device;
-  if (!d) return false;
-  return link.offline || d.link_up === false || performance.now() - link.aliveAt > LINK_LOST_MS;
+  // Nothing can be done with the skin now: its link is lost, or the app does not answer.
+  if (!app.state?.device) return false;
+  return link.offline || skinLinkLost();
 }
 
 function checkLink() {
-  const now = performance.now();
   if (ws !== link.ws) {
     // A new connection: it has said nothing yet, and that is not silence.
     link.ws = ws;
-    link.msgAt = now;
+    link.quietMs = 0;
   }
-  const offline = !ws || ws.readyState !== WebSocket.OPEN;
-  if (ws && ws.readyState === WebSocket.OPEN && now - link.msgAt > APP_SILENT_MS) {
+  const open = !!ws && ws.readyState === WebSocket.OPEN;
+  if (open && link.quietMs > APP_SILENT_MS) {
     ws.close(); // a connection that went silent: reconnect (onclose says so)
   }
-  link.offline = offline;
+  link.offline = !open;
   const lost = linkLost();
-  if (lost === link.lost) return;
+  // What the page shows: lost or not, and why (the skin's link, or the app not answering).
+  const shown = `${lost} ${link.offline} ${skinLinkLost()}`;
+  if (shown === link.shown) return;
   link.lost = lost;
+  link.shown = shown;
   renderLink();
   if (app.page === "calibrate" || app.page === "validate") renderGuided(app.page);
 }
-setInterval(checkLink, 200);
+setInterval(() => {
+  const now = performance.now();
+  link.quietMs += Math.min(now - link.tickAt, 2 * TICK_MS);
+  link.tickAt = now;
+  checkLink();
+}, TICK_MS);
 
 function renderLink() {
   const d = app.state?.device;
   document.body.classList.toggle("link-lost", link.lost);
   const banner = $("#linklost");
-  banner.classList.toggle("hidden", !link.lost || link.offline);
+  banner.classList.toggle("hidden", !skinLinkLost() || link.offline);
   if (link.lost && d) {
     const age = d.frame_age_s ? ` for ${d.frame_age_s.toFixed(1)} s` : "";
     $("#linklost-text").textContent = `No frame from ${d.name}${age}. Waiting for it to come back` +
@@ -208,8 +224,11 @@ function renderPill() {
   if (!d) {
     pd.textContent = "no skin";
     pd.className = "pill off";
-  } else if (link.lost) {
+  } else if (skinLinkLost()) {
     pd.textContent = `${d.name} · link lost`;
+    pd.className = "pill bad";
+  } else if (link.lost) {
+    pd.textContent = `${d.name} · app not answering`;
     pd.className = "pill bad";
   } else {
     pd.textContent = `${d.name} · ${d.rate_hz.toFixed(0)} Hz${d.reconnects ? ` · ${d.reconnects} reconnect${d.reconnects > 1 ? "s" : ""}` : ""}`;
@@ -441,7 +460,8 @@ function renderDeviceStats(d) {
     ["Skin", esc(d.name)], ["Grid", `${d.tx} TX x ${d.rx} RX`], ["Frame rate", lost ? "-" : `${d.rate_hz.toFixed(1)} Hz`],
     ["Received", d.received], ["Dropped", d.dropped], ["Corrupted", d.corrupted], ["Lost frames", d.lost],
     ["Overflow", d.overflow], ["Reconnects", d.reconnects], ["Link losses", d.link_losses ?? 0],
-    ["Link", lost ? `<b class="bad">LOST</b>${d.frame_age_s ? ` (no frame for ${d.frame_age_s.toFixed(1)} s)` : ""}` : "up"],
+    ["Link", skinLinkLost() ? `<b class="bad">LOST</b>${d.frame_age_s ? ` (no frame for ${d.frame_age_s.toFixed(1)} s)` : ""}`
+      : lost ? "the app is not answering" : "up"],
     ...(d.error && lost ? [["Error", `<span class="error-text">${esc(d.error)}</span>`]] : []),
   ] : [["Skin", "not connected"]];
   $("#device-stats").innerHTML = rows.map(([k, v]) => `<tr><th>${k}</th><td>${v}</td></tr>`).join("");
@@ -598,7 +618,8 @@ function renderGuided(kind) {
   $(".start", el).disabled = !st?.session || !st?.device || st?.mode === "baseline" || link.lost;
   const state = $(".big-state", el);
   if (st?.device && link.lost) {
-    state.textContent = link.offline ? "The app is not answering: reconnecting" : "Link lost: waiting for the skin";
+    // The server's last word on the skin first: a busy app does not hide a lost link.
+    state.textContent = skinLinkLost() ? "Link lost: waiting for the skin" : "The app is not answering: reconnecting";
     state.className = "big-state lost";
   } else if (st?.mode === "baseline") {
     state.textContent = "Keep the skin untouched: baseline";

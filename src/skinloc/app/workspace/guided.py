@@ -189,6 +189,8 @@ class GuidedCapture(WorkspaceState):
         self.mode = Mode.IDLE
         self._stop_using_frames()
         self.message = f"{CAPTURED[mode]} complete"
+        if mode is Mode.CALIBRATE:
+            self._update_session_snr()  # the sensor map of the touches as they are now
         if mode is Mode.VALIDATE:
             self._summarise_validation()
         if mode is Mode.RECALIBRATE:
@@ -197,9 +199,12 @@ class GuidedCapture(WorkspaceState):
     def stop(self) -> None:
         """Pause guided capture or live view (everything recorded is saved)."""
         with self._lock:
+            was = self.mode
             self._stop_using_frames()
             self.mode = Mode.IDLE
             self.message = "paused"
+            if was is Mode.CALIBRATE:
+                self._update_session_snr()  # the sensor map of the touches so far
             self._publish_state()
 
     def capture_now(self) -> None:

@@ -263,14 +263,19 @@ class LinkActions(WorkspaceState):
         self._setup_finger()
 
     def link_status(self) -> dict[str, Any]:
-        """The heartbeat the server sends each tab when nothing else goes to it (no lock)."""
+        """The heartbeat the server sends each tab when nothing else goes to it (no lock).
+
+        ``link_up`` is the reader's verdict (``DeviceLink.link_up``), the one that counts the
+        link's losses and pushes a state when it changes: a reader late with its frames (a
+        busy machine) is not a lost link, so the heartbeat never says so on its own.
+        """
         device = self.device
         if device is None:
             return {"type": "heartbeat", "device": False, "link_up": False}
         return {
             "type": "heartbeat",
             "device": True,
-            "link_up": device.link_up and device.link_now(),
+            "link_up": device.link_up,
             "frame_age_s": round(device.frame_age_s, 2),
         }
 
@@ -317,6 +322,15 @@ class LinkActions(WorkspaceState):
             self.hub.publish({"type": "sensors", **self.device.monitor.report()})
 
     def _update_session_snr(self) -> None:
+        """Give the monitor the SNR and the sensor map of the open session's touches.
+
+        The map (its gains make the weak and dead lines) is of the calibration's touches as
+        they are, whether the calibration was finished in an earlier run or in this one, and
+        whatever monitor asks (a skin connected again gets it at once): the same touches give
+        the same lines. It is fitted again (on a thread) once the touches changed and no
+        calibration is capturing; the last one stays meanwhile, and with fewer than 15
+        touches no new one is fitted, the last of this session staying.
+        """
         if self.device is None:
             return
         a = self.active
@@ -327,15 +341,21 @@ class LinkActions(WorkspaceState):
             except RecordingError:
                 rec = None
         monitor = self.device.monitor
-        if rec is None or rec.n_point_logs < 15 or rec.n_sensors != self.device.source.n_sensors:
+        if a is None or rec is None or rec.n_sensors != self.device.source.n_sensors:
             monitor.session_snr = None
             monitor.set_session_map(None)
+            return
+        path = a.folder.calibration
+        if rec.n_point_logs < 15:
+            monitor.session_snr = None
+            if not monitor.has_map_of(path):
+                monitor.set_session_map(None)
             return
         from skinloc.evaluation.metrics import snr_db
 
         monitor.session_snr = snr_db(rec.touch_means, rec.baseline_frames)
-        if a is not None and a.cal is None:  # a finished calibration: judge it as `skinloc sensors`
-            session_sensor_map(a.folder.calibration, rec, monitor)
+        if path.is_file():  # judged as `skinloc sensors` judges it; no fit while capturing
+            session_sensor_map(path, rec, monitor, fit=self.mode is not Mode.CALIBRATE)
 
 
 #: Sensor maps of finished calibrations, by (file, modification time): a map takes seconds.
@@ -343,14 +363,36 @@ _SENSOR_MAPS: dict[tuple[str, int], Any] = {}
 _SENSOR_MAPS_LOCK = threading.Lock()
 
 
-def session_sensor_map(path: Path, rec: Any, monitor: SensorMonitor, wait: bool = False) -> None:
-    """Give ``monitor`` the sensor map of a finished calibration, computed on a thread.
+def session_sensor_map(
+    path: Path, rec: Any, monitor: SensorMonitor, wait: bool = False, fit: bool = True
+) -> None:
+    """Give ``monitor`` the sensor map of the calibration ``rec`` (the file ``path``).
 
     The Connect page then flags sensors and lines as ``skinloc sensors`` flags that recording
-    (``skinloc.sensors.health``); until the map is ready it flags from the live stream alone.
-    ``wait``: compute it on this thread.
+    (``skinloc.sensors.health``). A map fitted before for the file as it is now is given at
+    once; otherwise it is fitted on a thread (seconds), the monitor keeping the map it has
+    meanwhile (with none, it flags from the live stream alone). ``wait``: fit it on this
+    thread. ``fit=False`` (touches being captured): fit nothing, give the last map fitted for
+    ``path`` if the monitor has none of it.
     """
     key = (str(path), path.stat().st_mtime_ns if path.is_file() else 0)
+    if monitor.session_map_key == key and monitor.session_gain is not None:
+        return  # it has this very map
+    # A snapshot, without the lock a fit holds for seconds (the caller may hold the
+    # workspace's lock, which the frames wait for).
+    fitted = dict(_SENSOR_MAPS)
+    known = fitted.get(key)
+    if known is None and not fit and not monitor.has_map_of(path):
+        older = [k for k in fitted if k[0] == str(path)]
+        if older:
+            key = max(older, key=lambda k: k[1])
+            known = fitted[key]
+    if known is not None:  # fitted before (another monitor, a session opened again): at once
+        monitor.session_map_key = key
+        monitor.set_session_map(known)
+        return
+    if not fit:
+        return
     monitor.session_map_key = key  # a map of an older session arriving late is ignored
 
     def compute() -> None:

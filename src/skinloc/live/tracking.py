@@ -115,7 +115,9 @@ def frame_contacts(
 
 def _within(a: np.ndarray, b: np.ndarray, r: float) -> bool:
     """Whether points ``a`` and ``b`` (3,) are at most ``r`` apart (m)."""
-    d0, d1, d2 = float(a[0] - b[0]), float(a[1] - b[1]), float(a[2] - b[2])
+    a0, a1, a2 = a.tolist()  # Python floats: the same sums as NumPy's, without its scalars
+    b0, b1, b2 = b.tolist()
+    d0, d1, d2 = a0 - b0, a1 - b1, a2 - b2
     return d0 * d0 + d1 * d1 + d2 * d2 <= r * r
 
 
@@ -349,10 +351,6 @@ class Tracker:
         if k > 1 and self._multi:
             self.single = False
         self._multi = k > 1
-        used = [False] * k
-        events: list[tuple[Track, str]] = []
-        matched: set[int] = set()
-        held: Track | None = None
         if len(live) == 1 and k == 1 and not self.candidates:
             t = live[0]
             if t.seen < self.settle_frames or t.near(positions[0], self.gate_m):
@@ -360,6 +358,10 @@ class Tracker:
                 # the same finger, as in step 1; no assignment to compute
                 self._measure(t, ts, positions[0], raw[0], strength[0], uncertainty_mm[0])
                 return [(t, "move")]
+        used = [False] * k
+        events: list[tuple[Track, str]] = []
+        matched: set[int] = set()
+        held: Track | None = None
         if live and k:
             prev = np.array([t.last_m for t in live])
             for i, j in assign(prev, positions, self.gate_m):

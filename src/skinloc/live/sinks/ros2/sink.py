@@ -397,7 +397,11 @@ class Ros2Sink(Sink):
 
     def emit_contacts(self, skin: str, timestamp_s: float, contacts: Sequence[Contact]) -> None:
         """Queue one frame of ``skin`` for the publisher (see ``Ros2Topics.emit_contacts``)."""
-        keep = any(c.state == "end" for c in contacts)
+        keep = False
+        for c in contacts:  # a loop, not any() over a generator: this runs every frame
+            if c.state == "end":
+                keep = True
+                break
         i = self._skin(skin)
         if contacts:
             ring = self._latency.get(i)

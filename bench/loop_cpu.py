@@ -48,10 +48,13 @@ def main() -> None:
     ap.add_argument("--sink", choices=("rclpy", "dds", "none"), default="rclpy")
     ap.add_argument("--max-contacts", type=int, default=3, choices=(1, 2, 3))
     ap.add_argument("--models", type=Path, default=None, help="the bench models' folder")
+    ap.add_argument(
+        "--model", type=Path, default=None, help="a model file (two revisions side by side: one)"
+    )
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()
     folder = args.models or Path(tempfile.gettempdir()) / "skinloc-bench" / "online-models"
-    model = train_bench_models(folder, ("default",))["default"]
+    model = args.model or train_bench_models(folder, ("default",))["default"]
     load_before = os.getloadavg()
     frames, _ = touch_stream(3000, random_state=0)
     counts = [binary_counts(f, 8, 8) for f in frames]

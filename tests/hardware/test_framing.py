@@ -170,6 +170,27 @@ def test_binary_corrupted_byte_is_counted_and_resynced():
     assert p.stats.n_corrupted >= 1 and p.stats.n_lost == 1
 
 
+def test_binary_reads_of_one_frame_each_equal_one_read_of_all():
+    """A read of one whole frame (the live port's usual read) gives what the general path does:
+    the same frames and counters, a lost counter counted, and a damaged, partial or other-grid
+    frame handled by the general path as before."""
+    good = [encode_binary([k, 2 * k, 3 * k], 1, 3, k) for k in (0, 1, 3, 4, 5)]
+    bad = bytearray(good[3])
+    bad[9] ^= 0x40
+    other = encode_binary([1, 2, 3, 4, 5, 6], 2, 3, 9)
+    reads = [good[0], good[1], good[2], bytes(bad), other, good[4][:5], good[4][5:]]
+    one, every = BinaryParser(1, 3), BinaryParser(1, 3)
+    got = [f for r in reads for f in one.feed(r)]
+    want = every.feed(b"".join(reads))
+    assert [(f.counter, f.values.tolist()) for f in got] == [
+        (f.counter, f.values.tolist()) for f in want
+    ]
+    assert [f.counter for f in got] == [0, 1, 3, 5]
+    assert got[0].values.dtype == np.uint16
+    assert one.stats.as_dict() == every.stats.as_dict()
+    assert one.stats.n_lost == 2 and one.stats.n_corrupted >= 1 and one.stats.n_wrong_grid == 1
+
+
 def test_binary_false_sync_in_garbage_does_not_hide_the_next_frame():
     # A fake header announcing a 21 x 12 frame swallows the real frame's bytes until the CRC
     # check fails; the parser must then rescan and still find it.

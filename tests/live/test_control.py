@@ -285,3 +285,39 @@ def test_the_ros2_sinks_diagnostics_are_built_a_skin_a_sweep_and_published_whole
         sink._proc, sink._r, sink._w = None, -1, -1
         os.close(r)
         os.close(w)
+
+
+def test_a_skins_dead_lines_are_classified_once_per_capture(monkeypatch):
+    """The diagnostics classify a skin's lines again only when its noise changed (a capture,
+    a tare); a line that died shows at the next capture's diagnostics."""
+    import types
+
+    from skinloc.live import control as control_module
+    from skinloc.live.control import SkinControl
+
+    rng = np.random.default_rng(4)
+    core = _core(baseline_frames=20, max_contacts=1)
+    _feed(core, _frames(20, rng))
+    skin = types.SimpleNamespace(name="t", source="sim", rate_hz=100.0)
+    runner = types.SimpleNamespace(
+        skins=[skin], cores=[core], stats=lambda slots: [{"frames": core.n_frames} for _ in slots]
+    )
+    calls = []
+    real = control_module.classify_sensors
+    monkeypatch.setattr(
+        control_module, "classify_sensors", lambda *a, **k: calls.append(1) or real(*a, **k)
+    )
+    control = SkinControl(runner)
+    first = [control.diagnostics(float(k))[0]["values"] for k in range(3)]
+    assert len(calls) == 1
+    assert all(v["dead_lines"] == "none" for v in first)
+    core.tare()
+    frames = _frames(20, rng)
+    frames[:, 0:8] = 8000.0  # TX0's eight sensors stopped changing: a dead line
+    _feed(core, frames, 100)
+    assert core.calibrated
+    after = control.diagnostics(5.0)[0]
+    assert len(calls) == 2
+    assert "TX0" in after["values"]["dead_lines"] and after["level"] == 2
+    control.diagnostics(6.0)
+    assert len(calls) == 2

@@ -14,7 +14,7 @@ import math
 import numpy as np
 import pytest
 
-from skinloc.live.one_euro import one_euro
+from skinloc.live.one_euro import one_euro, one_euro_onto
 
 DT = 0.01  # s: a 100 Hz skin
 
@@ -102,3 +102,25 @@ def test_a_repeated_timestamp_does_not_divide_by_zero():
     one_euro(state, 0.0, 0.0, 0.0, 1.0, prm, out)
     one_euro(state, 0.01, 0.0, 0.0, 1.0, prm, out)  # same time: treated as 1 ms later
     assert np.all(np.isfinite(out)) and 0.0 < out[0] < 0.01
+
+
+def test_the_filter_onto_the_surface_is_the_filter_then_the_constraint():
+    """``one_euro_onto`` (one compiled call a track) writes what ``one_euro`` followed by the
+    surface's ``constrain_into`` writes, with the same filter state, for every constraint."""
+    from skinloc.geometry.mesh import cone_skin
+    from skinloc.geometry.snap import Surface
+
+    mesh = cone_skin()
+    rng = np.random.default_rng(3)
+    prm = np.array([1.0, 0.05, 1.0])
+    for mode in ("none", "snap", "project"):
+        v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+        surface = Surface(mode, v[::7], v, f)
+        s1, s2, tmp1, tmp2 = np.zeros(8), np.zeros(8), np.zeros(3), np.zeros(3)
+        for i, p in enumerate(v[:40] + rng.normal(0.0, 2e-3, (40, 3))):
+            want, got = np.zeros(3), np.zeros(3)
+            one_euro(s1, p[0], p[1], p[2], i * DT, prm, tmp1)
+            surface.constrain_into(tmp1[0], tmp1[1], tmp1[2], want)
+            one_euro_onto(s2, p[0], p[1], p[2], i * DT, prm, tmp2, surface.mode, surface.args, got)
+            np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+            np.testing.assert_allclose(s2, s1, rtol=0, atol=1e-12)

@@ -21,7 +21,7 @@ import numpy as np
 
 from skinloc.bench.stream import touch_stream
 
-__all__ = ["many_skins"]
+__all__ = ["baseline_cpu_us", "many_skins"]
 
 
 def _feeder(
@@ -193,7 +193,7 @@ def _shard(
         with contextlib.suppress(OSError):
             os.nice(-nice)
     sink_stats = {getattr(s, "name", str(s)): s.stats() for s in sink_objs if hasattr(s, "stats")}
-    base_us = _baseline_cpu_us(model_path)
+    base_us = baseline_cpu_us(model_path)
     return {
         "baseline_cpu_us_per_frame": base_us,
         "lat_us": np.asarray(lat, dtype=np.float64),
@@ -207,7 +207,7 @@ def _shard(
     }
 
 
-def _baseline_cpu_us(model_path: Path, n: int = 2000) -> float:
+def baseline_cpu_us(model_path: Path, n: int = 2000) -> float:
     """CPU (this thread's) of the single-contact NumPy baseline per touched frame, us.
 
     ``skinloc.bench.baseline.baseline_fn`` on the touch stream's touched frames, one frame a

@@ -381,27 +381,33 @@ class WireDecoder:
         self._last_counter = None
         self.stamper.restart()
 
+    def _index(self, counter: int | None) -> int:
+        """A frame's index: its 16-bit counter unwrapped, or the text frames' count."""
+        if counter is None:
+            self._n_text += 1
+            return self._n_text - 1
+        # Unwrap the 16-bit counter; after a reconnect start a fresh epoch.
+        if self._last_counter is None:
+            self._base = self._next_epoch
+        elif counter < self._last_counter:
+            self._base += 1 << 16
+        self._last_counter = counter
+        index = self._base + counter
+        self._next_epoch = ((index >> 16) + 1) << 16
+        return index
+
     def feed(self, data: bytes, t_read: float) -> list[Frame]:
         """The frames completed by ``data``, bytes read at ``t_read`` (``time.monotonic()`` s)."""
         raws = self.parser.feed(data)
         if not raws:
             return []
-        indices = []
-        for raw in raws:
-            counter = raw.counter
-            if counter is None:
-                indices.append(self._n_text)
-                self._n_text += 1
-                continue
-            # Unwrap the 16-bit counter; after a reconnect start a fresh epoch.
-            if self._last_counter is None:
-                self._base = self._next_epoch
-            elif counter < self._last_counter:
-                self._base += 1 << 16
-            self._last_counter = counter
-            index = self._base + counter
-            self._next_epoch = ((index >> 16) + 1) << 16
-            indices.append(index)
+        if len(raws) == 1:  # a live port's usual read: one frame, without the lists
+            raw = raws[0]
+            index = self._index(raw.counter)
+            values = raw.values.astype(np.float32)
+            t = self.stamper.stamp((index,), t_read)[0]
+            return [Frame(values if self.keep is None else values[self.keep], t, index)]
+        indices = [self._index(raw.counter) for raw in raws]
         stamps = self.stamper.stamp(indices, t_read)
         keep = self.keep
         out = []

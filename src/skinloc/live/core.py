@@ -44,7 +44,7 @@ from skinloc.live.contact import Contact
 from skinloc.live.footprint import FootprintWatch
 from skinloc.live.gestures import GestureConfig, GestureRecognizer, SkinFrame
 from skinloc.live.landing import LandingWatch
-from skinloc.live.one_euro import one_euro
+from skinloc.live.one_euro import one_euro, one_euro_onto
 from skinloc.live.pair_prior import pair_prior
 from skinloc.live.tracking import Track, Tracker, frame_contacts
 from skinloc.models.engine import Engine, load_engine
@@ -279,6 +279,7 @@ class SkinCore:
             self.engine.constrain_into,
             self._filt_prm if cfg.filter == "one-euro" else None,
             pair=pair_prior(self.engine, self._delta),
+            surface=self.engine.surface,
         )
 
     def _warm_up(self) -> None:
@@ -290,6 +291,10 @@ class SkinCore:
             all_finite(np.zeros(n, dtype=dtype))
         one_euro(np.zeros(8), 0.0, 0.0, 0.0, 0.0, self._filt_prm, np.zeros(3))
         self.engine.constrain_into(0.0, 0.0, 0.0, np.zeros(3))
+        if self._tracker is not None:
+            s = self.engine.surface
+            z3 = np.zeros(3)
+            one_euro_onto(np.zeros(8), 0.0, 0.0, 0.0, 0.0, self._filt_prm, z3, s.mode, s.args, z3)
         if self._tracker is not None and self._tracker.pair is not None:
             # the pair prior fits in a touch's first frames: compiled there, it stalled the
             # loop, and the frames read after the stall arrived at once, stamped late

@@ -191,7 +191,7 @@ class SkinFrame:
 class _Finger:
     track_id: int
     start_s: float
-    first: np.ndarray
+    first: tuple[float, float, float]  # where the finger settled, m
     path: list[tuple[float, float, float]]
     end_s: float = math.nan
     last_s: float = math.nan
@@ -314,7 +314,7 @@ class GestureRecognizer:
             if c.state == "start" or tid not in self._fingers:
                 if c.state not in ("start", "move"):
                     continue
-                f = _Finger(tid, c.timestamp_s, np.array(p), [p], last_s=c.timestamp_s)
+                f = _Finger(tid, c.timestamp_s, p, [p], last_s=c.timestamp_s)
                 self._fingers[tid] = f
                 ep = self._episode
                 if ep is None:
@@ -323,7 +323,7 @@ class GestureRecognizer:
                     if not g.ended and c.timestamp_s - g.start_s <= self.cfg.two_finger_sync_s:
                         # until this finger was found, the other's positions were one
                         # contact's fit to both fingers' image: its stillness starts now
-                        g.first = np.array(g.path[-1])
+                        g.first = g.path[-1]
                         g.max_from_first = 0.0
                 if ep.fingers:
                     f.main_n = len(ep.fingers[0].path)
@@ -338,7 +338,7 @@ class GestureRecognizer:
                 if c.timestamp_s - f.start_s < self.cfg.landing_s:
                     # still landing (the pressure rising, the image weak): the position
                     # settles; stillness is measured from where it settled
-                    f.first = np.array(p)
+                    f.first = p  # a tuple: math.dist takes it without converting
                 else:
                     f.max_from_first = max(f.max_from_first, math.dist(p, f.first))
             f.last_s = c.timestamp_s

@@ -7,8 +7,9 @@ import math
 import numpy as np
 
 from skinloc._jit import jit
+from skinloc.geometry.snap import constrain_one
 
-__all__ = ["one_euro"]
+__all__ = ["one_euro", "one_euro_onto"]
 
 
 @jit()
@@ -49,3 +50,25 @@ def one_euro(
         p = p0 if k == 0 else (p1 if k == 1 else p2)
         state[2 + k] += a * (p - state[2 + k])
         out[k] = state[2 + k]
+
+
+@jit()
+def one_euro_onto(
+    state: np.ndarray,
+    p0: float,
+    p1: float,
+    p2: float,
+    t: float,
+    prm: np.ndarray,
+    tmp: np.ndarray,
+    mode: int,
+    surf: tuple,
+    out: np.ndarray,
+) -> None:  # pragma: no cover - compiled
+    """``one_euro`` into ``tmp (3,)``, then that point put on the surface into ``out (3,)``.
+
+    ``mode`` and ``surf`` are a ``Surface``'s (``geometry.snap.constrain_one``): the filter and
+    the constraint of a track in one compiled call (two cost about 1.5 us more a contact).
+    """
+    one_euro(state, p0, p1, p2, t, prm, tmp)
+    constrain_one(tmp[0], tmp[1], tmp[2], mode, surf, out)

@@ -160,7 +160,7 @@ class PairPrior:
         ``live``: the live tracks (``start_s``); ``contact_m``: the search's one contact.
         """
         r = self.rule
-        if not self._window(ts, live) or self.fits >= r.max_fits:
+        if self.fits >= r.max_fits or not self._window(ts, live):  # the cheap test first
             self.run = 0
             return None
         self.fits += 1

@@ -398,7 +398,8 @@ class Runner:
                 continue
             for contacts in feed.contacts(data, t_in):
                 self._emit(feed.slot, contacts, out)
-            self._emit(feed.slot, (), out)  # gestures of frames without contacts
+            if feed.core.gestures:  # gestures of frames without contacts
+                self._emit(feed.slot, (), out)
         self._wake_pending = False
         q = self._queue
         cores = self.cores

@@ -50,9 +50,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from skinloc.live.one_euro import one_euro
+from skinloc.live.one_euro import one_euro, one_euro_onto
 
 if TYPE_CHECKING:
+    from skinloc.geometry.snap import Surface
     from skinloc.live.pair_prior import PairPrior
     from skinloc.models.multi_contact.search import SearchMemory
 
@@ -101,8 +102,12 @@ def frame_contacts(
             cs = engine.contacts(delta, max_contacts=max_contacts)
         else:
             cs = engine.contacts(delta, max_contacts=max_contacts, memory=memory)
-        pos = np.asarray(cs.positions_m, dtype=np.float64).reshape(-1, 3)
-        if len(pos):
+        rows = getattr(cs, "rows", None)  # a ContactSet's one (k, 5) block: its columns as views
+        if rows is not None:
+            if len(rows):
+                pos = rows[:, 0:3]
+                return pos, pos, rows[:, 3], rows[:, 4]
+        elif len(pos := np.asarray(cs.positions_m, dtype=np.float64).reshape(-1, 3)):
             return pos, pos, np.asarray(cs.strength, float), np.asarray(cs.uncertainty_mm, float)
     engine.localise_into(delta, out)
     return out[None, 3:6], out[None, 0:3], np.full(1, math.nan), out[6:7]
@@ -110,7 +115,9 @@ def frame_contacts(
 
 def _within(a: np.ndarray, b: np.ndarray, r: float) -> bool:
     """Whether points ``a`` and ``b`` (3,) are at most ``r`` apart (m)."""
-    d0, d1, d2 = float(a[0] - b[0]), float(a[1] - b[1]), float(a[2] - b[2])
+    a0, a1, a2 = a.tolist()  # Python floats: the same sums as NumPy's, without its scalars
+    b0, b1, b2 = b.tolist()
+    d0, d1, d2 = a0 - b0, a1 - b1, a2 - b2
     return d0 * d0 + d1 * d1 + d2 * d2 <= r * r
 
 
@@ -237,6 +244,10 @@ class Tracker:
         Frames a landing track may jump beyond the gate (default ``confirm_frames``).
     pair : PairPrior, optional
         The second-finger prior (``skinloc.live.pair_prior``); None: the localiser's count.
+    surface : Surface, optional
+        The surface ``constrain`` puts points on (``Engine.surface``): given, each track's
+        filter and constraint run in one compiled call (``one_euro_onto``), as ``constrain``
+        would.
     """
 
     def __init__(
@@ -249,6 +260,7 @@ class Tracker:
         filter_params: np.ndarray | None,
         settle_frames: int | None = None,
         pair: PairPrior | None = None,
+        surface: Surface | None = None,
     ) -> None:
         self.max_contacts = int(max_contacts)
         self.settle_frames = int(confirm_frames if settle_frames is None else settle_frames)
@@ -257,6 +269,7 @@ class Tracker:
         self.confirm_frames = int(confirm_frames)
         self._constrain = constrain
         self._prm = filter_params
+        self._surface = None if surface is None else (surface.mode, surface.args)
         self.slots: list[Track | None] = [None] * self.max_contacts
         self.candidates: list[Track] = []
         self.pair = pair
@@ -289,8 +302,12 @@ class Tracker:
             t.position_m[:] = pos
         else:
             x, y, z = pos.tolist()  # Python floats: numba's fastest dispatch
-            one_euro(t.filt, x, y, z, ts, self._prm, self._tmp)
-            self._constrain(self._tmp[0], self._tmp[1], self._tmp[2], t.position_m)
+            if self._surface is not None:
+                mode, args = self._surface
+                one_euro_onto(t.filt, x, y, z, ts, self._prm, self._tmp, mode, args, t.position_m)
+            else:
+                one_euro(t.filt, x, y, z, ts, self._prm, self._tmp)
+                self._constrain(self._tmp[0], self._tmp[1], self._tmp[2], t.position_m)
 
     def update(
         self,
@@ -334,10 +351,6 @@ class Tracker:
         if k > 1 and self._multi:
             self.single = False
         self._multi = k > 1
-        used = [False] * k
-        events: list[tuple[Track, str]] = []
-        matched: set[int] = set()
-        held: Track | None = None
         if len(live) == 1 and k == 1 and not self.candidates:
             t = live[0]
             if t.seen < self.settle_frames or t.near(positions[0], self.gate_m):
@@ -345,6 +358,10 @@ class Tracker:
                 # the same finger, as in step 1; no assignment to compute
                 self._measure(t, ts, positions[0], raw[0], strength[0], uncertainty_mm[0])
                 return [(t, "move")]
+        used = [False] * k
+        events: list[tuple[Track, str]] = []
+        matched: set[int] = set()
+        held: Track | None = None
         if live and k:
             prev = np.array([t.last_m for t in live])
             for i, j in assign(prev, positions, self.gate_m):

@@ -14,7 +14,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from skinloc._jit import jit
+from skinloc._jit import compiled_entry, jit
 from skinloc._typing import Points
 from skinloc.models.engine import Engine, ModelSpec
 from skinloc.models.map_match import (
@@ -195,6 +195,7 @@ class MapEngine(Engine):
         self._sizes = (self.n_features, len(self._groups[0]), n_best, int(widest))
         self._scratch = new_scratch(*self._sizes)
         self._tables: SearchTables | None = None
+        self._recall: Any = None  # recall_into compiled for the tables (``compiled_entry``)
         self._z_on = float(self.rule.z_on)
         self._z = np.zeros(self.n_features, dtype=np.float32)
         self._no_memory = np.zeros(7)  # search_remember's memory when the caller has none
@@ -238,7 +239,25 @@ class MapEngine(Engine):
             t = self._tables if self._tables is not None else self.search_tables()
             n = -1
             if memory is not None:
-                n = recall_into(x, t.arrays, t.prm, t.scratch, memory.state)
+                recall = self._recall
+                if recall is None:
+                    recall = self._recall = compiled_entry(
+                        recall_into,
+                        self._x,
+                        t.arrays,
+                        t.prm,
+                        t.scratch,
+                        np.zeros_like(memory.state),
+                    )
+                if (
+                    x.dtype == np.float32
+                    and x.flags.c_contiguous
+                    and memory.state.dtype == np.float64
+                ):
+                    # the held touch's frames (most of them): its tables' types known
+                    n = recall(x, t.arrays, t.prm, t.scratch, memory.state)
+                else:
+                    n = recall_into(x, t.arrays, t.prm, t.scratch, memory.state)
             if n < 0:
                 n = search_remember(
                     x,

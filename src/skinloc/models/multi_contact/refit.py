@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from skinloc._jit import jit
+from skinloc._jit import compiled_entry, jit
 from skinloc.models.multi_contact.contacts import PRM_MIN2
 from skinloc.models.multi_contact.pairs import far_apart
 from skinloc.models.multi_contact.search import (
@@ -134,6 +134,7 @@ class PairRefit:
         self._S = tables.scratch.fresh()
         self._out = np.zeros(3)
         self._anchor = np.zeros(3)
+        self._fit = None  # _anchored_pair compiled for these tables (``compiled_entry``)
 
     def warm_up(self) -> PairRefit:
         """Compile the fit now (numba caches it on disk) rather than on a touch's frames.
@@ -158,7 +159,11 @@ class PairRefit:
         """
         xs = x if x.dtype == np.float32 else x.astype(np.float32)
         self._anchor[:] = anchor_m
-        if not _anchored_pair(xs, self._anchor, self._arrays, self._min2, self._S, self._out):
+        args = (self._anchor, self._arrays, self._min2, self._S, self._out)
+        if self._fit is None:
+            self._fit = compiled_entry(_anchored_pair, np.zeros_like(xs), *args)
+        fit = self._fit if xs.flags.c_contiguous and xs.ndim == 1 else _anchored_pair
+        if not fit(xs, *args):
             return None
         fpos = self._arrays.Fpos
         fi = self._S.fi

@@ -948,3 +948,16 @@ def test_skin_names_become_valid_ros_names(tmp_path):
     (_, _, ps) = topics["/skinloc/left_forearm/contact"][0]
     assert ps.header.frame_id == "skin/left-forearm"
     assert McapReplaySource(bag, skin="left-forearm").n_tx == 2
+
+
+def test_the_diagnostics_p99_is_numpys_percentile_of_the_finite_latencies():
+    """``p99`` (the latency p99 of a skin's status) is ``np.percentile(..., 99)`` of the ring's
+    finite entries, whatever their number; nan for none."""
+    from skinloc.live.sinks.ros2.sink import p99
+
+    rng = np.random.default_rng(1)
+    for n in (1, 2, 3, 50, 99, 100, 101, 255, 256):
+        ring = np.full(256, np.nan)
+        ring[rng.choice(256, n, replace=False)] = rng.lognormal(5.0, 1.5, n)
+        assert p99(ring) == pytest.approx(np.percentile(ring[np.isfinite(ring)], 99), rel=1e-12)
+    assert math.isnan(p99(np.full(8, np.nan)))

@@ -59,7 +59,7 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Ros2Sink"]
+__all__ = ["Ros2Sink", "p99"]
 
 _PIPE_BUF = 4096  # POSIX: a write of at most this many bytes to a pipe is atomic
 _BYTES_PER_FRAME = 256  # a frame record of up to 3 contacts, rounded up: sizes the pipe
@@ -78,6 +78,25 @@ _ERRORS = {
     "MissingExtraError": MissingExtraError,
     "OSError": OSError,
 }
+
+
+def p99(values: np.ndarray) -> float:
+    """The 99th percentile of ``values``' finite entries (nan: none), as ``np.percentile``'s.
+
+    Linear between the two nearest ranks, the same arithmetic as NumPy's default method, in a
+    tenth of its time (a skin's diagnostics took it once a second: 20-30 us of the loop's).
+    """
+    v = np.sort(values[np.isfinite(values)])
+    n = len(v)
+    if n == 0:
+        return math.nan
+    at = (n - 1) * 0.99
+    lo = math.floor(at)
+    a = float(v[lo])
+    b = float(v[min(lo + 1, n - 1)])
+    t = at - lo
+    d = b - a
+    return b - d * (1.0 - t) if t >= 0.5 else a + d * t
 
 
 def _pipe_max() -> int:
@@ -397,7 +416,11 @@ class Ros2Sink(Sink):
 
     def emit_contacts(self, skin: str, timestamp_s: float, contacts: Sequence[Contact]) -> None:
         """Queue one frame of ``skin`` for the publisher (see ``Ros2Topics.emit_contacts``)."""
-        keep = any(c.state == "end" for c in contacts)
+        keep = False
+        for c in contacts:  # a loop, not any() over a generator: this runs every frame
+            if c.state == "end":
+                keep = True
+                break
         i = self._skin(skin)
         if contacts:
             ring = self._latency.get(i)
@@ -448,10 +471,11 @@ class Ros2Sink(Sink):
         assert self._diag is not None
         names = control.skin_names
         t0 = time.perf_counter()
+        queued = self._queued()  # once a sweep: a system call
         while self._diag_slot < len(names):
             slot = self._diag_slot
             self._diag_slot += 1
-            extra = self._queue_values([names[slot]])
+            extra = self._queue_values([names[slot]], queued)
             self._diag += control.diagnostics(now, extra, slots=[slot])
             if time.perf_counter() - t0 >= _DIAG_BUDGET_S:
                 break
@@ -495,23 +519,32 @@ class Ros2Sink(Sink):
             finally:
                 os.set_blocking(self._w, False)
 
-    def _queue_values(self, names: Sequence[str] | None = None) -> dict[str, dict[str, float]]:
-        """Per skin (``names``, default all): latency p99 (us), publisher queue and drops."""
+    def _queued(self) -> int:
+        """Bytes waiting in the pipe to the publisher (-1: unknown)."""
         import termios
 
         try:
-            queued = int.from_bytes(
+            return int.from_bytes(
                 fcntl.ioctl(self._w, termios.FIONREAD, b"\0\0\0\0"), sys.byteorder
             )
         except (OSError, AttributeError):
-            queued = -1
+            return -1
+
+    def _queue_values(
+        self, names: Sequence[str] | None = None, queued: int | None = None
+    ) -> dict[str, dict[str, float]]:
+        """Per skin (``names``, default all): latency p99 (us), publisher queue and drops.
+
+        ``queued``: the pipe's bytes if the caller has just read them (``_queued``).
+        """
+        if queued is None:
+            queued = self._queued()
         out = {}
         for name in self._index if names is None else names:
             i = self._index.get(name)
             ring = self._latency.get(i) if i is not None else None
-            finite = ring[np.isfinite(ring)] if ring is not None else np.zeros(0)
             out[name] = {
-                "latency_p99_us": float(np.percentile(finite, 99)) if len(finite) else math.nan,
+                "latency_p99_us": math.nan if ring is None else p99(ring),
                 "publisher_queue_bytes": queued,
                 "publisher_dropped": self.n_dropped,
             }

@@ -83,6 +83,8 @@ def calibrate(client: TestClient, until: int | None = None) -> dict:
         lambda s: s["guided"] is not None and s["guided"]["index"] >= until,
         f"{until} touches",
     )
+    # The finger first: on a busy machine it may press once more before the stop lands.
+    client.post("/api/finger", json={"on": False}, headers=A)
     client.post("/api/capture/stop", headers=A)
     return state
 

@@ -69,10 +69,14 @@ def simulated_sessions(size, n_sessions, rng, skin_seed0):
             yield t, m, bad, surf
 
 
-def real_sessions(size, n_sessions, rng, data: Path):
-    """``(targets, touch_means, bad, surface)`` drawn from the real recordings, relabelled."""
+def real_sessions(size, n_sessions, rng, data: Path, names: list[str] | None = None):
+    """``(targets, touch_means, bad, surface)`` drawn from the real recordings, relabelled.
+
+    ``names``: the recordings of ``data`` to draw from (default: every ``.mat`` there).
+    """
     surf = surface_points(load_mesh(data / "Color_Cone.obj"), 2000)
-    recs = [read_recording(p) for p in sorted(data.glob("*.mat"))]
+    paths = sorted(data.glob("*.mat")) if names is None else [data / n for n in names]
+    recs = [read_recording(p) for p in paths]
     for s in range(n_sessions):
         rec = recs[s % len(recs)]
         if rec.n_point_logs < size:

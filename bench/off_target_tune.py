@@ -16,11 +16,9 @@ import argparse
 from pathlib import Path
 
 import numpy as np
-from off_target_eval import displaced, simulated_sessions
+from off_target_eval import real_sessions, simulated_sessions
 
 from skinloc.calibration.touch_check import off_target
-from skinloc.data.recording import read_recording
-from skinloc.geometry.mesh import load_mesh, surface_points
 
 #: The recordings the check was chosen on; the other three are the eval's alone.
 TUNING_RECORDINGS = (
@@ -32,19 +30,8 @@ TUNING_RECORDINGS = (
 
 def real_tuning_sessions(size: int, n_sessions: int, data: Path):
     """``(targets, touch_means, bad, surface)`` from the tuning recordings, relabelled."""
-    surf = surface_points(load_mesh(data / "Color_Cone.obj"), 2000)
-    recs = [read_recording(data / name) for name in TUNING_RECORDINGS]
     rng = np.random.default_rng(5000 + size)
-    for s in range(n_sessions):
-        rec = recs[s % len(recs)]
-        if rec.n_point_logs < size:
-            rec = max(recs, key=lambda r: r.n_point_logs)
-        pick = rng.choice(rec.n_point_logs, size, replace=False)
-        t, m, bad = rec.targets[pick].copy(), rec.touch_means[pick].copy(), np.zeros(size, bool)
-        for j in rng.choice(size, rng.integers(1, 4), replace=False):
-            t[j] = displaced(surf, t[j], rng.uniform(40, 100), rng)
-            bad[j] = True
-        yield t, m, bad, surf
+    return real_sessions(size, n_sessions, rng, data, list(TUNING_RECORDINGS))
 
 
 def main() -> None:

@@ -117,6 +117,18 @@ def _train(kind: str):
     return model
 
 
+def warm_kernels() -> None:
+    """Compile the live path's kernels into numba's on-disk cache, and build ``map.h5``.
+
+    Called once by the controller of ``pytest -n`` before its workers start: on a fresh clone
+    each worker otherwise compiled the same kernels at once (about 45 CPU-s each on this
+    machine), and beside CPU-heavy jobs a test waiting on that compile ran out of time.
+    """
+    from skinloc.live.core import SkinCore
+
+    SkinCore(model_path("map"))
+
+
 @functools.lru_cache(maxsize=1)
 def stream(n_frames: int = 1500) -> tuple[np.ndarray, list]:
     """Raw frames of the simulated skin with a scripted finger and the script."""

@@ -6,6 +6,7 @@ import functools
 import os
 import re
 import shutil
+import time
 import uuid
 from pathlib import Path
 
@@ -98,6 +99,28 @@ def pytest_configure(config) -> None:
         # the workers' order (slow units first, pytest_collection_modifyitems), not xdist's
         # own (the units with the most tests first)
         config.option.loadscopereorder = False
+
+
+@pytest.hookimpl(tryfirst=True)  # before xdist's own, which starts the workers
+def pytest_sessionstart(session) -> None:
+    """The controller of ``pytest -n`` compiles the kernels once before its workers start
+    (``tests._live.warm_kernels``); ``SKINLOC_TEST_WARM=0`` leaves it to the workers."""
+    config = session.config
+    if not _controller(config) or os.environ.get("SKINLOC_TEST_WARM") == "0":
+        return
+    os.environ["PYTEST_XDIST_TESTRUNUID"] = config.option.testrunuid  # the workers' shared folder
+    from tests._live import warm_kernels
+
+    tr = config.pluginmanager.get_plugin("terminalreporter")
+    say = tr.write_line if tr is not None else print
+    say("compiling the live kernels once for the workers (a fresh clone: about a minute)")
+    t0 = time.monotonic()
+    try:
+        warm_kernels()
+    except Exception as exc:  # noqa: BLE001 - the tests that need them report it themselves
+        say(f"warming the kernels failed ({type(exc).__name__}: {exc}); the workers compile them")
+    else:
+        say(f"kernels ready in {time.monotonic() - t0:.0f} s")
 
 
 def pytest_unconfigure(config) -> None:

@@ -224,6 +224,7 @@ class BinaryParser:
 
     Examples
     --------
+    >>> from skinloc.hardware.protocol import encode_binary
     >>> p = BinaryParser(1, 2)
     >>> data = b"noise" + encode_binary([7, 8], 1, 2, 0) + encode_binary([9, 10], 1, 2, 2)
     >>> [(f.counter, f.values.tolist()) for f in p.feed(data)], p.stats.n_lost
@@ -352,6 +353,7 @@ class AutoParser:
 
     Examples
     --------
+    >>> from skinloc.hardware.protocol import encode_binary
     >>> p = AutoParser(1, 2)
     >>> [f.values.tolist() for f in p.feed(b"hello\n" + encode_binary([1, 2], 1, 2, 0))]
     [[1, 2]]

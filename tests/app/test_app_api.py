@@ -419,78 +419,75 @@ def test_the_link_is_up_until_the_reader_counts_it_lost(tmp_path):
         ws.disconnect()
 
 
-@pytest.mark.skipif(not hasattr(__import__("os"), "openpty"), reason="needs a POSIX pty")
-def test_every_tab_is_told_when_the_link_drops_and_comes_back(tmp_path):
+@pytest.fixture
+def virtual_skin_app(tmp_path):
+    """``(dev, app)``: the virtual skin on a pty (200 Hz, stopped and started again at the same
+    path) and an app connected to it, its data under ``tmp_path / "data"``."""
+    if not hasattr(__import__("os"), "openpty"):
+        pytest.skip("needs a POSIX pty")
+    from skinloc.sim.skin import SimulatedSkin
+    from skinloc.sim.virtual_device import VirtualSkin
+
+    dev = VirtualSkin(SimulatedSkin(random_state=0), rate_hz=200, link_dir=tmp_path / "port")
+    dev.start()
+    try:
+        config = AppConfig(data_dir=tmp_path / "data", finger_delay_s=0.05)
+        yield dev, create_app(config, SourceOptions(source=dev.path))
+    finally:
+        dev.stop()
+
+
+def test_every_tab_is_told_when_the_link_drops_and_comes_back(virtual_skin_app):
     """The virtual skin stops: both tabs get a link-lost state; it starts again: link back."""
-    from skinloc.sim.skin import SimulatedSkin
-    from skinloc.sim.virtual_device import VirtualSkin
-
-    dev = VirtualSkin(SimulatedSkin(random_state=0), rate_hz=200, link_dir=tmp_path / "port")
-    dev.start()
-    try:
-        config = AppConfig(data_dir=tmp_path / "data", finger_delay_s=0.05)
-        app = create_app(config, SourceOptions(source=dev.path))
-        with TestClient(app) as client:
-            client.headers.update({"X-Skinloc-Token": getattr(app.state, "token", "") or ""})
-            with (
-                stream(client, "tab-a") as ws_a,
-                stream(client, "tab-b") as ws_b,
-            ):
-                for ws in (ws_a, ws_b):
-                    _stream_until(ws, lambda m: m["type"] == "frame", "frame")
-                dev.stop()
-                for ws in (ws_a, ws_b):
-                    lost = _stream_until(
-                        ws,
-                        lambda m: m["type"] == "state" and not m["device"]["link_up"],
-                        "link-lost state",
-                    )
-                    assert "link lost" in lost["message"]
-                    beat = _stream_until(ws, lambda m: m["type"] == "heartbeat", "heartbeat")
-                    assert beat["device"] and not beat["link_up"]
-                device = client.get("/api/state").json()["device"]
-                # No stale "200 Hz" from before the stop.
-                assert device["link_up"] is False and device["rate_hz"] == 0
-                dev.start()  # the same port path: the serial source reopens it
-                for ws in (ws_a, ws_b):
-                    back = _stream_until(
-                        ws,
-                        lambda m: m["type"] == "state" and m["device"]["link_up"],
-                        "link-back state",
-                    )
-                    assert "link back" in back["message"]
-                state = client.get("/api/state").json()["device"]
-                # >= 1: on a loaded machine the reopened link may also stall past the limit
-                assert state["link_losses"] >= 1 and state["reconnects"] >= 1
-    finally:
-        dev.stop()
-
-
-@pytest.mark.skipif(not hasattr(__import__("os"), "openpty"), reason="needs a POSIX pty")
-def test_a_baseline_cut_by_a_lost_link_is_captured_when_it_comes_back(tmp_path):
-    """Calibration started while the skin is silent: the baseline waits, never gives up."""
-    from skinloc.sim.skin import SimulatedSkin
-    from skinloc.sim.virtual_device import VirtualSkin
-
-    dev = VirtualSkin(SimulatedSkin(random_state=0), rate_hz=200, link_dir=tmp_path / "port")
-    dev.start()
-    try:
-        config = AppConfig(data_dir=tmp_path / "data", finger_delay_s=0.05)
-        with page_client(create_app(config, SourceOptions(source=dev.path))) as client:
-            sid = new_session(client, n_points=3)
+    dev, app = virtual_skin_app
+    with TestClient(app) as client:
+        client.headers.update({"X-Skinloc-Token": getattr(app.state, "token", "") or ""})
+        with (
+            stream(client, "tab-a") as ws_a,
+            stream(client, "tab-b") as ws_b,
+        ):
+            for ws in (ws_a, ws_b):
+                _stream_until(ws, lambda m: m["type"] == "frame", "frame")
             dev.stop()
-            wait_for(client, lambda s: not s["device"]["link_up"], "the link to drop")
-            assert client.post("/api/calibrate/start", headers=A).status_code == 200
-            state = wait_for(
-                client, lambda s: "captured again" in s["message"], "the baseline to wait"
-            )
-            assert state["mode"] == "baseline"
+            for ws in (ws_a, ws_b):
+                lost = _stream_until(
+                    ws,
+                    lambda m: m["type"] == "state" and not m["device"]["link_up"],
+                    "link-lost state",
+                )
+                assert "link lost" in lost["message"]
+                beat = _stream_until(ws, lambda m: m["type"] == "heartbeat", "heartbeat")
+                assert beat["device"] and not beat["link_up"]
+            device = client.get("/api/state").json()["device"]
+            # No stale "200 Hz" from before the stop.
+            assert device["link_up"] is False and device["rate_hz"] == 0
             dev.start()  # the same port path: the serial source reopens it
-            calibrate(client)
-            rec = read_recording(tmp_path / "data" / sid / "calibration.h5")
-            assert rec.n_point_logs == 3 and np.isfinite(rec.baseline).all()
-    finally:
+            for ws in (ws_a, ws_b):
+                back = _stream_until(
+                    ws,
+                    lambda m: m["type"] == "state" and m["device"]["link_up"],
+                    "link-back state",
+                )
+                assert "link back" in back["message"]
+            state = client.get("/api/state").json()["device"]
+            # >= 1: on a loaded machine the reopened link may also stall past the limit
+            assert state["link_losses"] >= 1 and state["reconnects"] >= 1
+
+
+def test_a_baseline_cut_by_a_lost_link_is_captured_when_it_comes_back(virtual_skin_app, tmp_path):
+    """Calibration started while the skin is silent: the baseline waits, never gives up."""
+    dev, app = virtual_skin_app
+    with page_client(app) as client:
+        sid = new_session(client, n_points=3)
         dev.stop()
+        wait_for(client, lambda s: not s["device"]["link_up"], "the link to drop")
+        assert client.post("/api/calibrate/start", headers=A).status_code == 200
+        state = wait_for(client, lambda s: "captured again" in s["message"], "the baseline to wait")
+        assert state["mode"] == "baseline"
+        dev.start()  # the same port path: the serial source reopens it
+        calibrate(client)
+        rec = read_recording(tmp_path / "data" / sid / "calibration.h5")
+        assert rec.n_point_logs == 3 and np.isfinite(rec.baseline).all()
 
 
 def test_active_sampling_then_the_coverage_map_of_the_trained_model(tmp_path):

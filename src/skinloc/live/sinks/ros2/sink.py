@@ -182,6 +182,12 @@ class Ros2Sink(Sink):
         self._index: dict[str, int] = {}
         self._token = 0
         self.n_put = self.n_dropped = 0
+        # the records of the loop's turn, written together at its end (``end_turn``): once the
+        # owner has called ``end_turn``, records gather until then (at most one atomic write)
+        self._turns = False
+        self._batch: list[bytes] = []
+        self._batch_bytes = 0
+        self._batch_keep = False
         self._child: dict[str, Any] = {}  # the publisher's latest statistics
         self._gone_logged = False
         self._requests: list[dict[str, Any]] = []  # the node's requests, for ``serve``
@@ -269,6 +275,7 @@ class Ros2Sink(Sink):
 
     def _write_all(self, data: bytes) -> None:
         """Write a record whole, waiting for room (start-up and new skins only)."""
+        self._send_batch()  # what the turn gathered goes first: the records keep their order
         view = memoryview(data)
         while view:
             try:
@@ -344,35 +351,74 @@ class Ros2Sink(Sink):
 
     # ------------------------------------------------------------------ the pipeline's side
     def _put(self, record: bytes, keep: bool = False) -> None:
-        """Write one record without blocking; a full pipe (or no publisher) drops it.
+        """Queue one record for the publisher; never blocks (but see ``keep``).
 
-        A record to ``keep`` (a frame that ends a track) waits up to ``_END_WAIT_S`` for room.
+        Once the owner ends its turns (``end_turn``), the record joins the turn's batch, written
+        at the turn's end (or when the next would not fit one atomic write); else it is written
+        now. A record to ``keep`` (a frame that ends a track) waits up to ``_END_WAIT_S`` for
+        room in a full pipe; any other that finds the pipe full (or no publisher) is dropped.
         """
         self.n_put += 1
+        n = len(record)
+        if self._turns and n <= _PIPE_BUF:
+            if self._batch_bytes + n > _PIPE_BUF:
+                self._send_batch()
+            self._batch.append(record)
+            self._batch_bytes += n
+            if keep:
+                self._batch_keep = True
+            return
+        self._send_batch()
+        self._write_records(record, 1, keep)
+
+    def end_turn(self) -> None:
+        """The loop's turn ended (``Sink.end_turn``): write its records in one write.
+
+        From the first call on, the records of each turn gather and go out together: one
+        system call a turn instead of one a frame (a few frames a turn on a busy loop).
+        """
+        self._turns = True
+        if self._batch:
+            self._send_batch()
+
+    def _send_batch(self) -> None:
+        """Write the gathered records (at most ``_PIPE_BUF`` bytes: one atomic write)."""
+        batch = self._batch
+        if not batch:
+            return
+        data = batch[0] if len(batch) == 1 else b"".join(batch)
+        count, keep = len(batch), self._batch_keep
+        self._batch = []
+        self._batch_bytes = 0
+        self._batch_keep = False
+        self._write_records(data, count, keep)
+
+    def _write_records(self, data: bytes, count: int, keep: bool) -> None:
+        """Write ``count`` whole records without blocking; dropped (and counted) if no room."""
         if self._w < 0:
-            self.n_dropped += 1
+            self.n_dropped += count
             return
         if keep:
-            self._wait_for_room(len(record), _END_WAIT_S)
+            self._wait_for_room(len(data), _END_WAIT_S)
         try:
-            if len(record) > _PIPE_BUF and not self._room_for(len(record)):
-                self.n_dropped += 1
+            if len(data) > _PIPE_BUF and not self._room_for(len(data)):
+                self.n_dropped += count
                 return
-            n = os.write(self._w, record)
+            n = os.write(self._w, data)
         except BlockingIOError:
-            self.n_dropped += 1
+            self.n_dropped += count
             return
         except BrokenPipeError:
-            self.n_dropped += 1
+            self.n_dropped += count
             if not self._gone_logged:
                 self._gone_logged = True
                 code = self._proc.poll() if self._proc is not None else None
                 log.error("the ROS 2 publisher process ended (exit code %s); not publishing", code)
             return
-        if n < len(record):  # only a record over PIPE_BUF can be cut: finish it
+        if n < len(data):  # only a write over PIPE_BUF can be cut: finish it
             os.set_blocking(self._w, True)
             try:
-                os.write(self._w, record[n:])
+                os.write(self._w, data[n:])
             finally:
                 os.set_blocking(self._w, False)
 
@@ -508,6 +554,7 @@ class Ros2Sink(Sink):
 
     def _control(self, message: dict[str, Any], wait_s: float = 0.1) -> None:
         """A message to the node (a ``CONTROL`` record; dropped if the pipe stays full)."""
+        self._send_batch()
         record = pack_control(message)
         self._wait_for_room(len(record), wait_s)
         if not self._room_for(len(record)):
@@ -586,6 +633,7 @@ class Ros2Sink(Sink):
         self._stop(timeout_s)
 
     def _stop(self, timeout_s: float) -> None:
+        self._send_batch()
         proc, self._proc = self._proc, None
         if self._w >= 0:
             os.close(self._w)  # the end of the records: the publisher drains and ends

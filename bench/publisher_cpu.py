@@ -62,7 +62,10 @@ def make_stream(path: Path, skins: int, frames: int, model: Path) -> None:
 
 
 def _thread_cpu(pid: int | None) -> dict[str, float]:
-    """CPU time (s) of each thread of process ``pid`` by thread name (Linux; else empty)."""
+    """CPU time (s) of each thread of process ``pid`` (Linux; else empty).
+
+    Keyed ``main`` for the process's main thread (the publisher's loop), else ``NAME:TID``.
+    """
     out: dict[str, float] = {}
     tick = os.sysconf("SC_CLK_TCK")
     for task in Path(f"/proc/{pid}/task").glob("*"):
@@ -71,7 +74,8 @@ def _thread_cpu(pid: int | None) -> dict[str, float]:
             fields = (task / "stat").read_text().rsplit(")", 1)[1].split()
         except OSError:
             continue
-        out[comm] = out.get(comm, 0.0) + (int(fields[11]) + int(fields[12])) / tick
+        key = "main" if task.name == str(pid) else f"{comm}:{task.name}"
+        out[key] = (int(fields[11]) + int(fields[12])) / tick
     return out
 
 
@@ -196,7 +200,9 @@ def main() -> None:
     print(
         f"loop {out['loop_cpu_us_per_frame']:.2f} us/frame, publisher "
         f"{out['publisher_cpu_us_per_frame']:.2f} us/frame ({out['publisher_batches']} reads, "
-        f"{after['dropped']} dropped), load {load_before[0]:.2f}"
+        f"{after['dropped']} dropped; emit to write median / p99 "
+        f"{after['publish_delay_median_us']:.0f} / {after['publish_delay_p99_us']:.0f} us), "
+        f"load {load_before[0]:.2f}"
     )
     for name, us in sorted(out["publisher_threads_cpu_us_per_frame"].items()):
         if us > 0:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import array
 import functools
+import io
 import json
 import logging
 import os
@@ -48,6 +49,7 @@ __all__ = ["Ros2Publisher", "main"]
 _DEPTH = 10  # keep-last depth of the data topics (rclpy's default QoS profile)
 _DELAYS = 1 << 17  # publishing delays kept for the statistics (the latest ones)
 _CLOSE_S = 5.0  # the longest the node's teardown is waited for before the process exits
+_READ_BYTES = 1 << 20  # the most one read takes from the pipe (the pipe holds about as much)
 
 
 class _DdsBackend:
@@ -315,13 +317,17 @@ def _serve(fd_in: int, reply: Any, config: dict[str, Any]) -> int:
     stats = _Stats()
     gather_s = float(config.get("gather_s", 0.001))
     opened = False
+    # every read into one buffer: ``os.read(fd, 1 MB)`` allocates a megabyte and gives it back
+    # each time (12 us a read here, where reading into a buffer costs 0.5 us)
+    source = io.FileIO(fd_in, "rb", closefd=False)
+    chunk = memoryview(bytearray(_READ_BYTES))
     try:
         while True:
-            data = os.read(fd_in, 1 << 20)
-            if not data:
+            n = source.readinto(chunk)
+            if not n:
                 break
             stats.reads += 1
-            for kind, value in reader.feed(data):
+            for kind, value in reader.feed(chunk[:n]):
                 if kind == FRAME:
                     skin, t, emitted, contacts = value
                     try:

@@ -152,7 +152,7 @@ class RecordReader:
         self._buf = bytearray()
         self.names: list[str] = []
 
-    def feed(self, data: bytes) -> Iterator[tuple[int, Any]]:
+    def feed(self, data: bytes | memoryview) -> Iterator[tuple[int, Any]]:
         """Records completed by ``data``, in order."""
         buf = self._buf
         buf += data

@@ -473,6 +473,28 @@ def test_a_long_turn_is_cut_into_atomic_writes_and_a_sync_sends_what_is_gathered
         sink.close()
 
 
+def test_only_the_thread_that_ends_turns_gathers_its_records(domain, monkeypatch):
+    """A frame emitted on another thread (a program beside the runner) is written at once."""
+    import threading
+
+    from skinloc.live.sinks.ros2.sink import Ros2Sink
+
+    sink = Ros2Sink(domain_id=domain, backend="dds")
+    sink.open([SkinInfo("arm"), SkinInfo("leg")])
+    try:
+        writes = _pipe_writes(monkeypatch, sink)
+        sink.end_turn()
+        sink.emit(_contact("move", 0))  # this thread's turn: gathered
+        other = threading.Thread(target=sink.emit, args=(_contact("move", 0, skin="leg"),))
+        other.start()
+        other.join()
+        assert len(writes) == 1  # the other thread's frame, alone
+        st = sink.stats()  # the sync sends this thread's turn first
+        assert st["sent"] == 2 and st["pending"] == 0 and len(writes) == 3
+    finally:
+        sink.close()
+
+
 def test_a_full_pipe_drops_a_turns_frames_and_counts_each(domain):
     """Turns against a stopped publisher: never blocks; every frame is sent or counted dropped."""
     import signal

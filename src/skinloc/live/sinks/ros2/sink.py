@@ -30,6 +30,7 @@ import re
 import select
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -183,8 +184,9 @@ class Ros2Sink(Sink):
         self._token = 0
         self.n_put = self.n_dropped = 0
         # the records of the loop's turn, written together at its end (``end_turn``): once the
-        # owner has called ``end_turn``, records gather until then (at most one atomic write)
-        self._turns = False
+        # owner has called ``end_turn``, the records emitted on its thread gather until then (at
+        # most one atomic write); those of another thread are written at once, as before
+        self._turn_thread: int | None = None
         self._batch: list[bytes] = []
         self._batch_bytes = 0
         self._batch_keep = False
@@ -275,7 +277,8 @@ class Ros2Sink(Sink):
 
     def _write_all(self, data: bytes) -> None:
         """Write a record whole, waiting for room (start-up and new skins only)."""
-        self._send_batch()  # what the turn gathered goes first: the records keep their order
+        if threading.get_ident() == self._turn_thread:  # the turn's records first, in order
+            self._send_batch()
         view = memoryview(data)
         while view:
             try:
@@ -353,31 +356,33 @@ class Ros2Sink(Sink):
     def _put(self, record: bytes, keep: bool = False) -> None:
         """Queue one record for the publisher; never blocks (but see ``keep``).
 
-        Once the owner ends its turns (``end_turn``), the record joins the turn's batch, written
-        at the turn's end (or when the next would not fit one atomic write); else it is written
-        now. A record to ``keep`` (a frame that ends a track) waits up to ``_END_WAIT_S`` for
-        room in a full pipe; any other that finds the pipe full (or no publisher) is dropped.
+        Once the owner ends its turns (``end_turn``), a record emitted on the owner's thread
+        joins the turn's batch, written at the turn's end (or when the next would not fit one
+        atomic write); else (another thread, or no turns) it is written now. A record to
+        ``keep`` (a frame that ends a track) waits up to ``_END_WAIT_S`` for room in a full
+        pipe; any other that finds the pipe full (or no publisher) is dropped.
         """
         self.n_put += 1
-        n = len(record)
-        if self._turns and n <= _PIPE_BUF:
+        if threading.get_ident() == self._turn_thread:
+            n = len(record)
             if self._batch_bytes + n > _PIPE_BUF:
                 self._send_batch()
-            self._batch.append(record)
-            self._batch_bytes += n
-            if keep:
-                self._batch_keep = True
-            return
-        self._send_batch()
+            if n <= _PIPE_BUF:
+                self._batch.append(record)
+                self._batch_bytes += n
+                if keep:
+                    self._batch_keep = True
+                return
         self._write_records(record, 1, keep)
 
     def end_turn(self) -> None:
         """The loop's turn ended (``Sink.end_turn``): write its records in one write.
 
-        From the first call on, the records of each turn gather and go out together: one
-        system call a turn instead of one a frame (a few frames a turn on a busy loop).
+        From the first call on, the records this thread emits gather and go out together at the
+        end of each turn: one system call a turn instead of one a frame (a few frames a turn on
+        a busy loop). Records of other threads are still written at once.
         """
-        self._turns = True
+        self._turn_thread = threading.get_ident()
         if self._batch:
             self._send_batch()
 
@@ -554,7 +559,8 @@ class Ros2Sink(Sink):
 
     def _control(self, message: dict[str, Any], wait_s: float = 0.1) -> None:
         """A message to the node (a ``CONTROL`` record; dropped if the pipe stays full)."""
-        self._send_batch()
+        if threading.get_ident() == self._turn_thread:
+            self._send_batch()
         record = pack_control(message)
         self._wait_for_room(len(record), wait_s)
         if not self._room_for(len(record)):
@@ -633,7 +639,7 @@ class Ros2Sink(Sink):
         self._stop(timeout_s)
 
     def _stop(self, timeout_s: float) -> None:
-        self._send_batch()
+        self._send_batch()  # the loop has ended (the runner closes its sinks after it)
         proc, self._proc = self._proc, None
         if self._w >= 0:
             os.close(self._w)  # the end of the records: the publisher drains and ends

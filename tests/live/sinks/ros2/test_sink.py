@@ -413,9 +413,10 @@ def test_a_turns_records_go_to_the_publisher_in_one_write_and_arrive_the_same(do
     """Once its owner ends turns, a turn's frames are one pipe write; subscribers see no change."""
     from cyclonedds.domain import DomainParticipant
 
-    from skinloc.live.sinks.ros2.sink import Ros2Sink
+    from skinloc.live.sinks.ros2 import sink as ros2_sink
 
-    sink = Ros2Sink(domain_id=domain, backend="dds")
+    monkeypatch.setattr(ros2_sink, "_BATCH_WAIT_S", 3600.0)  # a stall here must not cut the turn
+    sink = ros2_sink.Ros2Sink(domain_id=domain, backend="dds")
     sink.open(_skins())
     dp = DomainParticipant(domain)
     try:
@@ -456,6 +457,7 @@ def test_a_long_turn_is_cut_into_atomic_writes_and_a_sync_sends_what_is_gathered
     """A turn of many frames: whole records, no write over PIPE_BUF; stats() sends the rest."""
     from skinloc.live.sinks.ros2 import sink as ros2_sink
 
+    monkeypatch.setattr(ros2_sink, "_BATCH_WAIT_S", 3600.0)  # only the size cuts the turn
     sink = ros2_sink.Ros2Sink(domain_id=domain, backend="dds")
     sink.open([SkinInfo("arm")])
     try:
@@ -469,6 +471,32 @@ def test_a_long_turn_is_cut_into_atomic_writes_and_a_sync_sends_what_is_gathered
         assert all(n <= ros2_sink._PIPE_BUF for n in writes)
         st = sink.stats()  # the rest of the turn goes before the sync: all published
         assert st["sent"] == 301 and st["dropped"] == 0 and st["pending"] == 0
+    finally:
+        sink.close()
+
+
+def test_a_record_waits_at_most_the_batch_wait_for_the_end_of_its_turn(domain, monkeypatch):
+    """A long turn: the batch goes out with the first record made after its oldest's wait."""
+    from skinloc.live.sinks.ros2 import sink as ros2_sink
+    from skinloc.live.sinks.ros2.records import pack_frame
+
+    sink = ros2_sink.Ros2Sink(domain_id=domain, backend="dds")
+    sink.open([SkinInfo("arm")])
+    try:
+        writes = _pipe_writes(monkeypatch, sink)
+        sink.end_turn()
+        t0, wait = 50.0, ros2_sink._BATCH_WAIT_S
+        record = pack_frame(0, 1.0, t0, [_contact("move", 0)])
+        sink._put(record, False, t0)
+        sink._put(record, False, t0 + 0.5 * wait)
+        assert writes == []
+        sink._put(record, False, t0 + 1.01 * wait)  # the first has waited long enough: all go
+        assert writes == [3 * len(record)]
+        sink._put(record, False, t0 + 1.6 * wait)  # a new batch, young
+        assert len(writes) == 1
+        sink.end_turn()
+        assert writes == [3 * len(record), len(record)]
+        assert sink.stats()["sent"] == 4
     finally:
         sink.close()
 

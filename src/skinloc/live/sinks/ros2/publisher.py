@@ -161,19 +161,12 @@ class _RclpyBackend:
         )
         self.pubs[topic] = self.node.create_publisher(msg_type, topic, qos)
 
-    def write(self, topic: str, data: bytes) -> None:
-        pub = self.pubs.get(topic)
-        if pub is None and self._dds is not None:
-            self._dds.write(topic, data)
-            return
-        pub.publish(data)
-
     def sender(self, topic: str) -> Callable[[bytes], None]:
         """What publishes CDR bytes on ``topic`` (advertised), called once a message.
 
         rclpy's own ``publish_raw``, which ``Publisher.publish`` calls for bytes after two type
         checks and taking the handle (about a microsecond a message, three messages a frame);
-        the node is destroyed only after the last message (``close``, on the same thread).
+        the node is destroyed only once the publishing loop has ended (``close``).
         """
         pub = self.pubs.get(topic)
         if pub is None:

@@ -45,8 +45,6 @@ SPHERE_M = 0.01
 
 _ENCAPSULATION = b"\x00\x01\x00\x00"  # CDR little endian (XCDR1), options 0
 _STAMP = struct.Struct("<iI")
-_POINT = struct.Struct("<3d")
-_POSE = struct.Struct("<7d")
 _U32 = struct.Struct("<I")
 _ONE = _ENCAPSULATION + _U32.pack(1)  # a sequence of one
 

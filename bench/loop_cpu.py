@@ -128,11 +128,16 @@ def main() -> None:
         "loop_cpu_us_per_frame": loop,
         "baseline_cpu_us_per_frame": base,
         "loop_cpu_over_baseline": loop / base,
+        # the ROS 2 publisher process's CPU over the same frames (from ready to the end)
+        "publisher_cpu_us_per_frame": sum(float(v.get("cpu_s", 0.0)) for v in sink_stats.values())
+        / n
+        * 1e6,
         "sink_stats": sink_stats,
     }
     print(
         f"loop cpu {loop:.2f} us/frame, baseline {base:.2f} (x{loop / base:.2f}), "
-        f"{out['frames_per_turn']:.1f} frames/turn, {n_contacts} contacts, load {load_before}"
+        f"{out['frames_per_turn']:.1f} frames/turn, {n_contacts} contacts, publisher "
+        f"{out['publisher_cpu_us_per_frame']:.2f} us/frame, load {load_before}"
     )
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -87,6 +87,50 @@ def test_close_with_a_finger_down_ends_every_track_before_the_sinks_close():
     assert len(sink.contacts) == sink.closed_after
 
 
+class _TurnSink(ListSink):
+    """Logs each frame it gets and each end of a turn (a sink that gathers its writes)."""
+
+    def __init__(self, fail: bool = False) -> None:
+        super().__init__()
+        self.log: list[str] = []
+        self.fail = fail
+
+    def emit_contacts(self, skin, timestamp_s, contacts):
+        super().emit_contacts(skin, timestamp_s, contacts)
+        self.log.append("frame")
+
+    def end_turn(self) -> None:
+        self.log.append("end")
+        if self.fail:
+            raise RuntimeError("end_turn failed")
+
+
+def test_every_turn_of_the_loop_ends_for_the_sinks_that_gather_their_writes():
+    """The ROS 2 sink writes a turn's frames at its end: the runner must end every turn."""
+    sink, plain = _TurnSink(), ListSink()
+    with Pipeline(
+        model_path("map"), str(stream_recording()), realtime=False, sinks=[sink, plain]
+    ) as p:
+        n = 0
+        for _ in p:  # a turn's contacts come once the turn is over
+            assert sink.log[-1] == "end"  # its frames went out
+            n += 1
+    assert n > 0 and sink.log.count("frame") > 0
+    assert len(plain.frames) == sink.log.count("frame")  # a sink without end_turn: as before
+
+
+def test_a_sink_whose_end_of_turn_raises_does_not_stop_the_loop(caplog):
+    sink, plain = _TurnSink(fail=True), ListSink()
+    with caplog.at_level("ERROR"):
+        with Pipeline(
+            model_path("map"), str(stream_recording()), realtime=False, sinks=[sink, plain]
+        ) as p:
+            n = sum(1 for _ in p)
+    assert n > 0 and len(plain.contacts) == n  # every contact still reached the other sink
+    assert sink.log.count("end") > 1  # and the failing one was asked again each turn
+    assert sum("end_turn failed" in r.getMessage() for r in caplog.records) == 1  # logged once
+
+
 def test_runner_on_a_virtual_skin_port_reconnects():
     from skinloc.sim.virtual_device import FaultConfig, VirtualSkin
 

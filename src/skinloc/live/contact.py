@@ -11,7 +11,7 @@ import math
 from dataclasses import asdict, dataclass
 from typing import Any
 
-__all__ = ["TRACK_COLOURS", "Contact", "colour_index", "track_colour"]
+__all__ = ["TRACK_COLOURS", "TRACK_RGB", "Contact", "colour_index", "track_colour"]
 
 #: The fingers' colours (sRGB), shared by every view of the contacts: the app's page (the
 #: server writes them into it), the ROS 2 markers (RViz) and the Foxglove scene. Fingers down
@@ -99,7 +99,12 @@ def colour_index(contact: Contact) -> int:
     return max(contact.touch_id - 1, 0)
 
 
+#: ``TRACK_COLOURS`` as ``(r, g, b)`` in [0, 1] (parsed once: the ROS 2 markers ask every frame)
+TRACK_RGB: tuple[tuple[float, float, float], ...] = tuple(
+    (int(h[1:3], 16) / 255, int(h[3:5], 16) / 255, int(h[5:7], 16) / 255) for h in TRACK_COLOURS
+)
+
+
 def track_colour(contact: Contact) -> tuple[float, float, float]:
     """The colour of a contact's finger, ``(r, g, b)`` in [0, 1]."""
-    hex_ = TRACK_COLOURS[colour_index(contact) % len(TRACK_COLOURS)]
-    return (int(hex_[1:3], 16) / 255, int(hex_[3:5], 16) / 255, int(hex_[5:7], 16) / 255)
+    return TRACK_RGB[colour_index(contact) % len(TRACK_RGB)]

@@ -183,6 +183,12 @@ class Runner:
         self.n_emitted = 0
         #: settings, tare and diagnostics for the sinks that serve them (the ROS 2 node)
         self.control = SkinControl(self)
+        #: the sinks that gather a turn's writes (``Sink.end_turn``), with their error log
+        self._turn_sinks = [
+            (sink, sink_logs[key])
+            for key, sink in {id(s): s for s in self.all_sinks()}.items()  # once each
+            if getattr(type(sink), "end_turn", Sink.end_turn) is not Sink.end_turn
+        ]
 
     # ------------------------------------------------------------------ lifecycle
     def open(self) -> Runner:
@@ -421,7 +427,18 @@ class Runner:
                 if core.touching:
                     self._end_stale(slot, now, out)
             self.control.serve(now)
+        self._end_turn()
         return out
+
+    def _end_turn(self) -> None:
+        """The turn's deliveries are done: the sinks that gather a turn's writes send them."""
+        for sink, errors in self._turn_sinks:
+            try:
+                sink.end_turn()
+            except BrokenPipeError:  # as in _emit: stdout closed by its reader
+                raise
+            except Exception as exc:  # noqa: BLE001 - one sink must not stop the others
+                errors.record(exc, time.monotonic())
 
     def all_sinks(self) -> list[Sink]:
         """Every sink: those of all skins, then each skin's own."""
@@ -483,6 +500,7 @@ class Runner:
             for route in (*(r for _, r in self.routes[slot]), self.callback_routes[slot]):
                 route.retry_at = -math.inf  # the last word: every sink gets its chance
             self._emit(slot, ends, out)
+        self._end_turn()
         return out
 
     def _raise_feed_errors(self) -> None:

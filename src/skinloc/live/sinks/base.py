@@ -142,6 +142,15 @@ class Sink(abc.ABC):
         The ROS 2 sinks publish it on ``/skinloc/<skin>/gestures``.
         """
 
+    def end_turn(self) -> None:  # noqa: B027 - optional hook
+        """The end of one turn of the runner's loop: send what the turn's calls gathered.
+
+        ``skinloc.live.runner.Runner`` calls it after each turn (the frames that came in
+        together, a few each on a busy loop) when the sink's class overrides it. A sink that
+        sends one write per turn instead of one per frame (the ROS 2 sink) overrides it; a
+        sink must still deliver without it (programs that call ``emit`` themselves).
+        """
+
     def close(self) -> None:  # noqa: B027 - optional hook
         """Flush and release everything; no thread may be left behind."""
 

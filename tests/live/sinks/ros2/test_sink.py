@@ -392,6 +392,165 @@ def test_dds_sink_publishes_multi_contact_frames(domain):
     assert abs(subs["contacts"].got[0].header.stamp.sec - time.time()) < 600  # wall clock
 
 
+def _pipe_writes(monkeypatch, sink):
+    """The sizes of the sink's writes to its publisher's pipe, as they happen."""
+    from skinloc.live.sinks.ros2 import sink as ros2_sink
+
+    writes: list[int] = []
+    write = os.write
+
+    def spy(fd, data):
+        n = write(fd, data)
+        if fd == sink._w:
+            writes.append(n)
+        return n
+
+    monkeypatch.setattr(ros2_sink.os, "write", spy)
+    return writes
+
+
+def test_a_turns_records_go_to_the_publisher_in_one_write_and_arrive_the_same(domain, monkeypatch):
+    """Once its owner ends turns, a turn's frames are one pipe write; subscribers see no change."""
+    from cyclonedds.domain import DomainParticipant
+
+    from skinloc.live.sinks.ros2 import sink as ros2_sink
+
+    monkeypatch.setattr(ros2_sink, "_BATCH_WAIT_S", 3600.0)  # a stall here must not cut the turn
+    sink = ros2_sink.Ros2Sink(domain_id=domain, backend="dds")
+    sink.open(_skins())
+    dp = DomainParticipant(domain)
+    try:
+        subs = {
+            "contact": _Sub(dp, "/skinloc/arm/contact", PS),
+            "contacts": _Sub(dp, "/skinloc/arm/contacts", PA),
+            "markers": _Sub(dp, "/skinloc/arm/markers", MkA),
+            "gestures": _Sub(dp, "/skinloc/arm/gestures", Str),
+        }
+        for name, sub in subs.items():
+            wait_until(lambda s=sub: _matched(sink, s), f"a match on /skinloc/arm/{name}")
+        writes = _pipe_writes(monkeypatch, sink)
+        sink.end_turn()
+        _two_finger_frames(sink)  # three frames and a gesture in one turn
+        assert writes == []  # gathered
+        sink.end_turn()
+        assert len(writes) == 1 and writes[0] > 3 * 100
+        sink.end_turn()  # nothing gathered: no write
+        assert len(writes) == 1
+        want = {"contact": 2, "contacts": 3, "markers": 3, "gestures": 1}
+        wait_until(lambda: all(len(subs[k].take()) >= n for k, n in want.items()), str(want))
+    finally:
+        sink.close()
+    _check_two_finger_frames(
+        subs["contact"].got,
+        subs["contacts"].got,
+        subs["markers"].got,
+        subs["gestures"].got,
+        frame_of=lambda m: m.header.frame_id,
+        stamp_of=lambda m: m.header.stamp.sec + m.header.stamp.nanosec * 1e-9,
+    )
+    assert sink.stats()["sent"] == 4 and sink.n_dropped == 0
+
+
+def test_a_long_turn_is_cut_into_atomic_writes_and_a_sync_sends_what_is_gathered(
+    domain, monkeypatch
+):
+    """A turn of many frames: whole records, no write over PIPE_BUF; stats() sends the rest."""
+    from skinloc.live.sinks.ros2 import sink as ros2_sink
+
+    monkeypatch.setattr(ros2_sink, "_BATCH_WAIT_S", 3600.0)  # only the size cuts the turn
+    sink = ros2_sink.Ros2Sink(domain_id=domain, backend="dds")
+    sink.open([SkinInfo("arm")])
+    try:
+        writes = _pipe_writes(monkeypatch, sink)
+        sink.emit(_contact("move", 0))  # no end_turn yet (a program's own loop): at once
+        assert len(writes) == 1
+        sink.end_turn()
+        for k in range(1, 301):
+            sink.emit(_contact("move", k))
+        assert 1 + 300 > len(writes) >= 3
+        assert all(n <= ros2_sink._PIPE_BUF for n in writes)
+        st = sink.stats()  # the rest of the turn goes before the sync: all published
+        assert st["sent"] == 301 and st["dropped"] == 0 and st["pending"] == 0
+    finally:
+        sink.close()
+
+
+def test_a_record_waits_at_most_the_batch_wait_for_the_end_of_its_turn(domain, monkeypatch):
+    """A long turn: the batch goes out with the first record made after its oldest's wait."""
+    from skinloc.live.sinks.ros2 import sink as ros2_sink
+    from skinloc.live.sinks.ros2.records import pack_frame
+
+    sink = ros2_sink.Ros2Sink(domain_id=domain, backend="dds")
+    sink.open([SkinInfo("arm")])
+    try:
+        writes = _pipe_writes(monkeypatch, sink)
+        sink.end_turn()
+        t0, wait = 50.0, ros2_sink._BATCH_WAIT_S
+        record = pack_frame(0, 1.0, t0, [_contact("move", 0)])
+        sink._put(record, False, t0)
+        sink._put(record, False, t0 + 0.5 * wait)
+        assert writes == []
+        sink._put(record, False, t0 + 1.01 * wait)  # the first has waited long enough: all go
+        assert writes == [3 * len(record)]
+        sink._put(record, False, t0 + 1.6 * wait)  # a new batch, young
+        assert len(writes) == 1
+        sink.end_turn()
+        assert writes == [3 * len(record), len(record)]
+        assert sink.stats()["sent"] == 4
+    finally:
+        sink.close()
+
+
+def test_only_the_thread_that_ends_turns_gathers_its_records(domain, monkeypatch):
+    """A frame emitted on another thread (a program beside the runner) is written at once."""
+    import threading
+
+    from skinloc.live.sinks.ros2.sink import Ros2Sink
+
+    sink = Ros2Sink(domain_id=domain, backend="dds")
+    sink.open([SkinInfo("arm"), SkinInfo("leg")])
+    try:
+        writes = _pipe_writes(monkeypatch, sink)
+        sink.end_turn()
+        sink.emit(_contact("move", 0))  # this thread's turn: gathered
+        other = threading.Thread(target=sink.emit, args=(_contact("move", 0, skin="leg"),))
+        other.start()
+        other.join()
+        assert len(writes) == 1  # the other thread's frame, alone
+        st = sink.stats()  # the sync sends this thread's turn first
+        assert st["sent"] == 2 and st["pending"] == 0 and len(writes) == 3
+    finally:
+        sink.close()
+
+
+def test_a_full_pipe_drops_a_turns_frames_and_counts_each(domain):
+    """Turns against a stopped publisher: never blocks; every frame is sent or counted dropped."""
+    import signal
+
+    from skinloc.live.sinks.ros2.sink import Ros2Sink
+
+    sink = Ros2Sink(domain_id=domain, backend="dds", queue_frames=4)  # one page of pipe
+    sink.open([SkinInfo("arm")])
+    pid = sink.publisher_pid
+    os.kill(pid, signal.SIGSTOP)
+    try:
+        for k in range(2000):
+            sink.emit(_contact("move", k))
+            if k % 4 == 3:
+                sink.end_turn()
+        sink.end_turn()
+        assert sink.n_put == 2000 and 0 < sink.n_dropped < 2000
+    finally:
+        os.kill(pid, signal.SIGCONT)
+    try:
+        assert sink.flush(60.0)
+        st = sink.stats()
+        assert st["queued"] == 2000 and st["sent"] + st["dropped"] == 2000
+        assert st["errors"] == 0 and st["pending"] == 0
+    finally:
+        sink.close()
+
+
 def test_dds_sink_never_blocks_the_pipeline_and_counts_what_it_drops(domain):
     """A stopped publisher: ``emit`` still returns at once; a full pipe drops and counts."""
     import signal

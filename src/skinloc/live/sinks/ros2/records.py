@@ -152,54 +152,60 @@ class RecordReader:
         self._buf = bytearray()
         self.names: list[str] = []
 
-    def feed(self, data: bytes) -> Iterator[tuple[int, Any]]:
+    def feed(self, data: bytes | memoryview) -> Iterator[tuple[int, Any]]:
         """Records completed by ``data``, in order."""
         buf = self._buf
         buf += data
         pos = 0
         n_buf = len(buf)
-        while n_buf - pos >= _HEAD.size:
+        head = _HEAD.size
+        while n_buf - pos >= head:
             n, kind = _HEAD.unpack_from(buf, pos)
-            if n < _HEAD.size:
+            if n < head:
                 raise ValueError(f"corrupt record stream (record length {n})")
             if n_buf - pos < n:
                 break
-            body = bytes(buf[pos + _HEAD.size : pos + n])
+            if kind == FRAME:  # decoded in place: most records are frames
+                value: Any = self._frame(buf, pos + head)
+            else:
+                value = self._decode(kind, bytes(buf[pos + head : pos + n]))
             pos += n
-            yield kind, self._decode(kind, body)
+            yield kind, value
         del buf[:pos]
 
     def _name(self, skin: int) -> str:
         return self.names[skin] if skin < len(self.names) else f"skin{skin}"
 
+    def _frame(self, buf: bytes | bytearray, at: int) -> tuple[int, float, float, list[Contact]]:
+        """A ``FRAME`` record's body at ``at`` of ``buf``."""
+        skin, t, emitted, count = _FRAME.unpack_from(buf, at)
+        name = self._name(skin)
+        contacts = []
+        at += _FRAME.size
+        for _ in range(count):
+            st, index, touch, track, slot, x, y, z, strength, z_sig = _CONTACT.unpack_from(buf, at)
+            at += _CONTACT.size
+            contacts.append(
+                Contact(
+                    name,
+                    t,
+                    index,
+                    _STATES[st],
+                    (x, y, z),
+                    _NAN3,
+                    math.nan,
+                    z_sig,
+                    math.nan,
+                    math.nan,
+                    touch,
+                    track,
+                    slot,
+                    strength,
+                )  # fmt: skip
+            )
+        return skin, t, emitted, contacts
+
     def _decode(self, kind: int, body: bytes) -> Any:
-        if kind == FRAME:
-            skin, t, emitted, count = _FRAME.unpack_from(body)
-            name = self._name(skin)
-            contacts = []
-            for k in range(count):
-                st, index, touch, track, slot, x, y, z, strength, z_sig = _CONTACT.unpack_from(
-                    body, _FRAME.size + k * _CONTACT.size
-                )
-                contacts.append(
-                    Contact(
-                        name,
-                        t,
-                        index,
-                        _STATES[st],
-                        (x, y, z),
-                        _NAN3,
-                        math.nan,
-                        z_sig,
-                        math.nan,
-                        math.nan,
-                        touch,
-                        track,
-                        slot,
-                        strength,
-                    )  # fmt: skip
-                )
-            return skin, t, emitted, contacts
         if kind == GESTURE:
             skin, t, emitted = _GESTURE.unpack_from(body)
             return skin, t, emitted, json.loads(body[_GESTURE.size :])

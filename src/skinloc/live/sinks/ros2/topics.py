@@ -38,7 +38,7 @@ import numpy as np
 
 from skinloc._lazy import extra_installed, require_extra
 from skinloc.geometry.skin_frame import quaternion_from_rpy  # re-exported: the pose's maths
-from skinloc.live.contact import track_colour
+from skinloc.live.contact import TRACK_RGB, colour_index
 from skinloc.live.sinks.base import Sink, SkinInfo
 from skinloc.ros2.names import ros_name, topic_base
 
@@ -81,9 +81,13 @@ def _marker_id(c: Contact) -> int:
     return c.track_id if c.track_id >= 0 else c.touch_id
 
 
+#: the fingers' colours as marker colours, RGBA in [0, 1]
+_RGBA = tuple((*rgb, 0.9) for rgb in TRACK_RGB)
+
+
 def _colour(c: Contact) -> tuple[float, float, float, float]:
     """The finger's colour (``skinloc.live.contact.track_colour``), RGBA in [0, 1]."""
-    return (*track_colour(c), 0.9)
+    return _RGBA[colour_index(c) % len(_RGBA)]
 
 
 def rclpy_available() -> bool:
@@ -258,27 +262,34 @@ class Ros2Topics(Sink):
             self._publish_frame(skin, timestamp_s, contacts)
 
     def _publish_frame(self, skin: str, timestamp_s: float, contacts: Sequence[Contact]) -> None:
-        self._ensure_skin(skin)
-        enc = self._enc[skin]
+        enc = self._enc.get(skin)
+        if enc is None:
+            self._ensure_skin(skin)
+            enc = self._enc[skin]
         stamp = self._msgs.stamp_parts(self.stamp_s(skin, timestamp_s))
         t_ns = stamp[0] * 1_000_000_000 + stamp[1]
         contact_topic, contacts_topic, markers_topic = self._topics[skin]
+        write = self._write
         if len(contacts) == 1:  # the common frame: no sorting
             touching = list(contacts) if _touching(contacts[0]) else []
         else:
             touching = sorted((c for c in contacts if _touching(c)), key=_slot_key)
         if touching:
             best = max(touching, key=_strength_key) if len(touching) > 1 else touching[0]
-            self._write(contact_topic, enc.point_stamped(stamp, best.position_m), t_ns)
-        positions = [c.position_m for c in touching]
-        self._write(contacts_topic, enc.pose_array(stamp, positions), t_ns)
-        spheres = [(*c.position_m, _marker_id(c), 0, *_colour(c)) for c in touching] + [
-            (0.0, 0.0, 0.0, _marker_id(c), 2, *_colour(c))  # Marker.DELETE
-            for c in contacts
-            if c.state == "end"
-        ]
+            write(contact_topic, enc.point_stamped(stamp, best.position_m), t_ns)
+            positions = [c.position_m for c in touching]
+            spheres = [(*c.position_m, _marker_id(c), 0, *_colour(c)) for c in touching]
+        else:
+            positions, spheres = [], []
+        write(contacts_topic, enc.pose_array(stamp, positions), t_ns)
+        if len(touching) < len(contacts):  # the tracks that ended: a DELETE each
+            spheres += [
+                (0.0, 0.0, 0.0, _marker_id(c), 2, *_colour(c))  # Marker.DELETE
+                for c in contacts
+                if c.state == "end"
+            ]
         if spheres:
-            self._write(markers_topic, enc.sphere_markers(stamp, spheres), t_ns)
+            write(markers_topic, enc.sphere_markers(stamp, spheres), t_ns)
         self.n_sent += 1
 
     def emit_gesture(self, skin: str, timestamp_s: float, event: Mapping[str, Any]) -> None:

@@ -8,6 +8,7 @@ suite passes on a machine shared with other CPU-heavy jobs.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import queue
 import signal
@@ -113,16 +114,32 @@ def start_skinloc(
             signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-def stop_and_wait(proc: subprocess.Popen, sig: int, what: str, timeout_s: float = 60.0) -> None:
+def stop_and_wait(
+    proc: subprocess.Popen,
+    sig: int,
+    what: str,
+    timeout_s: float = 60.0,
+    output: Lines | None = None,
+) -> None:
     """Send ``sig`` once and wait for ``proc`` to end; kill it and fail naming ``what`` if it
-    does not within the bound (scaled by the load)."""
+    does not within the bound (scaled by the load).
+
+    ``output``: the process's stderr, read by ``Lines``; on a hang the failure shows its end,
+    with every thread's stack when the process runs with ``PYTHONFAULTHANDLER=1`` (it is sent
+    SIGABRT first, which makes Python's fault handler print them).
+    """
     proc.send_signal(sig)
     t0 = time.monotonic()
     while proc.poll() is None:
         if time.monotonic() - t0 > scaled(timeout_s):
+            if output is not None:
+                proc.send_signal(signal.SIGABRT)
+                with contextlib.suppress(subprocess.TimeoutExpired):
+                    proc.wait(10.0)
             proc.kill()
             proc.wait()
-            pytest.fail(f"{what} did not stop on one {signal.Signals(sig).name}")
+            tail = "" if output is None else "\n" + output.rest(10.0)[-6000:]
+            pytest.fail(f"{what} did not stop on one {signal.Signals(sig).name}{tail}")
         time.sleep(0.02)
 
 

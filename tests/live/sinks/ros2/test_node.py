@@ -151,7 +151,8 @@ def test_the_loop_survives_a_model_that_raises_once_and_a_sink_that_always_raise
         [sys.executable, str(launcher), "run", "--model", str(model_path("map")),
          "--source", "sim", "--name", "arm", "--sink", "ros2", "--sink", "failing",
          "--duration", "900", "--stats"],
-        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env,
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+        env={**env, "PYTHONFAULTHANDLER": "1"},  # its threads' stacks if it hangs (stop_and_wait)
     )  # fmt: skip
     err = Lines(proc.stderr)
     try:
@@ -165,7 +166,7 @@ def test_the_loop_survives_a_model_that_raises_once_and_a_sink_that_always_raise
         )
         assert res.returncode == 0, res.stderr[-3000:]
         seen = json.loads(res.stdout.strip().splitlines()[-1])
-        stop_and_wait(proc, signal.SIGINT, "the faulty skinloc run")
+        stop_and_wait(proc, signal.SIGINT, "the faulty skinloc run", output=err)
     finally:
         if proc.poll() is None:
             proc.kill()

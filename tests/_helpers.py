@@ -94,21 +94,28 @@ def one_line_error(res: Any, *needles: str) -> str:
 def start_skinloc(
     *args: object, env: dict[str, str] | None = None, **popen: Any
 ) -> subprocess.Popen:
-    """``python -m skinloc ARGS`` (this checkout's code) started as a shell starts a foreground job.
-
-    A job started in the background by a non-interactive shell (``make test &`` in a script)
-    inherits SIGINT *ignored*, and so does every process it starts: a CI run launched that way
-    would send Ctrl-C to commands that rightly keep ignoring it. A terminal's foreground job gets
-    SIGINT at its default; so does this one (the parent's disposition is restored at once).
-    """
+    """``python -m skinloc ARGS`` (this checkout's code) started as a shell starts a foreground job
+    (``popen_foreground``)."""
     env = {**os.environ, **(env or {})}
     env["PYTHONPATH"] = os.pathsep.join(p for p in (str(SRC), env.get("PYTHONPATH")) if p)
     cmd = [sys.executable, "-m", "skinloc", *(str(a) for a in args)]
+    return popen_foreground(cmd, env=env, **popen)
+
+
+def popen_foreground(cmd: list[str], **popen: Any) -> subprocess.Popen:
+    """``subprocess.Popen(cmd, **popen)`` with SIGINT at its default in the child, as a
+    terminal's foreground job has it.
+
+    A job started in the background by a non-interactive shell (``make test &`` in a script)
+    inherits SIGINT *ignored*, and so does every process it starts: a CI run launched that way
+    would send Ctrl-C to commands that rightly keep ignoring it (one hung so beside two busy
+    loops). The parent's disposition is restored at once.
+    """
     ignored = signal.getsignal(signal.SIGINT) is signal.SIG_IGN
     if ignored:  # a caught signal is reset to its default in the child at exec
         signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
-        return subprocess.Popen(cmd, env=env, **popen)
+        return subprocess.Popen(cmd, **popen)
     finally:
         if ignored:
             signal.signal(signal.SIGINT, signal.SIG_IGN)

@@ -17,7 +17,14 @@ from pathlib import Path
 
 import pytest
 
-from tests._helpers import Lines, scaled, start_skinloc, stop_and_wait, wait_until
+from tests._helpers import (
+    Lines,
+    popen_foreground,
+    scaled,
+    start_skinloc,
+    stop_and_wait,
+    wait_until,
+)
 
 try:
     import rclpy  # noqa: F401
@@ -147,7 +154,7 @@ def test_the_loop_survives_a_model_that_raises_once_and_a_sink_that_always_raise
     env = dict(os.environ)
     root = str(Path(__file__).resolve().parents[4])  # the checkout: tests._live and skinloc
     env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH")) if p)
-    proc = subprocess.Popen(
+    proc = popen_foreground(  # SIGINT at its default even when pytest ignores it
         [sys.executable, str(launcher), "run", "--model", str(model_path("map")),
          "--source", "sim", "--name", "arm", "--sink", "ros2", "--sink", "failing",
          "--duration", "900", "--stats"],

@@ -523,36 +523,10 @@ def test_only_the_thread_that_ends_turns_gathers_its_records(domain, monkeypatch
         sink.close()
 
 
-def test_a_full_pipe_drops_a_turns_frames_and_counts_each(domain):
-    """Turns against a stopped publisher: never blocks; every frame is sent or counted dropped."""
-    import signal
-
-    from skinloc.live.sinks.ros2.sink import Ros2Sink
-
-    sink = Ros2Sink(domain_id=domain, backend="dds", queue_frames=4)  # one page of pipe
-    sink.open([SkinInfo("arm")])
-    pid = sink.publisher_pid
-    os.kill(pid, signal.SIGSTOP)
-    try:
-        for k in range(2000):
-            sink.emit(_contact("move", k))
-            if k % 4 == 3:
-                sink.end_turn()
-        sink.end_turn()
-        assert sink.n_put == 2000 and 0 < sink.n_dropped < 2000
-    finally:
-        os.kill(pid, signal.SIGCONT)
-    try:
-        assert sink.flush(60.0)
-        st = sink.stats()
-        assert st["queued"] == 2000 and st["sent"] + st["dropped"] == 2000
-        assert st["errors"] == 0 and st["pending"] == 0
-    finally:
-        sink.close()
-
-
-def test_dds_sink_never_blocks_the_pipeline_and_counts_what_it_drops(domain):
-    """A stopped publisher: ``emit`` still returns at once; a full pipe drops and counts."""
+@pytest.mark.parametrize("turn", [0, 4], ids=["frame-by-frame", "turns-of-4"])
+def test_dds_sink_never_blocks_the_pipeline_and_counts_what_it_drops(domain, turn):
+    """A stopped publisher: ``emit`` still returns at once; a full pipe drops and counts, frame
+    by frame or a loop turn's records at once (``turn`` frames, then ``end_turn``)."""
     import signal
 
     from skinloc.live.sinks.ros2.sink import Ros2Sink
@@ -564,6 +538,10 @@ def test_dds_sink_never_blocks_the_pipeline_and_counts_what_it_drops(domain):
     try:
         for k in range(2000):
             sink.emit(_contact("move", k, (0.01, 0.02, 0.03)))
+            if turn and k % turn == turn - 1:
+                sink.end_turn()
+        if turn:
+            sink.end_turn()
         assert sink.n_put == 2000 and 0 < sink.n_dropped < 2000
     finally:
         os.kill(pid, signal.SIGCONT)

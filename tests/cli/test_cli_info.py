@@ -60,13 +60,13 @@ def test_info_describes_the_mcap_files_run_writes(tmp_path, sink, topics, replay
     pytest.importorskip("mcap")
     if sink.startswith("mcap:"):
         pytest.importorskip("foxglove")
-    from tests._live import model_path
+    from tests._live import model_path, stream_recording
 
     out = tmp_path / "run.mcap"
     res = runner.invoke(
         app,
-        ["run", "--model", str(model_path("map")), "--source", "sim", "--fast",
-         "--duration", "2", "--sink", sink.format(out)],
+        ["run", "--model", str(model_path("map")), "--source", str(stream_recording()), "--fast",
+         "--sink", sink.format(out)],
     )  # fmt: skip
     assert res.exit_code == 0, res.output
     got = info(out)
@@ -86,14 +86,14 @@ def test_info_describes_the_mcap_files_run_writes(tmp_path, sink, topics, replay
 
 def test_info_of_an_unfinished_mcap_file_is_one_line(tmp_path):
     pytest.importorskip("mcap")
-    from tests._live import model_path
+    from tests._live import model_path, stream_recording
     from tests.cli.test_cli_bad_input import one_line_error
 
     out = tmp_path / "run.mcap"
     res = runner.invoke(
         app,
-        ["run", "--model", str(model_path("map")), "--source", "sim", "--fast",
-         "--duration", "1", "--sink", f"mcap-ros2:{out}"],
+        ["run", "--model", str(model_path("map")), "--source", str(stream_recording()), "--fast",
+         "--sink", f"mcap-ros2:{out}"],
     )  # fmt: skip
     assert res.exit_code == 0, res.output
     cut = tmp_path / "cut.mcap"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -52,6 +53,35 @@ def test_pipeline_callback_mode_and_close():
     )
     assert_no_thread_left(before)
     pipeline.close()  # idempotent
+
+
+def test_a_turn_ends_though_a_fast_source_keeps_the_queue_full():
+    """A source faster than the loop (the simulated skin unpaced, a replay ``--fast``) refills
+    the queue while a turn drains it; a turn takes only what was queued when it began, so the
+    loop comes back to its deadline (``run --fast --duration 2`` on the simulated skin ran for
+    40 s before). The loop is slowed here so that the source is the faster one on any machine."""
+    pipeline = Pipeline(model_path("map"), "sim", realtime=False)
+    core = pipeline.cores[0]
+    process, end_turn = core.process_frame, pipeline._end_turn
+    turns = [0]
+
+    def slow_process(*args):
+        turns[-1] += 1
+        if turns[-1] == 2000:  # the turn would never end: stop the source, fail below
+            pipeline.stop()
+        time.sleep(0.0002)
+        return process(*args)
+
+    def count_turn():
+        turns.append(0)
+        end_turn()
+
+    core.process_frame = slow_process
+    pipeline._end_turn = count_turn
+    with pipeline:
+        pipeline.run(0.5)
+    assert sum(turns) > 0
+    assert max(turns) < 2000, f"one turn took {max(turns)} frames"
 
 
 def test_replay_runs_to_the_end_and_ends_open_touches():

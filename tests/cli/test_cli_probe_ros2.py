@@ -19,7 +19,14 @@ from typer.testing import CliRunner
 
 from skinloc.cli.main import app
 from skinloc.data.recording import read_recording
-from tests._helpers import one_line_error, scaled, start_skinloc, stop_and_wait, wait_until
+from tests._helpers import (
+    Lines,
+    one_line_error,
+    scaled,
+    start_skinloc,
+    stop_and_wait,
+    wait_until,
+)
 from tests.calibration.test_probe_ros2 import _WHY, Arm
 
 pytestmark = pytest.mark.skipif(bool(_WHY), reason=_WHY)
@@ -112,18 +119,20 @@ def test_a_real_ctrl_c_stops_the_arm(tmp_path, arm):
     out = tmp_path / "cal.h5"
     proc = start_skinloc(
         *_args(out, "--probe-timeout", "600"),
-        stdout=subprocess.PIPE,
+        env={"PYTHONFAULTHANDLER": "1"},  # a hang shows every thread's stack (stop_and_wait)
+        stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
         text=True,
     )
+    lines = Lines(proc.stderr)  # read as it comes: a full pipe would block the run
     try:
         wait_until(lambda: "press" in arm.kinds(), "the arm to be sent a press", 120.0)
-        stop_and_wait(proc, signal.SIGINT, "collect --probe ros2")
+        stop_and_wait(proc, signal.SIGINT, "collect --probe ros2", output=lines)
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-    err = proc.stderr.read() if proc.stderr else ""
+    err = lines.rest()
     assert proc.returncode != 0 and "Traceback" not in err, err
     assert "probe stopped" in err, err
     wait_until(lambda: "stop" in arm.kinds(), "the arm to hear the stop", 30.0)

@@ -117,31 +117,16 @@ def _train(kind: str):
     return model
 
 
-def warm_kernels(announce: bool = False) -> None:
-    """Build ``map.h5`` and compile the live path's kernels into numba's on-disk cache, holding
-    ``map.h5``'s build lock throughout: ``model_path("map")`` waits for both.
+def warm_kernels() -> None:
+    """Compile the live path's kernels into numba's on-disk cache, and build ``map.h5``.
 
-    Run by the controller of ``pytest -n`` in a process of its own (``python -m tests._live``)
-    while its workers start and run the tests that need no kernels: on a fresh clone each
-    worker otherwise compiled the same kernels at once (about 45 CPU-s each on this machine),
-    and beside CPU-heavy jobs a test waiting on that compile ran out of time. ``announce``:
-    print ``locked`` once the lock is held (the controller waits for that line, so that no
-    worker can ask for the model first).
+    Called once by the controller of ``pytest -n`` before its workers start: on a fresh clone
+    each worker otherwise compiled the same kernels at once (about 45 CPU-s each on this
+    machine), and beside CPU-heavy jobs a test waiting on that compile ran out of time.
     """
-    import time
-
     from skinloc.live.core import SkinCore
 
-    t0 = time.monotonic()
-    path = _DIR / "map.h5"
-    with build_once(path) as build:
-        if announce:
-            print("locked", flush=True)  # noqa: T201 - read by tests/conftest.py
-        if build:
-            _train("map").save(path)
-        SkinCore(path)
-    if announce:
-        print(f"ready {time.monotonic() - t0:.0f}", flush=True)  # noqa: T201
+    SkinCore(model_path("map"))
 
 
 @functools.lru_cache(maxsize=1)
@@ -278,7 +263,3 @@ def _write_held(path: Path, held_s: float, rate_hz: float) -> None:
         times_s=np.arange(len(frames)) / rate_hz,
         index=np.arange(len(frames)),
     )
-
-
-if __name__ == "__main__":  # the controller's warm-up process (tests/conftest.py)
-    warm_kernels(announce=True)

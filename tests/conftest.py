@@ -6,12 +6,9 @@ import functools
 import os
 import re
 import shutil
-import subprocess
-import sys
-import tempfile
+import time
 import uuid
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
@@ -106,54 +103,27 @@ def pytest_configure(config) -> None:
 
 @pytest.hookimpl(tryfirst=True)  # before xdist's own, which starts the workers
 def pytest_sessionstart(session) -> None:
-    """The controller of ``pytest -n`` compiles the kernels once, in a process of its own, while
-    its workers start (``tests._live.warm_kernels``; ``model_path("map")`` waits for it);
-    ``SKINLOC_TEST_WARM=0`` leaves it to the workers."""
+    """The controller of ``pytest -n`` compiles the kernels once before its workers start
+    (``tests._live.warm_kernels``); ``SKINLOC_TEST_WARM=0`` leaves it to the workers."""
     config = session.config
     if not _controller(config) or os.environ.get("SKINLOC_TEST_WARM") == "0":
         return
-    run = config.option.testrunuid
-    os.environ["PYTEST_XDIST_TESTRUNUID"] = run  # the workers' shared folder
-    err = tempfile.TemporaryFile("w+")  # a file, not a pipe: nobody reads it while it runs
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "tests._live"],
-        cwd=config.rootpath,
-        env={**os.environ, "PYTEST_XDIST_TESTRUNUID": run},
-        stdout=subprocess.PIPE,
-        stderr=err,
-        text=True,
-    )
-    config.stash[_WARM] = (proc, err)
-    # no worker may ask for the model before the warm-up holds its lock
-    assert proc.stdout is not None
-    if proc.stdout.readline().strip() != "locked":
-        proc.wait()
+    os.environ["PYTEST_XDIST_TESTRUNUID"] = config.option.testrunuid  # the workers' shared folder
+    from tests._live import warm_kernels
 
-
-_WARM = pytest.StashKey[tuple[subprocess.Popen, Any]]()
-
-
-def _warm_report(config) -> str | None:
-    """What became of the warm-up (waited for), or None without one."""
-    warm = config.stash.get(_WARM, None)
-    if warm is None:
-        return None
-    proc, err = warm
-    out, _ = proc.communicate()
-    if proc.returncode == 0:
-        return f"kernels compiled beside the workers in {out.split()[-1]} s"
-    err.seek(0)
-    tail = err.read().strip().splitlines()[-1:] or ["no output"]
-    return f"warming the kernels failed (the workers compiled them): {tail[0]}"
+    tr = config.pluginmanager.get_plugin("terminalreporter")
+    say = tr.write_line if tr is not None else print
+    say("compiling the live kernels once for the workers (a fresh clone: about a minute)")
+    t0 = time.monotonic()
+    try:
+        warm_kernels()
+    except Exception as exc:  # noqa: BLE001 - the tests that need them report it themselves
+        say(f"warming the kernels failed ({type(exc).__name__}: {exc}); the workers compile them")
+    else:
+        say(f"kernels ready in {time.monotonic() - t0:.0f} s")
 
 
 def pytest_unconfigure(config) -> None:
-    warm = config.stash.get(_WARM, None)
-    if warm is not None:
-        if warm[0].poll() is None:  # a run stopped early
-            warm[0].kill()
-            warm[0].wait()
-        warm[1].close()
     run = getattr(config.option, "testrunuid", None)
     if run and _controller(config):
         from tests._live import shared_dir
@@ -190,11 +160,7 @@ def _skip_reason(report) -> str:
 
 
 def pytest_terminal_summary(terminalreporter, exitstatus, config) -> None:
-    """How the kernels' warm-up went; a banner when the browser test was skipped, with its
-    reason (``-ra`` lists it too)."""
-    said = _warm_report(config)
-    if said:
-        terminalreporter.write_line(said)
+    """A banner when the browser test was skipped, with its reason (``-ra`` lists it too)."""
     loud = [
         r
         for r in terminalreporter.stats.get("skipped", [])

@@ -18,6 +18,7 @@ import collections
 import json
 import os
 import resource
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -124,6 +125,7 @@ def sample(folder: Path, root: int, stop: threading.Event, into: dict) -> None:
     """Every 0.5 s until ``stop``: the new CPU of each process descending from ``root`` (the
     pytest process), by kind and by the test it serves."""
     seen: dict[tuple[int, str], float] = {}
+    kinds: dict[tuple[int, str], str] = {}  # a process's kind, read once from /proc
     by_kind: collections.Counter = collections.Counter()
     by_test: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
     first = True
@@ -141,9 +143,9 @@ def sample(folder: Path, root: int, stop: threading.Event, into: dict) -> None:
             seen[key] = cpu
             if new <= 0:
                 continue
-            pid, test, ours = key[0], "(outside tests: start-up, the warm-up)", False
+            pid, test, ours = key[0], None, False
             for _ in range(40):  # up to the worker it descends from, and to pytest
-                if pid in running and test.startswith("(outside"):
+                if test is None and pid in running:
                     test = running[pid]
                 if pid == root:
                     ours = True
@@ -153,9 +155,11 @@ def sample(folder: Path, root: int, stop: threading.Event, into: dict) -> None:
                     break
             if not ours:  # another job on the machine
                 continue
-            kind = _kind(key[0], comm)
+            if key not in kinds:
+                kinds[key] = _kind(key[0], comm)
+            kind = kinds[key]
             by_kind[kind] += new
-            by_test[test][kind] += new
+            by_test[test or "(outside tests: start-up, the warm-up)"][kind] += new
         first = False
     into["by_kind_cpu_s"] = {k: round(v, 1) for k, v in by_kind.most_common()}
     into["by_test_cpu_s"] = {
@@ -192,6 +196,7 @@ def main() -> None:
     result["wall_s"] = round(time.monotonic() - t0, 1)
     result["cpu_reaped_s"] = round(_cpu()[1] - cpu0, 1)
     rows = [r for f in sorted(folder.glob("rows-*.json")) for r in json.loads(f.read_text())]
+    shutil.rmtree(folder, ignore_errors=True)
     result["tests"] = sorted(rows, key=lambda r: -r["wall_s"])
     args.out.write_text(json.dumps(result, indent=1) + "\n")
     print(f"wall {result['wall_s']} s, CPU of the reaped processes {result['cpu_reaped_s']} s")

@@ -457,10 +457,12 @@ def test_follow_makes_each_move_at_its_frame(cone: trimesh.Trimesh) -> None:
     try:
         t0 = skin._wall_start
         skin.follow([(t0 + 0.045, a), (t0 + 0.095, b), (t0 + 0.145, None)])
-        seen = []
+        assert skin.moves_pending == 3
+        seen, pending = [], []
         for _ in range(20):  # read as fast as the clock lets: frame k is wall time t0 + k / 100
             skin.read(1.0)
             seen.append(None if skin.contact is None else skin.contact.copy())
+            pending.append(skin.moves_pending)
     finally:
         skin.disconnect()
     # frame k carries the moves due at t0 + k / 100 (read before the frame is made)
@@ -468,6 +470,7 @@ def test_follow_makes_each_move_at_its_frame(cone: trimesh.Trimesh) -> None:
     assert all(s is not None and np.allclose(s, a) for s in seen[5:10])
     assert all(s is not None and np.allclose(s, b) for s in seen[10:15])
     assert all(s is None for s in seen[15:])
+    assert pending == [3] * 5 + [2] * 5 + [1] * 5 + [0] * 5  # 0: the whole path is played
 
 
 def test_follow_slides_with_the_pressure_it_landed_with(skin: SimulatedSkin) -> None:

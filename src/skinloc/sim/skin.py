@@ -313,6 +313,12 @@ class SimulatedSkin(FrameSource):
                 p = None if point is None else np.asarray(point, dtype=np.float64).reshape(3)
                 self._moves.append((float(t), p))
 
+    @property
+    def moves_pending(self) -> int:
+        """Finger moves queued by ``follow`` and not yet made (0: the path has been played)."""
+        with self._moves_lock:  # a move is popped and made under this lock: 0 means made
+            return len(self._moves)
+
     def _apply_moves(self, now: float) -> None:
         """Make the queued moves due at ``now`` (monotonic s), oldest first."""
         with self._moves_lock:

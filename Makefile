@@ -34,13 +34,14 @@ $(VENV)/.test-installed: pyproject.toml | $(BIN)/python
 demo: $(VENV)/.demo-installed
 	$(BIN)/skinloc demo --force
 
-# The whole suite (slow tests included) over three pytest-xdist workers on the 2-core machine it
-# is measured on: much of a run waits (on a page, a paced live run, a process), and a third
-# worker fills those waits (quiet fresh clones: 428 s against 521 s with two; docs/benchmarks.md "The test
-# suite"). tests/conftest.py's worker_scope says which tests share a worker, and the units
-# holding a `slow` test start first. `make test PYTEST_WORKERS=0` runs it in one process;
-# `pytest -m "not slow"` is the quick subset (docs/architecture.md, "Tests").
-PYTEST_WORKERS ?= 3
+# The whole suite (slow tests included) over four pytest-xdist workers on the 2-core machine it
+# is measured on: much of a run waits (on a page, a paced live run, a process), and the workers
+# beyond two fill those waits (warm tree, quiet, the same hour: 478 s with four against 512 s
+# with three; docs/benchmarks.md "The test suite"). tests/conftest.py's worker_scope says which
+# tests share a worker, and the units holding a `slow` test start first.
+# `make test PYTEST_WORKERS=0` runs it in one process; `pytest -m "not slow"` is the quick
+# subset (docs/architecture.md, "Tests").
+PYTEST_WORKERS ?= 4
 
 test: $(VENV)/.test-installed
 	@sh scripts/ensure-packages.sh chromium firmware

@@ -2,7 +2,7 @@
 
     python bench/suite_cpu.py --out bench/results/suite-cpu-DATE.json [-- PYTEST ARGS]
 
-Runs ``python -m pytest -q -n 3`` (or the arguments after ``--``) with this file loaded in every
+Runs ``python -m pytest -q -n 4`` (or the arguments after ``--``) with this file loaded in every
 worker as a pytest plugin (``-p suite_cpu``), which records each test's wall time and the CPU
 of the worker itself and of the children it reaped during the test (``getrusage``). A thread of
 this process samples ``/proc`` every 0.5 s besides, to count what ``getrusage`` cannot see: the
@@ -171,7 +171,7 @@ def sample(folder: Path, root: int, stop: threading.Event, into: dict) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, required=True, help="JSON file to write")
-    ap.add_argument("pytest_args", nargs="*", default=["-q", "-n", "3"])
+    ap.add_argument("pytest_args", nargs="*", default=["-q", "-n", "4"])
     args = ap.parse_args()
     folder = Path(tempfile.mkdtemp(prefix="suite-cpu-"))
     env = {

@@ -3,17 +3,22 @@
 ``python ros2_arm.py LOG MODE TIMEOUT_S [PORT]`` with ``ROS_DOMAIN_ID`` set. It follows the
 contract of ``skinloc.calibration.probe_ros2`` under ``/skinloc/probe``: ``above`` to an
 approach, the tip pose (the press pose plus ``TIP_OFFSET_M``, the arm's "measurement") then
-``pressed`` to a press, ``lifted`` to a lift, ``stopped`` to a stop. MODE ``ok`` answers
-everything; ``mute`` never answers a press (a lost arm); ``refuse`` answers a press with
-``error: joint limit``; ``overforce`` measures twice the force goal of a press to a force;
-``noforce`` sends no measured force; ``skin`` answers everything and presses the virtual skin
-of PORT (``skinloc virtual-skin``) at the measured tip (``touch x y z``, the base frame taken as the
-mesh frame), lifting its finger on a lift or a stop. A force goal on ``press_force`` is
-answered ``armed`` and kept for the next press only, which stops ``FORCE_SHORT_M`` short of the
-press pose (where it "reaches the force") and sends the goal's size as the measured force on
-``force`` before ``pressed``. Every message it hears goes, as it comes,
-to LOG (one JSON line each); it prints ``ready`` once its node is up and exits after TIMEOUT_S
-or on SIGTERM/SIGINT. Nothing here asserts.
+``pressed`` to a press, ``lifted`` to a lift, ``stopped`` to a stop.
+
+MODE ``ok`` answers everything; ``mute`` never answers a press (a lost arm); ``refuse`` answers
+a press with ``error: joint limit``; ``overforce`` measures twice the force goal of a press to
+a force; ``noforce`` sends no measured force; ``lose-first-answer`` does not answer its first
+approach (an answer lost while discovery is under way: skinloc sends the approach again);
+``skin`` answers everything and presses the virtual skin of PORT (``skinloc virtual-skin``) at
+the measured tip (``touch x y z``, the base frame taken as the mesh frame), lifting its finger
+on a lift or a stop.
+
+A force goal on ``press_force`` is answered ``armed`` and kept for the next press only, which
+stops ``FORCE_SHORT_M`` short of the press pose (where it "reaches the force") and sends the
+goal's size as the measured force on ``force`` before ``pressed``. Every message it hears goes,
+as it comes, to LOG (one JSON line each; an approach sent again with its stamp unchanged,
+once); it prints ``ready`` once its node is up and exits after TIMEOUT_S or on SIGTERM/SIGINT.
+Nothing here asserts.
 """
 
 from __future__ import annotations
@@ -70,8 +75,16 @@ def main() -> None:
     def say(word: str) -> None:
         state.publish(String(data=word))
 
+    heard_approach: list = []  # the stamp of the last approach heard
+
     def on_approach(msg) -> None:
-        note("approach", msg)
+        stamp = (msg.header.stamp.sec, msg.header.stamp.nanosec)
+        if heard_approach != [stamp]:  # the same stamp again: the same goal, sent again
+            note("approach", msg)
+        first = not heard_approach
+        heard_approach[:] = [stamp]
+        if mode == "lose-first-answer" and first:
+            return  # as an answer published before this node matched skinloc's subscriber
         say("above")
 
     def on_press_force(msg) -> None:

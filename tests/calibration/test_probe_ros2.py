@@ -284,6 +284,19 @@ def test_a_too_strong_or_too_deep_press_is_refused_before_anything_moves(arm):
 
 
 @needs_rclpy
+@pytest.mark.parametrize("arm", ["lose-first-answer"], indirect=True)
+def test_an_approach_whose_answer_is_lost_is_sent_again(arm):
+    """The arm's first ``above`` never reaches skinloc (as when its publisher had not matched
+    skinloc's subscriber yet): the approach goes again, the same goal, and is answered."""
+    ros = _probe(timeout_s=scaled(30.0))
+    try:
+        ros.move_above(np.array([0.4, 0.0, 0.3]), np.array([0.0, 0.0, -1.0]))
+    finally:
+        ros.close()
+    assert arm.kinds() == ["approach"]  # the same stamp: one goal
+
+
+@needs_rclpy
 def test_a_press_to_a_force_through_a_stand_in_arm(tmp_path, cone, arm):
     session, skin = _session(tmp_path, cone)
     settings = ProbeSettings(depth_m=None, force_n=3.0, max_depth_m=0.004, max_force_n=5.0)

@@ -70,6 +70,11 @@ DEFAULT_PREFIX = "/skinloc/probe"
 STATES = ("above", "armed", "pressed", "lifted", "stopped")
 #: How long ``stop`` waits for the arm's ``stopped``, s (it never raises).
 STOP_WAIT_S = 2.0
+#: An unanswered approach is published again (the same message, its stamp unchanged) this
+#: often, s: the arm's answer is lost when its publisher has not yet matched this node's
+#: subscriber (discovery is still under way on a busy machine), and an approach is a pose
+#: goal, so the same one again moves the arm nowhere new.
+APPROACH_RESEND_S = 2.0
 
 _INSTALL = "pip install 'skinloc[ros2]'"
 
@@ -247,8 +252,10 @@ class Ros2Probe:
             self._states.clear()
             if topic == "press":
                 self._tip = self._force = None
-        (self._force_pub if topic == "press_force" else self._pub[topic]).publish(msg)
+        pub = self._force_pub if topic == "press_force" else self._pub[topic]
+        pub.publish(msg)
         end = time.monotonic() + self.timeout_s
+        resend_at = time.monotonic() + APPROACH_RESEND_S if topic == "approach" else math.inf
         with self._cond:
             while True:
                 for s in self._states:
@@ -257,12 +264,16 @@ class Ros2Probe:
                     if s.startswith("error") or s == "stopped":
                         why = s.partition(":")[2].strip() or s
                         raise ProbeError(f"the arm refused the {topic} on {self.prefix}: {why}")
-                left = end - time.monotonic()
+                now = time.monotonic()
+                left = end - now
                 if left <= 0:
                     raise ProbeLinkError(
                         f"the arm did not say '{want}' on {self.prefix}/state within "
                         f"{self.timeout_s:g} s of the {topic} (lost link?)"
                     )
+                if now >= resend_at:
+                    pub.publish(msg)
+                    resend_at = now + APPROACH_RESEND_S
                 self._cond.wait(min(left, 0.2))
 
     # ------------------------------------------------------------------ Probe

@@ -107,8 +107,7 @@ export class LabelLayer {
 
   collect(w, h) {
     // The labels to show, most important first: the current target's, then the nearest.
-    const v = this.viewer, cam = v.camera;
-    const right = new THREE.Vector3().setFromMatrixColumn(cam.matrixWorld, 0);
+    const v = this.viewer;
     const items = [];
     const seen = new Set();
     for (const g of Object.values(v.groups)) {
@@ -118,15 +117,10 @@ export class LabelLayer {
         if (!lab) continue;
         const force = lab.priority === 0;
         if (!force && !this.enabled) continue;
-        const p = o.position;
-        const s = p.clone().project(cam);
-        if (s.z > 1 || Math.abs(s.x) > 1.2 || Math.abs(s.y) > 1.2) continue;
-        const depth = cam.position.distanceTo(p);
-        if (!force && this.hidden(p, depth)) continue;
-        const edge = p.clone().addScaledVector(right, lab.radiusMm).project(cam);
-        const x = ((s.x + 1) / 2) * w, y = ((1 - s.y) / 2) * h;
-        const r = Math.max(2, Math.hypot(((edge.x + 1) / 2) * w - x, ((1 - edge.y) / 2) * h - y));
-        items.push({ x, y, r, w: this.width(lab.text), text: lab.text, force, priority: lab.priority, depth });
+        const { x, y, r, ndc, depth } = v.screenAt(o.position, lab.radiusMm, w, h);
+        if (ndc.z > 1 || Math.abs(ndc.x) > 1.2 || Math.abs(ndc.y) > 1.2) continue;
+        if (!force && this.hidden(o.position, depth)) continue;
+        items.push({ x, y, r: Math.max(2, r), w: this.width(lab.text), text: lab.text, force, priority: lab.priority, depth });
       }
     }
     items.sort((a, b) => a.priority - b.priority || a.depth - b.depth);

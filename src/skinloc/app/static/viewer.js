@@ -301,23 +301,33 @@ export class Viewer {
     this.dirty = true;
   }
 
+  screenAt(p, radiusMm, w, h) {
+    // Where ``p`` (world, mm) is on a ``w`` x ``h`` px view: its centre ``x``, ``y`` and the
+    // radius ``r`` of ``radiusMm`` about it (px), its normalised device coordinates ``ndc``
+    // (on the view within +-1, behind the camera at z > 1) and its distance ``depth`` (mm).
+    const cam = this.camera;
+    const ndc = p.clone().project(cam);
+    const right = new THREE.Vector3().setFromMatrixColumn(cam.matrixWorld, 0);
+    const edge = p.clone().addScaledVector(right, radiusMm).project(cam);
+    const x = ((ndc.x + 1) / 2) * w, y = ((1 - ndc.y) / 2) * h;
+    const r = Math.hypot(((edge.x + 1) / 2) * w - x, ((1 - edge.y) / 2) * h - y);
+    return { x, y, r, ndc, depth: cam.position.distanceTo(p) };
+  }
+
   _placePulse() {
     // The halo at the ring's place on screen and of its size; hidden with the target, off the
     // view or behind the skin.
     const p = this.targetRing?.parent ? this.targetPoint : null;
     const w = this.el.clientWidth, h = this.el.clientHeight;
-    const s = p?.clone().project(this.camera);
-    const depth = p ? this.camera.position.distanceTo(p) : 0;
-    if (!p || !w || !h || s.z > 1 || Math.abs(s.x) > 1 || Math.abs(s.y) > 1 || this.labels.hidden(p, depth)) {
+    const at = p && w && h ? this.screenAt(p, 8.8, w, h) : null;
+    const off = !at || at.ndc.z > 1 || Math.abs(at.ndc.x) > 1 || Math.abs(at.ndc.y) > 1;
+    if (off || this.labels.hidden(p, at.depth)) {
       this.pulse.classList.add("hidden");
       return;
     }
-    const right = new THREE.Vector3().setFromMatrixColumn(this.camera.matrixWorld, 0);
-    const edge = p.clone().addScaledVector(right, 8.8).project(this.camera);
-    const r = Math.max(4, (Math.abs(edge.x - s.x) / 2) * w);
+    const r = Math.max(4, at.r);
     Object.assign(this.pulse.style, {
-      left: `${((s.x + 1) / 2) * w}px`, top: `${((1 - s.y) / 2) * h}px`,
-      width: `${2 * r}px`, height: `${2 * r}px`,
+      left: `${at.x}px`, top: `${at.y}px`, width: `${2 * r}px`, height: `${2 * r}px`,
     });
     this.pulse.classList.remove("hidden");
   }

@@ -254,8 +254,9 @@ class Ros2Probe:
                 self._tip = self._force = None
         pub = self._force_pub if topic == "press_force" else self._pub[topic]
         pub.publish(msg)
-        end = time.monotonic() + self.timeout_s
-        resend_at = time.monotonic() + APPROACH_RESEND_S if topic == "approach" else math.inf
+        sent = time.monotonic()
+        end = sent + self.timeout_s
+        resend_at = sent + APPROACH_RESEND_S if topic == "approach" else math.inf
         with self._cond:
             while True:
                 for s in self._states:

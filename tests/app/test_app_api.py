@@ -7,6 +7,7 @@ target, as in the browser; the tests wait for what the app reports, with generou
 from __future__ import annotations
 
 import threading
+import time
 import warnings
 from pathlib import Path
 
@@ -417,6 +418,43 @@ def test_the_link_is_up_until_the_reader_counts_it_lost(tmp_path):
     finally:
         go_on.set()
         ws.disconnect()
+
+
+def test_a_lost_links_reason_reaches_the_tabs_when_it_comes_after_the_verdict(tmp_path):
+    """A loaded-run failure: the port was found lost while the reader still had a buffered
+    frame, so the link-lost state went out with no reason, and the reason read after it
+    (``device.error``) never reached the tabs. The reader now tells them again."""
+    from skinloc.app.device import DeviceLink
+    from skinloc.errors import FrameTimeoutError
+
+    told: list[tuple[bool, str]] = []
+    device = DeviceLink(SourceOptions(source="sim"), lambda frame, link: None)
+    device.on_link = lambda up, link: told.append((up, link.error))
+    source = device.source
+    source.connect()
+    buffered = source.read(timeout_s=5.0)
+    port_up, reads = [True], [0]
+
+    def read(timeout_s=None):
+        reads[0] += 1
+        if reads[0] == 1:
+            port_up[0] = False  # the port's reader finds it gone; one frame is still buffered
+            return buffered
+        time.sleep(0.01)
+        raise FrameTimeoutError("no frame from /dev/ttyACM0 within 0.2 s; the link is down")
+
+    source.read = read
+    device._source_link_up = lambda: port_up[0]
+    device._thread = threading.Thread(target=device._run, daemon=True)
+    device._thread.start()
+    try:
+        wait_until(lambda: len(told) >= 2, "the link-lost verdict and its reason", 30)
+    finally:
+        device.stop()
+    assert told[0] == (False, "")  # the verdict, before any reason was read
+    assert told[1][0] is False and "the link is down" in told[1][1]
+    assert device.link_losses == 1  # told twice, lost once
+    assert len(told) == 2  # the same reason is not told again
 
 
 @pytest.fixture

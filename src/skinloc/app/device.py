@@ -199,7 +199,8 @@ class DeviceLink:
         Surface of the simulated skin.
     on_link : callable(bool, DeviceLink), optional
         Called on the reader thread when the link goes down (no frame for ``LINK_TIMEOUT_S``,
-        or the port lost) and when frames come again.
+        or the port lost), again while it is down whenever the reason it gives (``error``)
+        changes, and when frames come again.
     """
 
     def __init__(
@@ -223,6 +224,7 @@ class DeviceLink:
         self._in_job = False
         self.monitor = SensorMonitor(self.source.n_tx, self.source.n_rx)
         self.error = ""
+        self._error_told = ""  # the reason the last down link was told with
         self.detached = False
         self._jobs: collections.deque = collections.deque()
         self._stop = threading.Event()
@@ -278,6 +280,10 @@ class DeviceLink:
         """Tell ``on_link`` when the link goes down or comes back (reader thread)."""
         up = self.link_now()
         if up == self.link_up:
+            # The port can be found lost while buffered frames are still read (the verdict
+            # then goes out with no reason); the reason read after it must reach the tabs too.
+            if not up and self.error != self._error_told:
+                self._tell(up)
             return
         self.link_up = up
         if up:
@@ -285,6 +291,10 @@ class DeviceLink:
         else:
             self.link_losses += 1
             log.warning("%s: no frame for %.1f s", self.name, self.frame_age_s)
+        self._tell(up)
+
+    def _tell(self, up: bool) -> None:
+        self._error_told = self.error
         if self.on_link is not None and not self.detached:
             try:
                 self.on_link(up, self)

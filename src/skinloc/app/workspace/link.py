@@ -241,7 +241,10 @@ class LinkActions(WorkspaceState):
                 self._push_report()
 
     def on_link(self, up: bool, device: DeviceLink) -> None:
-        """The link went down or came back (reader thread): tell every tab at once."""
+        """Tell every tab that the link changed (reader thread).
+
+        It went down, came back, or, while down, gives a new reason (``device.error``).
+        """
         with self._locked_for(device) as ok:
             if not ok:
                 return

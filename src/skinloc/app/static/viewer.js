@@ -104,6 +104,14 @@ class TrackMark {
     this.line.geometry.setDrawRange(0, 0);
   }
 }
+// Whether WebGL runs on the CPU (no GPU, or the GPU blocked): the renderer's name says so.
+function softwareGl(renderer) {
+  const gl = renderer.getContext();
+  const info = gl.getExtension("WEBGL_debug_renderer_info");
+  const name = String(gl.getParameter(info ? info.UNMASKED_RENDERER_WEBGL : gl.RENDERER));
+  return /swiftshader|llvmpipe|softpipe|software/i.test(name);
+}
+
 export class Viewer {
   constructor(el) {
     this.el = el;
@@ -111,6 +119,12 @@ export class Viewer {
     this.renderer.setPixelRatio(Math.min(window.devicePixelRatio, 2));
     this.renderer.setClearColor(0xf7f8fb);
     el.prepend(this.renderer.domElement);
+    // With no GPU (SwiftShader, llvmpipe) a draw at 1440 x 900 costs about 35 ms of CPU: motion
+    // (a flight, the orbit's damping) is drawn at most 20 times a second there, not as fast as
+    // the draws go. A user who asks for less motion gets no flights at all.
+    this.minFrameMs = softwareGl(this.renderer) ? 50 : 0;
+    this.lastDraw = -Infinity;
+    this.lessMotion = window.matchMedia("(prefers-reduced-motion: reduce)");
     this.scene = new THREE.Scene();
     this.camera = new THREE.PerspectiveCamera(40, 1, 1, 5000);
     this.camera.up.set(0, 0, 1);
@@ -379,6 +393,7 @@ export class Viewer {
   flyTo(dir, ms = 700) {
     // Turn smoothly to look at the skin's centre from ``dir``, at the distance that fits it:
     // the direction turns on a great circle (never through the skin), the distance eases.
+    if (this.lessMotion.matches) ms = 0;
     const from = this.camera.position.clone().sub(this.controls.target);
     const to = dir.clone().normalize();
     if (Math.abs(to.z) > 0.999) to.set(0, -0.02, Math.sign(to.z)).normalize(); // keep "up" defined
@@ -506,7 +521,7 @@ export class Viewer {
     // Draw only when something moved (software WebGL is slow; the target's pulse is CSS).
     if (this.fly) {
       const f = this.fly;
-      const k = Math.min(1, (t - f.t0) / f.ms);
+      const k = f.ms > 0 ? Math.min(1, (t - f.t0) / f.ms) : 1;
       const e = k * k * (3 - 2 * k);
       const dir = f.fromDir.clone().applyQuaternion(new THREE.Quaternion().slerp(f.turn, e));
       const target = f.fromTarget.clone().lerp(this.center, e);
@@ -518,8 +533,9 @@ export class Viewer {
       if (k >= 1) this.fly = null;
     }
     this.controls.update();
-    if (!this.dirty) return;
+    if (!this.dirty || t - this.lastDraw < this.minFrameMs) return; // still dirty: a later tick
     this.dirty = false;
+    this.lastDraw = t;
     this.renderer.render(this.scene, this.camera);
     this.controlsUi.render();
     this.labels.render();

@@ -9,14 +9,17 @@ suite passes on a machine shared with other CPU-heavy jobs.
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import os
 import queue
+import random
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import IO, Any
 
@@ -207,3 +210,37 @@ class Lines:
         """Everything, once the stream ends (the process closed it, usually by exiting)."""
         self._thread.join(scaled(timeout_s))
         return self.text
+
+
+#: ROS 2 domain ids the tests lease: 1-99, below the ports Linux hands out at random (a
+#: domain's DDS ports are 7400 + 250 id + ...; ids above 101 reach 32768 and up), and apart
+#: from the benchmarks' 100-199 (``skinloc.bench.sinks.bench_dds``).
+ROS_DOMAINS = range(1, 100)
+
+
+@contextlib.contextmanager
+def ros_domain_lease() -> Iterator[int]:
+    """A ROS 2 domain id that no other test on this machine holds while the block runs.
+
+    Tests run side by side (pytest-xdist workers, other runs on the machine), and two on one
+    domain hear each other: another test's probe once pressed a test's stand-in arm. Each id
+    is an exclusive lock on a file under the temp dir, freed when the block ends or its
+    process dies.
+    """
+    folder = Path(tempfile.gettempdir()) / "skinloc-test-ros-domains"
+    folder.mkdir(exist_ok=True)
+    ids = list(ROS_DOMAINS)
+    random.shuffle(ids)  # a run's first tests do not all try id 1 first
+    for domain in ids:
+        fd = os.open(folder / f"{domain}.lock", os.O_CREAT | os.O_RDWR, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(fd)
+            continue
+        try:
+            yield domain
+        finally:
+            os.close(fd)  # frees the lock
+        return
+    raise RuntimeError(f"every ROS 2 domain id in {ROS_DOMAINS} is held by another test")

@@ -226,3 +226,13 @@ def real_dir() -> Path:
     if not (REAL_DIR / "ConeSkinData80Points_RND_80PL_1.mat").is_file():
         pytest.skip(f"real recordings not found at {REAL_DIR}")
     return REAL_DIR
+
+
+@pytest.fixture
+def ros_domain(monkeypatch):
+    """A ROS 2 domain of this test alone (``ros_domain_lease``), set as ``ROS_DOMAIN_ID``."""
+    from tests._helpers import ros_domain_lease
+
+    with ros_domain_lease() as domain:
+        monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
+        yield domain

@@ -1,5 +1,6 @@
 """The suite's own promises: Chromium's installer waits for apt and never fails `make test`,
-and a skipped browser test is announced loudly with its reason."""
+a skipped browser test is announced loudly with its reason, and no two tests share a ROS 2
+domain."""
 
 from __future__ import annotations
 
@@ -119,3 +120,25 @@ def test_firmware_packages_that_cannot_be_had_are_reported(tmp_path):
     status = (tmp_path / "build" / "firmware-status.txt").read_text()
     assert "Unable to locate package gcc-avr" in status
     assert "the firmware tests will skip" in res.stdout
+
+
+def test_no_two_tests_share_a_ros2_domain():
+    """Another process (another test worker) leasing every domain it can gets none of the two
+    leased here (nor those other tests hold now), then is told that every id is held."""
+    from tests._helpers import ROS_DOMAINS, ros_domain_lease
+
+    code = (
+        "import contextlib, sys; sys.path.insert(0, sys.argv[1])\n"
+        "from tests._helpers import ros_domain_lease\n"
+        "got, stack = [], contextlib.ExitStack()\n"
+        "try:\n"
+        "    while True: got.append(stack.enter_context(ros_domain_lease()))\n"
+        "except RuntimeError as exc: print(*got, '|', exc)"
+    )
+    with ros_domain_lease() as mine, ros_domain_lease() as also_mine:
+        assert mine != also_mine and {mine, also_mine} <= set(ROS_DOMAINS)
+        out = subprocess.check_output([sys.executable, "-c", code, str(ROOT)], text=True)
+    theirs, why = out.split("|")
+    theirs = {int(d) for d in theirs.split()}
+    assert theirs and theirs <= set(ROS_DOMAINS) - {mine, also_mine}
+    assert "held by another test" in why

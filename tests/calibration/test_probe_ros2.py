@@ -7,10 +7,8 @@ from __future__ import annotations
 
 import json
 import os
-import random
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -45,14 +43,6 @@ FORCE_SHORT_M = 0.001  # ros2_arm.py's: a press to a force stops this short of t
 POSE = SkinPose((0.4, -0.1, 0.2), quaternion_from_rpy(0.3, -0.2, 1.0), "base_link")
 SMALL = dict(samples_per_touch=5, n_baseline_frames=20, touch_timeout_s=5.0)
 needs_rclpy = pytest.mark.skipif(bool(_WHY), reason=_WHY)
-
-
-@pytest.fixture
-def ros_domain(monkeypatch):
-    """A ROS domain of this test only (other processes on the machine use others)."""
-    domain = random.Random(os.getpid() ^ time.time_ns()).randrange(100, 232)
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
-    return domain
 
 
 class Arm:

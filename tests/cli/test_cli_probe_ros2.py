@@ -9,10 +9,8 @@ Skipped, with the reason, without the Jazzy wheels.
 from __future__ import annotations
 
 import os
-import random
 import signal
 import subprocess
-import time
 
 import pytest
 from typer.testing import CliRunner
@@ -31,14 +29,6 @@ from tests.calibration.test_probe_ros2 import _WHY, Arm
 
 pytestmark = pytest.mark.skipif(bool(_WHY), reason=_WHY)
 runner = CliRunner()
-
-
-@pytest.fixture
-def ros_domain(monkeypatch):
-    """A ROS domain of this test only (other processes on the machine use others)."""
-    domain = random.Random(os.getpid() ^ time.time_ns()).randrange(100, 232)
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
-    return domain
 
 
 @pytest.fixture

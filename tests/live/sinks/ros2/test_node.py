@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import os
-import random
 import signal
 import subprocess
 import sys
@@ -41,12 +40,10 @@ PROBE = Path(__file__).with_name("rclpy_probe.py")
 
 
 @pytest.fixture
-def ros_domain(monkeypatch):
-    """A ROS domain of this test run only (other processes on the machine use others)."""
-    domain = random.Random(os.getpid() ^ time.time_ns()).randrange(100, 232)
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
+def ros_domain(ros_domain, monkeypatch):
+    """The conftest's domain of this test alone, served by rclpy."""
     monkeypatch.setenv("SKINLOC_ROS2_BACKEND", "rclpy")
-    return domain
+    return ros_domain
 
 
 def test_a_real_node_with_parameters_tare_diagnostics_and_tf(tmp_path, ros_domain):
@@ -116,13 +113,12 @@ def test_a_real_node_with_parameters_tare_diagnostics_and_tf(tmp_path, ros_domai
     assert arm["level"] in (0, 1, 2)
 
 
-def test_plain_dds_says_once_what_it_cannot_do(tmp_path, monkeypatch):
+def test_plain_dds_says_once_what_it_cannot_do(tmp_path, monkeypatch, ros_domain):
     from cyclonedds.domain import DomainParticipant  # noqa: F401 - the plain path's own
 
     from tests._live import model_path
 
-    monkeypatch.setenv("SKINLOC_ROS2_BACKEND", "dds")
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(random.randrange(1, 99)))
+    monkeypatch.setenv("SKINLOC_ROS2_BACKEND", "dds")  # over the module's rclpy
     proc = start_skinloc(
         "run", "--model", model_path("map"), "--source", "sim", "--name", "arm", "--sink", "ros2",
         "--duration", "900", stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,

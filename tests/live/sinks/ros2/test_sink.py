@@ -11,7 +11,6 @@ picked per test run, so parallel runs and the network do not interfere.
 import json
 import math
 import os
-import random
 import time
 from dataclasses import dataclass, field
 
@@ -176,11 +175,11 @@ _LOOPBACK = (
 
 
 @pytest.fixture
-def domain(monkeypatch):
-    """A DDS domain of this test run only, on loopback (plain DDS, rclpy installed or not)."""
+def domain(monkeypatch, ros_domain):
+    """A DDS domain of this test alone, on loopback (plain DDS, rclpy installed or not)."""
     monkeypatch.setenv("CYCLONEDDS_URI", _LOOPBACK)
     monkeypatch.setenv("SKINLOC_ROS2_BACKEND", "dds")
-    return random.Random(os.getpid() ^ time.time_ns()).randrange(1, 232)
+    return ros_domain
 
 
 def _contact(state="move", k=0, pos=(0.01, 0.02, 0.03), t0=100.0, skin="arm"):

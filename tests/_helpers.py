@@ -219,8 +219,9 @@ ROS_DOMAINS = range(1, 100)
 
 
 @contextlib.contextmanager
-def ros_domain_lease() -> Iterator[int]:
-    """A ROS 2 domain id that no other test on this machine holds while the block runs.
+def ros_domain_lease(ids: range = ROS_DOMAINS) -> Iterator[int]:
+    """A ROS 2 domain id of ``ids`` that no other test on this machine holds while the block
+    runs.
 
     Tests run side by side (pytest-xdist workers, other runs on the machine), and two on one
     domain hear each other: another test's probe once pressed a test's stand-in arm. Each id
@@ -229,9 +230,9 @@ def ros_domain_lease() -> Iterator[int]:
     """
     folder = Path(tempfile.gettempdir()) / "skinloc-test-ros-domains"
     folder.mkdir(exist_ok=True)
-    ids = list(ROS_DOMAINS)
-    random.shuffle(ids)  # a run's first tests do not all try id 1 first
-    for domain in ids:
+    order = list(ids)
+    random.shuffle(order)  # a run's first tests do not all try id 1 first
+    for domain in order:
         fd = os.open(folder / f"{domain}.lock", os.O_CREAT | os.O_RDWR, 0o666)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -243,4 +244,4 @@ def ros_domain_lease() -> Iterator[int]:
         finally:
             os.close(fd)  # frees the lock
         return
-    raise RuntimeError(f"every ROS 2 domain id in {ROS_DOMAINS} is held by another test")
+    raise RuntimeError(f"every ROS 2 domain id in {ids} is held by another test")

@@ -123,22 +123,23 @@ def test_firmware_packages_that_cannot_be_had_are_reported(tmp_path):
 
 
 def test_no_two_tests_share_a_ros2_domain():
-    """Another process (another test worker) leasing every domain it can gets none of the two
-    leased here (nor those other tests hold now), then is told that every id is held."""
-    from tests._helpers import ROS_DOMAINS, ros_domain_lease
+    """Another process (another test worker) leasing every domain it can gets only the one
+    not leased here, then is told that every id is held. Ids no test uses (200-202), so that
+    the ROS 2 tests running beside it keep theirs."""
+    from tests._helpers import ros_domain_lease
 
+    ids = range(200, 203)
     code = (
         "import contextlib, sys; sys.path.insert(0, sys.argv[1])\n"
         "from tests._helpers import ros_domain_lease\n"
         "got, stack = [], contextlib.ExitStack()\n"
         "try:\n"
-        "    while True: got.append(stack.enter_context(ros_domain_lease()))\n"
+        "    while True: got.append(stack.enter_context(ros_domain_lease(range(200, 203))))\n"
         "except RuntimeError as exc: print(*got, '|', exc)"
     )
-    with ros_domain_lease() as mine, ros_domain_lease() as also_mine:
-        assert mine != also_mine and {mine, also_mine} <= set(ROS_DOMAINS)
+    with ros_domain_lease(ids) as mine, ros_domain_lease(ids) as also_mine:
+        assert mine != also_mine and {mine, also_mine} <= set(ids)
         out = subprocess.check_output([sys.executable, "-c", code, str(ROOT)], text=True)
     theirs, why = out.split("|")
-    theirs = {int(d) for d in theirs.split()}
-    assert theirs and theirs <= set(ROS_DOMAINS) - {mine, also_mine}
+    assert {int(d) for d in theirs.split()} == set(ids) - {mine, also_mine}
     assert "held by another test" in why
